@@ -1,0 +1,47 @@
+"""The two kinds of failure a user can meet, and the exit codes the command line maps them to.
+
+`InputError` is anything wrong with what the user gave (a file, a key, a row, a column):
+exit code 2.  `SimulationError` is a run that could not go on (a blow-up, an FMU that failed):
+exit code 3.  Both carry a message meant to be read by a person, naming where the problem is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+EXIT_OK = 0
+EXIT_EXPECT_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_SIMULATION_FAILED = 3
+
+
+@dataclass
+class InputError(Exception):
+    """Bad input: names the file (if any), the location inside it (key, row, column) and what is wrong."""
+
+    message: str
+    file: str | Path | None = None
+    where: str | None = None
+
+    def __str__(self) -> str:
+        parts = []
+        if self.file is not None:
+            parts.append(str(self.file))
+        if self.where:
+            parts.append(self.where)
+        prefix = ": ".join(parts)
+        return f"{prefix}: {self.message}" if prefix else self.message
+
+
+@dataclass
+class SimulationError(Exception):
+    """A run that stopped: names the simulated time and what happened (which fish, which FMU)."""
+
+    message: str
+    time_s: float | None = None
+
+    def __str__(self) -> str:
+        if self.time_s is None:
+            return self.message
+        return f"at t = {self.time_s:.3f} s: {self.message}"

@@ -1,0 +1,111 @@
+"""Schema validation with messages a person can act on.
+
+Every table a user writes (a scenario file, a dataset's ``dataset.toml``) is described by a
+pydantic model.  :func:`validate` runs it and turns pydantic's errors into one
+:class:`~plant.errors.InputError` naming the file, the dotted key and what is wrong, with a
+"did you mean" suggestion for misspelled keys.
+"""
+
+from __future__ import annotations
+
+import difflib
+import tomllib
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pydantic
+
+from plant.errors import InputError
+
+M = TypeVar("M", bound=pydantic.BaseModel)
+
+
+class Strict(pydantic.BaseModel):
+    """Base for every user-facing table: unknown keys are errors, values are checked on assignment."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+
+
+def _dotted(loc: tuple[Any, ...], prefix: str) -> str:
+    out = prefix
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        else:
+            out = f"{out}.{part}" if out else str(part)
+    return out
+
+
+def _known_keys(model: type[pydantic.BaseModel], loc: tuple[Any, ...]) -> list[str]:
+    """The keys allowed at ``loc`` (the parent of an unknown key), walking the model's fields."""
+    current: Any = model
+    for part in loc:
+        if isinstance(part, int):
+            continue
+        if not (isinstance(current, type) and issubclass(current, pydantic.BaseModel)):
+            return []
+        field = current.model_fields.get(part)
+        if field is None:
+            return []
+        current = _inner_model(field.annotation)
+    if isinstance(current, type) and issubclass(current, pydantic.BaseModel):
+        return list(current.model_fields)
+    return []
+
+
+def _inner_model(annotation: Any) -> Any:
+    """The BaseModel inside ``list[X]``, ``X | None``, ``dict[str, X]``, or the annotation itself."""
+    if isinstance(annotation, type) and issubclass(annotation, pydantic.BaseModel):
+        return annotation
+    for arg in getattr(annotation, "__args__", ()) or ():
+        found = _inner_model(arg)
+        if found is not None:
+            return found
+    return None
+
+
+def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix: str) -> tuple[str, str]:
+    """(dotted key, message) for one pydantic error dict."""
+    loc = tuple(err.get("loc", ()))
+    key = _dotted(loc, prefix)
+    kind = err.get("type", "")
+    if kind == "extra_forbidden":
+        name = str(loc[-1]) if loc else "?"
+        known = _known_keys(model, loc[:-1])
+        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
+        hint = f"; did you mean '{close[0]}'?" if close else (
+            f"; allowed keys: {', '.join(sorted(known))}" if known else "")
+        return key, f"unknown key '{name}'{hint}"
+    if kind == "missing":
+        return key, "required key is missing"
+    msg = err.get("msg", "invalid value")
+    if "input" in err and kind not in ("model_type", "dict_type") and not isinstance(err["input"], dict):
+        msg = f"{msg} (got {err['input']!r})"
+    return key, msg
+
+
+def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: str = "") -> M:
+    """Validate ``data`` against ``model``; raise one InputError listing every problem found."""
+    try:
+        return model.model_validate(data)
+    except pydantic.ValidationError as exc:
+        problems = [describe_error(model, e, prefix) for e in exc.errors(include_url=False)]
+        first_key, first_msg = problems[0]
+        more = "".join(f"\n  {k}: {m}" for k, m in problems[1:])
+        raise InputError(first_msg + more, file=file, where=first_key or None) from None
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; a missing file or a syntax error becomes an InputError naming the file."""
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError("file not found", file=path) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, expected a TOML file", file=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"TOML syntax error: {exc}", file=path) from None
+    except UnicodeDecodeError as exc:
+        raise InputError(f"not UTF-8 text: {exc}", file=path) from None
