@@ -1,0 +1,144 @@
+"""The four joints of a fish: limits from Table III, a soft spring inside them, a stiff one beyond.
+
+Per joint and axis (x twist, y bending to the sides, z bending towards back/belly) the torque
+against the relative rotation angle ``theta`` is
+
+    tau(theta) = k_soft * theta + (k_limit - k_soft) * phi(|theta|) * sign(theta)
+
+where ``phi`` is zero inside ``limit - w``, quadratic across ``[limit - w, limit + w]`` and
+linear beyond, so the stiffness rises smoothly (C1) from ``k_soft`` to ``k_limit`` around the
+limit.  ``k_soft`` follows the sag rule of :class:`plant.params.JointParams`; ``k_limit`` is
+the bodies' reduced inertia times the limit frequency of the numerics.
+
+Exudyn's rigid-body spring-damper is linear, and a Python callback per joint per step would
+cost more than the whole fish.  So the plant re-linearises each joint once per communication
+step around the angle it will reach by the end of the step (:func:`linearize`), and writes new
+stiffness/offset values only to joints whose linearisation changed.
+
+>>> law = JointLaws(limit_rad=np.array([[0.2, 0.2, 0.2]]), k_soft=np.array([[1.0, 1.0, 1.0]]),
+...                 k_limit=np.array([[20.0, 20.0, 20.0]]), transition=0.15, damping=np.ones((1, 3)))
+>>> float(torque(law, np.array([[0.1, 0.0, 0.0]]))[0, 0])  # inside the limit: soft spring
+0.1
+>>> round(float(tangent(law, np.array([[0.5, 0.0, 0.0]]))[0, 0]), 6)  # well beyond: stiff
+20.0
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plant import fish_data
+from plant.fish_body import FishGeometry
+from plant.params import JointParams, NumericsParams
+
+AXES = ("twist", "lateral", "dorsoventral")
+
+
+@dataclass(frozen=True)
+class JointLaws:
+    """Spring laws of J joints, arrays of shape (J, 3) over the axes (x, y, z)."""
+
+    limit_rad: np.ndarray
+    k_soft: np.ndarray
+    """Stiffness inside the limits [N m/rad]."""
+    k_limit: np.ndarray
+    """Stiffness beyond the limits [N m/rad]."""
+    transition: float
+    """Half-width of the stiffening zone as a fraction of the limit."""
+    damping: np.ndarray
+    """Rotational damping [N m s/rad]."""
+
+
+def stack_laws(laws: list[JointLaws]) -> JointLaws:
+    """One set of arrays for the joints of many fish (same transition width assumed)."""
+    if not laws:
+        z = np.zeros((0, 3))
+        return JointLaws(z, z, z, 0.15, z)
+    return JointLaws(np.vstack([x.limit_rad for x in laws]), np.vstack([x.k_soft for x in laws]),
+                     np.vstack([x.k_limit for x in laws]), laws[0].transition, np.vstack([x.damping for x in laws]))
+
+
+def _phi(law: JointLaws, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """phi(|theta|) and its slope, for |theta| = a."""
+    w = law.transition * law.limit_rad
+    lo, hi = law.limit_rad - w, law.limit_rad + w
+    inside = a <= lo
+    beyond = a >= hi
+    zone = ~inside & ~beyond
+    phi = np.where(beyond, a - law.limit_rad, 0.0)
+    slope = np.where(beyond, 1.0, 0.0)
+    dz = a - lo
+    phi = np.where(zone, dz**2 / (4.0 * w), phi)
+    slope = np.where(zone, dz / (2.0 * w), slope)
+    return phi, slope
+
+
+def torque(law: JointLaws, theta: np.ndarray) -> np.ndarray:
+    """Spring torque for relative rotation angles ``theta`` (J, 3)."""
+    phi, _ = _phi(law, np.abs(theta))
+    return law.k_soft * theta + (law.k_limit - law.k_soft) * phi * np.sign(theta)
+
+
+def tangent(law: JointLaws, theta: np.ndarray) -> np.ndarray:
+    """d torque / d theta."""
+    _, slope = _phi(law, np.abs(theta))
+    return law.k_soft + (law.k_limit - law.k_soft) * slope
+
+
+def linearize(law: JointLaws, theta_now: np.ndarray, theta_next: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(stiffness, offset) of a linear spring ``k (theta - offset)`` for the coming step.
+
+    The stiffness is the larger tangent of now and of the predicted end of the step (so a joint
+    running into its limit is already stiff when it gets there); the offset makes the linear
+    spring give the exact torque now.
+    """
+    k = np.maximum(tangent(law, theta_now), tangent(law, theta_next))
+    offset = theta_now - torque(law, theta_now) / k
+    return k, offset
+
+
+def joint_laws(geometry: FishGeometry, joints: JointParams, numerics: NumericsParams, gravity_mps2: float,
+               inertias: list[np.ndarray] | None = None, stiffness_factor: float = 1.0,
+               limit_factor: float = 1.0) -> JointLaws:
+    """Spring laws of one fish's four joints.
+
+    ``inertias``: the principal inertias the bodies are simulated with (after shaping);
+    ``stiffness_factor`` / ``limit_factor``: per-fish multipliers (e.g. rigor mortis).
+    """
+    t3 = fish_data.table3()
+    bodies = geometry.bodies
+    inertias = inertias or [np.array(b.inertia_kgm2) for b in bodies]
+    limits, k_soft, k_limit, damping = [], [], [], []
+    for j in range(len(bodies) - 1):
+        xj = geometry.joint_from_snout_m[j]
+        row = t3.iloc[j]
+        lat = np.radians(row["swing1_deg"]) * joints.limit_scale * limit_factor
+        dv = np.radians(row["swing2_deg"]) * joints.limit_scale * limit_factor
+        twist_deg = max(abs(row["twist_low_deg"]), abs(row["twist_high_deg"]))
+        locked = twist_deg == 0.0
+        twist = np.radians(joints.locked_twist_deg if locked else twist_deg * joints.limit_scale * limit_factor)
+        lim = np.array([twist, lat, dv])
+
+        # reduced inertia of the two bodies about their own centres of mass: the translational coupling
+        # is compliant, so a joint spring turns each body about its centre of mass, not about the joint
+        ia, ib = inertias[j], inertias[j + 1]
+        i_red = ia * ib / (ia + ib)
+        k_lim = i_red * numerics.joint_limit_omega_rad_s**2
+
+        # sag rule: the lighter side of the joint, held horizontally, bends sag_fraction of the limit
+        head_side, tail_side = bodies[: j + 1], bodies[j + 1:]
+        side = min((head_side, tail_side), key=lambda bs: sum(b.mass_kg for b in bs))
+        m_side = sum(b.mass_kg for b in side)
+        lever = abs(sum(b.mass_kg * b.com_from_snout_m for b in side) / m_side - xj)
+        tau_g = m_side * gravity_mps2 * lever
+        soft = tau_g / (joints.sag_fraction * lim) * joints.stiffness_scale * stiffness_factor
+        soft = np.minimum(soft, k_lim / 3.0)
+        if locked:
+            soft[0] = k_lim[0]
+        limits.append(lim)
+        k_soft.append(soft)
+        k_limit.append(k_lim)
+        damping.append(2.0 * joints.damping_ratio * np.sqrt(k_lim * i_red))
+    return JointLaws(np.array(limits), np.array(k_soft), np.array(k_limit), joints.limit_transition, np.array(damping))

@@ -1,0 +1,309 @@
+"""Building the Exudyn system of a line and its fish (once per run).
+
+What is in it:
+
+- **Side guides and the infeed end plate**: static triangles (GeneralContact), normals inwards.
+- **Belts**: one heavy free body per conveyor carrying its top-surface triangles (with the drum
+  radius as a short rounded lip at each end).  GeneralContact takes friction from the velocity
+  of the body that carries the triangles, so before every communication step the plant puts
+  each belt body back in place and gives it the belt speed: the surface moves, the geometry
+  stays (to within half a step of travel).  The body's momentum change over the step is the
+  force the fish put on the belt.
+- **Fish**: five rigid bodies each (``plant.fish_body``), rotation-vector nodes for the explicit
+  Lie-group integrator, gravity as a mass-proportional load per body (switched off while a fish
+  waits for its drop or after it has left the line), contact spheres, and four rigid-body
+  spring-dampers (stiff in translation, ``plant.joints`` laws in rotation).
+- Fish that are not on the line wait in a parking grid below it, inside the contact search box
+  and spread out so that they never share a search cell.
+
+The numbers that decide stability are documented in ``plant.params.NumericsParams``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+from dataclasses import dataclass, field
+
+import numpy as np
+
+if "exudyn" not in sys.modules:
+    sys.exudynFast = True  # the build without range checks (~30 % faster); our inputs are checked here
+with contextlib.redirect_stdout(io.StringIO()):  # it announces the fast build on stdout
+    import exudyn as exu  # noqa: E402
+from exudyn.itemInterface import (  # noqa: E402
+    LoadMassProportional, MarkerBodyMass, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectConnectorRigidBodySpringDamper,
+    ObjectGround, ObjectRigidBody)
+
+from plant.fish_body import FishGeometry, fish_geometry  # noqa: E402
+from plant.joints import JointLaws, joint_laws  # noqa: E402
+from plant.line import Line  # noqa: E402
+from plant.params import PlantParams  # noqa: E402
+from plant.population import FishSpec  # noqa: E402
+from plant.rotations import matrix_to_rotvec  # noqa: E402
+
+exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
+
+MAT_BELT, MAT_FISH, MAT_GUIDE = 0, 1, 2
+BELT_MASS_KG = 1.0e5
+"""Mass of a belt body: the fish cannot move it measurably within one step (1 N for 10 ms -> 1e-7 m/s)."""
+TRIANGLE_STIFFNESS = 1.0e8
+"""Stiffness of belt and guide triangles; in series with a sphere's much softer spring, so the sphere's rules."""
+DRUM_RADIUS_M = 0.03
+PARK_SPACING_M = (0.8, 0.25, 0.2)
+
+
+@dataclass
+class FishModel:
+    """Where one fish lives in the Exudyn system."""
+
+    spec: FishSpec
+    geometry: FishGeometry
+    laws: JointLaws
+    first_body: int
+    """Index of its head in the plant's body arrays (bodies are consecutive, head to tail fin)."""
+    connectors: list[int]
+    gravity_loads: list[int]
+    park_position: np.ndarray
+    body_offsets_m: np.ndarray
+    """(5, 3) body centre of mass relative to the mid-length point, in the fish frame."""
+
+
+@dataclass
+class PlantModel:
+    """The assembled Exudyn system and the index arrays the stepping code needs."""
+
+    system: exu.SystemContainer
+    mbs: exu.MainSystem
+    contact: exu.GeneralContact
+    settings: exu.SimulationSettings
+    line: Line
+    params: PlantParams
+    fish: list[FishModel]
+    body_nodes: list[int]
+    body_ltg: np.ndarray
+    """(n_bodies, 6) indices of each body's coordinates in the system's ODE2 vectors."""
+    body_ref: np.ndarray
+    """(n_bodies, 6) reference coordinates (position, rotation vector) of each body node."""
+    body_mass_kg: np.ndarray
+    belt_nodes: list[int]
+    belt_ltg: np.ndarray
+    belt_ref: np.ndarray
+    sphere_body: np.ndarray
+    """(n_spheres,) body index of each contact sphere."""
+    sphere_local: np.ndarray
+    """(n_spheres, 3) sphere centre in its body's frame."""
+    sphere_radius: np.ndarray
+    search_box: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(3), np.zeros(3)))
+
+
+def _quad(pts: list[list[float]], trigs: list[list[int]], a, b, c, d) -> None:
+    """Two triangles a-b-c, a-c-d; the normal (b-a) x (c-a) must point towards the fish."""
+    base = len(pts)
+    pts += [list(a), list(b), list(c), list(d)]
+    trigs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+
+
+def triangle_normals(pts: list[list[float]], trigs: list[list[int]]) -> np.ndarray:
+    """Unit normals (p1 - p0) x (p2 - p0); GeneralContact pushes spheres out along these."""
+    p = np.asarray(pts, dtype=float)[np.asarray(trigs)]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def _belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], list[list[int]]]:
+    """Top surface of a belt in its own frame (origin at the upstream end of the top, z up),
+    in 0.25 m strips, with a rounded lip (drum) at each end."""
+    pts: list[list[float]] = []
+    trigs: list[list[int]] = []
+    hw = 0.5 * width_m
+    xs = np.linspace(0.0, length_m, max(2, int(np.ceil(length_m / 0.25)) + 1))
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        _quad(pts, trigs, (x0, -hw, 0.0), (x1, -hw, 0.0), (x1, hw, 0.0), (x0, hw, 0.0))
+    angles = np.radians([0.0, 30.0, 60.0, 90.0])
+    r = DRUM_RADIUS_M
+    for sign, x_end in ((1.0, length_m), (-1.0, 0.0)):
+        for a0, a1 in zip(angles[:-1], angles[1:]):
+            p0 = (x_end + sign * r * np.sin(a0), r * np.cos(a0) - r)
+            p1 = (x_end + sign * r * np.sin(a1), r * np.cos(a1) - r)
+            if sign > 0:
+                _quad(pts, trigs, (p0[0], -hw, p0[1]), (p1[0], -hw, p1[1]), (p1[0], hw, p1[1]), (p0[0], hw, p0[1]))
+            else:
+                _quad(pts, trigs, (p1[0], -hw, p1[1]), (p0[0], -hw, p0[1]), (p0[0], hw, p0[1]), (p1[0], hw, p1[1]))
+    return pts, trigs
+
+
+def _guides(line: Line, params: PlantParams) -> tuple[list[list[float]], list[list[int]]]:
+    """Side walls along the whole line and an end plate at the infeed, in 0.5 m panels."""
+    pts: list[list[float]] = []
+    trigs: list[list[int]] = []
+    z_lo = min(c.z_top_m for c in line.conveyors) - 0.15
+    z_hi = max(c.z_top_m for c in line.conveyors) + params.guide_height_m
+    x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
+    xs = np.linspace(x_lo, x_hi, max(2, int(np.ceil((x_hi - x_lo) / 0.5)) + 1))
+    y = 0.5 * line.guide_width_m
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        _quad(pts, trigs, (x0, y, z_lo), (x1, y, z_lo), (x1, y, z_hi), (x0, y, z_hi))      # left wall, normal -y
+        _quad(pts, trigs, (x0, -y, z_lo), (x0, -y, z_hi), (x1, -y, z_hi), (x1, -y, z_lo))  # right wall, normal +y
+    xp = line.x_start_m - 0.02
+    _quad(pts, trigs, (xp, -y, z_lo), (xp, y, z_lo), (xp, y, z_hi), (xp, -y, z_hi))        # end plate, normal +x
+    return pts, trigs
+
+
+def _shaped_inertia(body, enabled: bool) -> np.ndarray:
+    """Principal inertias, raised where the body's spheres would make its rotation too stiff.
+
+    A thin body (the tail fin) carries its contact spheres far from its own axes compared with
+    its tiny inertia, so rolling on them is the fastest motion in the model.  Raising the
+    inertia to what the sphere layout implies slows that motion down without changing mass,
+    centre of mass or how the fish moves as a whole.
+    """
+    inertia = np.array(body.inertia_kgm2, dtype=float)
+    if not enabled:
+        return inertia
+    sp = np.array(body.spheres)
+    m = body.mass_kg
+    inertia[0] = max(inertia[0], m * float(np.mean(sp[:, 1] ** 2)))
+    inertia[1] = max(inertia[1], 0.5 * m * float(np.mean(sp[:, 0] ** 2)))
+    inertia[2] = max(inertia[2], 0.5 * m * float(np.mean(sp[:, 0] ** 2 + sp[:, 1] ** 2)))
+    return inertia
+
+
+def park_positions(line: Line, n: int) -> np.ndarray:
+    """Waiting places for n fish: a grid below the line, one search cell apart or more."""
+    dx, dy, dz = PARK_SPACING_M
+    nx = max(1, int((line.x_end_m - line.x_start_m) // dx))
+    ny = max(1, int(line.guide_width_m // dy) + 1)
+    z0 = min(c.z_top_m for c in line.conveyors) - 0.6
+    out = np.zeros((n, 3))
+    for k in range(n):
+        ix, rest = k % nx, k // nx
+        iy, iz = rest % ny, rest // ny
+        out[k] = (line.x_start_m + 0.4 + ix * dx, (iy - (ny - 1) / 2) * dy, z0 - iz * dz)
+    return out
+
+
+def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
+                joint_factors: list[tuple[float, float]] | None = None) -> PlantModel:
+    """Create, connect and assemble everything; all fish start parked with gravity off.
+
+    ``joint_factors``: per fish (stiffness factor, limit factor) for its joints (default 1, 1).
+    """
+    num = params.numerics
+    system = exu.SystemContainer()
+    mbs = system.AddSystem()
+    gc = mbs.AddGeneralContact()
+    gc.verboseMode = 0
+    gc.frictionProportionalZone = num.friction_regularization_mps
+    mu = np.zeros((3, 3))
+    mu[MAT_BELT, MAT_FISH] = mu[MAT_FISH, MAT_BELT] = params.friction.fish_belt
+    mu[MAT_FISH, MAT_FISH] = params.friction.fish_fish
+    mu[MAT_GUIDE, MAT_FISH] = mu[MAT_FISH, MAT_GUIDE] = params.friction.fish_guide
+    gc.SetFrictionPairings(mu)
+
+    ground = mbs.AddObject(ObjectGround())
+    m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
+    pts, trigs = _guides(line, params)
+    gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
+                                  frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
+
+    belt_nodes = []
+    for c in line.conveyors:
+        ref = [c.x_start_m, 0.0, c.z_top_m, 0.0, 0.0, 0.0]
+        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=ref))
+        body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
+        marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
+        pts, trigs = _belt_surface(c.length_m, c.width_m)
+        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
+                                      frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
+        belt_nodes.append(node)
+
+    parks = park_positions(line, len(fish))
+    fish_models: list[FishModel] = []
+    body_nodes: list[int] = []
+    body_mass: list[float] = []
+    sphere_body, sphere_local, sphere_radius = [], [], []
+    for k, spec in enumerate(fish):
+        geo = fish_geometry(spec.length_m, spec.height_m, spec.width_m, spec.weight_kg,
+                            sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction)
+        inertias = [_shaped_inertia(b, num.inertia_shaping) for b in geo.bodies]
+        sf, lf = joint_factors[k] if joint_factors else (1.0, 1.0)
+        laws = joint_laws(geo, params.joints, num, params.gravity_mps2, inertias, sf, lf)
+        offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
+        n_spheres = sum(len(b.spheres) for b in geo.bodies)
+        first = len(body_nodes)
+        objects, loads = [], []
+        for i, (b, inertia) in enumerate(zip(geo.bodies, inertias)):
+            pos = parks[k] + offsets[i]
+            node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(pos) + [0.0, 0.0, 0.0]))
+            obj = mbs.AddObject(ObjectRigidBody(mass=b.mass_kg, inertia=list(inertia) + [0.0] * 3, nodeNumber=node))
+            loads.append(mbs.AddLoad(LoadMassProportional(markerNumber=mbs.AddMarker(MarkerBodyMass(bodyNumber=obj)),
+                                                          loadVector=[0.0, 0.0, 0.0])))
+            # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
+            # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
+            m_share = spec.weight_kg / n_spheres
+            k_c = m_share * num.contact_omega_rad_s**2
+            d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
+            for (x, y, r) in b.spheres:
+                marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=obj, localPosition=[x, y, 0.0]))
+                gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
+                                       frictionMaterialIndex=MAT_FISH)
+                sphere_body.append(first + i)
+                sphere_local.append((x, y, 0.0))
+                sphere_radius.append(r)
+            objects.append(obj)
+            body_nodes.append(node)
+            body_mass.append(b.mass_kg)
+        connectors = []
+        for j in range(len(geo.bodies) - 1):
+            a, b = geo.bodies[j], geo.bodies[j + 1]
+            xj = geo.joint_from_snout_m[j]
+            m0 = mbs.AddMarker(MarkerBodyRigid(bodyNumber=objects[j], localPosition=[a.com_from_snout_m - xj, 0.0, 0.0]))
+            m1 = mbs.AddMarker(MarkerBodyRigid(bodyNumber=objects[j + 1], localPosition=[b.com_from_snout_m - xj, 0.0, 0.0]))
+            m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
+            k_t = m_red * num.joint_translation_omega_rad_s**2
+            d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
+            stiffness = np.diag([k_t] * 3 + list(laws.k_soft[j]))
+            damping = np.diag([d_t] * 3 + list(laws.damping[j]))
+            connectors.append(mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
+                markerNumbers=[m0, m1], stiffness=stiffness, damping=damping, useIntrinsicFormulation=True)))
+        fish_models.append(FishModel(spec, geo, laws, first, connectors, loads, parks[k], offsets))
+
+    # contact search: a box over the line, the space above it and the parking grid
+    z_park = parks[:, 2].min() if len(parks) else -1.0
+    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15, z_park - 0.3])
+    hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
+                   max(c.z_top_m for c in line.conveyors) + 1.2])
+    cell = 0.1
+    gc.SetSearchTreeBox(lo, hi)
+    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s / cell))) for s in hi - lo])
+    mbs.Assemble()
+
+    ss = exu.SimulationSettings()
+    ss.timeIntegration.solverType = exu.DynamicSolverType.VelocityVerlet
+    ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
+    ss.timeIntegration.explicit.computeMassMatrixInversePerBody = True
+    ss.linearSolver.solverType = exu.LinearSolverType.EigenSparse
+    ss.solution.file.write = False
+    ss.timeIntegration.verboseMode = 0
+    ss.parallel.numberOfThreads = num.threads
+
+    sd = mbs.systemData
+    body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in body_nodes], dtype=np.int64).reshape(-1, 6)
+    body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in body_nodes]).reshape(-1, 6)
+    belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
+    belt_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in belt_nodes])
+    return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_nodes, body_ltg, body_ref,
+                      np.array(body_mass), belt_nodes, belt_ltg, belt_ref, np.array(sphere_body, dtype=np.int64),
+                      np.array(sphere_local).reshape(-1, 3), np.array(sphere_radius), (lo, hi))
+
+
+def pose_coordinates(model: PlantModel, fish_index: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ODE2 indices and values that put a fish's bodies straight at ``mid_m`` with ``rotation``."""
+    fm = model.fish[fish_index]
+    idx = slice(fm.first_body, fm.first_body + len(fm.geometry.bodies))
+    pos = mid_m[None, :] + fm.body_offsets_m @ rotation.T
+    rv = matrix_to_rotvec(rotation[None])[0]
+    values = np.hstack([pos, np.repeat(rv[None, :], len(pos), axis=0)]) - model.body_ref[idx]
+    return model.body_ltg[idx].ravel(), values.ravel()

@@ -1,0 +1,73 @@
+"""Recording a simulated run in the measured-data format (contracts/measured-data.md).
+
+The same four tables a line's instruments give: fish tracks at 25 Hz (mid-length point and
+heading, like the overhead camera), photo-eye blocked intervals, and belt setpoints and speeds
+at 100 Hz.  A simulated run written this way goes through exactly the readers and KPI code
+that a measured one does.
+
+Photo-eye interval times are the ends of the communication steps at which the beam was first
+seen blocked and first seen clear again (resolution: one communication step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from plant.plant import ON_LINE, FishState
+
+TRACK_PERIOD_S = 0.04
+BELT_PERIOD_S = 0.01
+
+
+@dataclass
+class RunRecorder:
+    """Collects samples step by step; ``tables()`` returns the contract's tables."""
+
+    fish_ids: list[str]
+    conveyor_ids: list[str]
+    photoeye_ids: list[str]
+    comm_step_s: float
+    _tracks: list[tuple] = field(default_factory=list)
+    _belts: list[tuple] = field(default_factory=list)
+    _intervals: list[tuple[str, float, float]] = field(default_factory=list)
+    _blocked_since: dict[str, float | None] = field(default_factory=dict)
+    _last_track_t: float = -1.0
+    _last_belt_t: float = -1.0
+    _t_last: float = 0.0
+
+    def __post_init__(self) -> None:
+        self._blocked_since = {p: None for p in self.photoeye_ids}
+
+    def record(self, t_s: float, fish: FishState | None, photoeyes: dict[str, bool],
+               belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float]) -> None:
+        eps = 1e-9
+        if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
+            self._last_track_t = t_s
+            for k in np.flatnonzero(fish.status == ON_LINE):
+                self._tracks.append((t_s, self.fish_ids[k], fish.x_m[k], fish.y_m[k], fish.yaw_rad[k]))
+        if t_s - self._last_belt_t >= BELT_PERIOD_S - eps:
+            self._last_belt_t = t_s
+            for c in self.conveyor_ids:
+                self._belts.append((t_s, c, belt_setpoint_mps[c], belt_speed_mps[c]))
+        for p, blocked in photoeyes.items():
+            since = self._blocked_since[p]
+            if blocked and since is None:
+                self._blocked_since[p] = t_s
+            elif not blocked and since is not None:
+                self._intervals.append((p, since, t_s))
+                self._blocked_since[p] = None
+        self._t_last = t_s
+
+    def tables(self) -> dict[str, pd.DataFrame]:
+        """tracks, photoeyes and belts tables; a beam still blocked at the end closes at the last time."""
+        intervals = list(self._intervals) + [(p, s, self._t_last) for p, s in self._blocked_since.items()
+                                             if s is not None]
+        intervals.sort(key=lambda r: (r[1], r[0]))
+        return {
+            "tracks": pd.DataFrame(self._tracks, columns=["t_s", "fish_id", "x_m", "y_m", "yaw_rad"]),
+            "photoeyes": pd.DataFrame(intervals, columns=["sensor_id", "t_on_s", "t_off_s"]),
+            "belts": pd.DataFrame(self._belts, columns=["t_s", "conveyor_id", "setpoint_mps", "speed_mps"]),
+        }

@@ -1,0 +1,75 @@
+"""Rotation vectors and matrices for many bodies at once (numpy, no Python loop per body).
+
+Exudyn's ``NodeRigidBodyRotVecLG`` stores a body's orientation as a rotation vector and its
+angular velocity in body coordinates; the plant reads all of them in one vector per step and
+needs their matrices to place sensors and measure joint angles.
+
+>>> import numpy as np
+>>> r = np.array([[0.0, 0.0, np.pi / 2]])
+>>> np.round(rotvec_to_matrix(r)[0] @ [1.0, 0.0, 0.0], 6).tolist()
+[0.0, 1.0, 0.0]
+>>> np.allclose(matrix_to_rotvec(rotvec_to_matrix(r)), r)
+True
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    z = np.zeros(v.shape[:-1])
+    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
+                     np.stack([v[..., 2], z, -v[..., 0]], -1),
+                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
+
+
+def rotvec_to_matrix(rv: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for an (n, 3) array of rotation vectors -> (n, 3, 3)."""
+    rv = np.asarray(rv, dtype=float)
+    th = np.linalg.norm(rv, axis=-1)[..., None, None]
+    k = _skew(rv)
+    small = th < 1e-8
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
+    """Logarithm of (n, 3, 3) rotation matrices -> (n, 3) rotation vectors (angle in [0, pi])."""
+    rot = np.asarray(rot, dtype=float)
+    cos = np.clip((np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    th = np.arccos(cos)
+    w = np.stack([rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]], -1)
+    sin = np.sin(th)
+    small = sin < 1e-6
+    scale = np.where(small, 0.5 + th**2 / 12.0, th / (2.0 * np.where(small, 1.0, sin)))
+    out = w * scale[..., None]
+    # near pi the antisymmetric part vanishes: take the axis from the symmetric part
+    near_pi = (th > np.pi - 1e-3)
+    if np.any(near_pi):
+        for i in np.flatnonzero(near_pi):
+            m = (rot[i] + np.eye(3)) / 2.0
+            axis = m[np.argmax(np.diag(m))]
+            out[i] = axis / np.linalg.norm(axis) * th[i]
+    return out
+
+
+def rot_z(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def rot_x(angle: float) -> np.ndarray:
+    c, s = np.cos(angle), np.sin(angle)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def lying_orientation(yaw_rad: float, side: int) -> np.ndarray:
+    """Body orientation of a fish lying on its flank with its head towards ``yaw_rad``.
+
+    Body frame: x to the head, y to the back, z to the left flank.  ``side = +1``: the right
+    flank is down (body z up); ``side = -1``: the left flank is down (body z down).
+    """
+    return rot_z(yaw_rad) @ (np.eye(3) if side >= 0 else rot_x(np.pi))

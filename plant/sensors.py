@@ -1,0 +1,74 @@
+"""What the plant measures, computed from the body states of one communication step.
+
+- photo-eyes: a beam across the line (along y) at (x, z) is blocked when it passes through any
+  contact sphere of a fish (the spheres are the fish's shape);
+- belt load: the force the fish put on a belt along x and down, from the belt body's momentum
+  change over the step (nothing else acts on it);
+- fish poses in the measured-data frame: the mid-length point of the spine and the heading.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plant.fish_body import FishGeometry
+
+
+def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.ndarray,
+                   sphere_local: np.ndarray) -> np.ndarray:
+    """World positions (n_spheres, 3) of all contact spheres."""
+    return body_pos[sphere_body] + np.einsum("nij,nj->ni", body_rot[sphere_body], sphere_local)
+
+
+def photoeyes_blocked(centres: np.ndarray, radii: np.ndarray, active: np.ndarray, beams_xz: np.ndarray,
+                      half_width_m: float) -> np.ndarray:
+    """(n_beams,) True where a beam at (x, z), spanning |y| <= half_width_m, cuts an active sphere."""
+    if len(beams_xz) == 0:
+        return np.zeros(0, dtype=bool)
+    c = centres[active]
+    r = radii[active]
+    if len(c) == 0:
+        return np.zeros(len(beams_xz), dtype=bool)
+    dx = c[None, :, 0] - beams_xz[:, None, 0]
+    dz = c[None, :, 2] - beams_xz[:, None, 1]
+    within = (dx * dx + dz * dz < r[None, :] ** 2) & (np.abs(c[None, :, 1]) < half_width_m + r[None, :])
+    return within.any(axis=1)
+
+
+def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
+               gravity_mps2: float) -> tuple[np.ndarray, np.ndarray]:
+    """(load force along x opposing the belt [N], mass resting on the belt [kg]) per belt.
+
+    ``vel_end``: (n_belts, 3) belt body velocity at the end of the step, which started at
+    (speed, 0, 0).  The fish's mean force on the belt over the step is m * dv / dt.
+    """
+    fx = mass_kg * (vel_end[:, 0] - speed_set_mps) / dt_s
+    fz = mass_kg * vel_end[:, 2] / dt_s
+    load = -fx
+    mass = -fz / gravity_mps2 if gravity_mps2 > 0 else np.zeros_like(fz)
+    return load, mass
+
+
+def spine_point_local(geometry: FishGeometry, s: float) -> tuple[int, np.ndarray]:
+    """(body index, position in that body's frame) of the spine point at fraction s from the snout."""
+    d = s * geometry.length_m
+    for i, b in enumerate(geometry.bodies):
+        if b.s_start <= s <= b.s_end or i == len(geometry.bodies) - 1:
+            return i, np.array([b.com_from_snout_m - d, 0.0, 0.0])
+    raise AssertionError("unreachable")
+
+
+def fish_pose(body_pos: np.ndarray, body_rot: np.ndarray, mid: tuple[int, np.ndarray],
+              front: tuple[int, np.ndarray], back: tuple[int, np.ndarray]) -> tuple[np.ndarray, float]:
+    """(mid-length point, heading) of one fish from its bodies' positions and rotations.
+
+    The heading is that of the chord from a point at 80 % of the length to one at 20 %: what an
+    overhead camera sees as the fish's direction, robust to a wagging head or tail.
+    """
+    def point(ref: tuple[int, np.ndarray]) -> np.ndarray:
+        i, local = ref
+        return body_pos[i] + body_rot[i] @ local
+
+    p_mid = point(mid)
+    chord = point(front) - point(back)
+    return p_mid, float(np.arctan2(chord[1], chord[0]))

@@ -1,0 +1,72 @@
+"""Running the plant alone with prescribed belt speeds (no drives, no controller).
+
+Used to test the physics, to re-simulate measured runs with their logged belt speeds, and as
+the inner loop of the co-simulation's plant.  The co-simulation master has its own loop
+(fishfmu.master) but records through the same :class:`plant.recorder.RunRecorder`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from plant.line import Line
+from plant.params import PlantParams
+from plant.plant import LEFT, WAITING, DropAdjustment, Plant
+from plant.population import FishSpec, fish_to_frame
+from plant.recorder import RunRecorder
+
+BeltSpeeds = dict[str, float] | Callable[[float], dict[str, float]]
+
+
+@dataclass
+class SimulatedRun:
+    """A run as the measured-data format has it, plus what the simulation knows beyond that."""
+
+    fish: pd.DataFrame
+    tracks: pd.DataFrame
+    photoeyes: pd.DataFrame
+    belts: pd.DataFrame
+    t_end_s: float
+    wall_s: float
+    drop_adjustments: list[DropAdjustment] = field(default_factory=list)
+    fish_status: np.ndarray | None = None
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.t_end_s / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, duration_s: float,
+                   params: PlantParams | None = None, comm_step_s: float = 0.01, stop_when_clear: bool = True,
+                   clear_margin_s: float = 1.0, joint_factors: list[tuple[float, float]] | None = None,
+                   on_step: Callable[[Plant], None] | None = None) -> SimulatedRun:
+    """Simulate up to ``duration_s``; with ``stop_when_clear`` stop ``clear_margin_s`` after every
+    fish has been dropped and has left the line."""
+    plant = Plant(line, fish, params, comm_step_s, joint_factors)
+    rec = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids, comm_step_s)
+    speed_fn = belt_speeds if callable(belt_speeds) else (lambda t, s=dict(belt_speeds): s)
+    n_steps = int(round(duration_s / comm_step_s))
+    clear_since: float | None = None
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        speeds = speed_fn(plant.t_s)
+        out = plant.step(speeds)
+        rec.record(plant.t_s, plant.fish_state(), out.photoeyes, speeds, out.belt_speed_mps)
+        if on_step is not None:
+            on_step(plant)
+        if stop_when_clear and len(fish):
+            if np.all(plant.status == LEFT):
+                clear_since = plant.t_s if clear_since is None else clear_since
+                if plant.t_s - clear_since >= clear_margin_s - 1e-9:
+                    break
+            elif np.any(plant.status == WAITING):
+                clear_since = None
+    wall = time.perf_counter() - t0
+    tables = rec.tables()
+    return SimulatedRun(fish_to_frame(fish), tables["tracks"], tables["photoeyes"], tables["belts"],
+                        plant.t_s, wall, list(plant.drop_adjustments), plant.status.copy())

@@ -1,0 +1,155 @@
+"""The fish's bodies, masses, contact shape and joints, against the paper's tables and geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from plant import fish_data
+from plant.fish_body import _spheres_overlap_at_limits, fish_geometry
+from plant.fish_data import length_regressions
+from plant.joints import JointLaws, joint_laws, linearize, tangent, torque
+from plant.params import PlantParams
+from plant.plant import Plant
+from plant.population import PopulationSpec, fish_size, sample_fish
+from tests.plant_helpers import fish, straight_line
+
+SIZES = [(0.42, 0.09, 0.04, 0.57), (0.60, 0.14, 0.065, 2.0), (0.68, 0.18, 0.08, 3.698)]
+
+
+def test_regressions_reproduce_table1_within_its_own_scatter():
+    t1 = fish_data.table1()
+    reg = length_regressions()
+    resid_h = t1.height_m - reg.height_m(t1.length_m)
+    resid_w = np.log(t1.weight_kg) - np.log(reg.weight_kg(t1.length_m))
+    assert abs(resid_h.mean()) < 1e-9  # least squares: residuals average out
+    assert resid_h.std(ddof=2) == pytest.approx(reg.height_sd_m, rel=1e-6)
+    assert np.all(np.abs(resid_w) < 3 * reg.weight_log_sd)
+
+
+def test_sampled_fish_vary_around_the_regression_like_table1():
+    rng = np.random.default_rng(0)
+    reg = length_regressions()
+    h = np.array([fish_size(0.6, rng)[0] for _ in range(4000)])
+    assert h.mean() == pytest.approx(float(reg.height_m(0.6)), abs=0.002)
+    assert h.std() == pytest.approx(reg.height_sd_m, rel=0.1)
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_body_masses_follow_table2_with_the_fin_raised_for_the_step(size):
+    length, height, width, mass = size
+    g = fish_geometry(length, height, width, mass)
+    fractions = fish_data.table2()["fraction"].to_numpy()
+    fractions = fractions / fractions.sum()
+    masses = np.array([b.mass_kg for b in g.bodies])
+    assert masses.sum() == pytest.approx(mass)
+    # head, upper and lower body exactly as Table II; the fin raised to 6 %, taken from the tail
+    assert masses[:3] / mass == pytest.approx(fractions[:3])
+    assert masses[4] / mass == pytest.approx(0.06)
+    assert masses[3] / mass == pytest.approx(fractions[3] - (0.06 - fractions[4]))
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_contact_shape_is_as_long_high_and_thick_as_the_fish(size):
+    length, height, width, mass = size
+    g = fish_geometry(length, height, width, mass, sphere_spacing=2.0)
+    pts = []
+    for b in g.bodies:
+        for x, y, r in b.spheres:
+            d = b.com_from_snout_m - x  # distance from the snout
+            pts.append((d - r, d + r, abs(y) + r, r))
+    pts = np.array(pts)
+    assert pts[:, 0].min() == pytest.approx(0.0, abs=0.01)          # reaches the snout
+    assert pts[:, 1].max() == pytest.approx(length, abs=0.02)        # and the tail fin tip
+    assert pts[:, 2].max() == pytest.approx(height / 2, rel=0.1)    # as high as the fish
+    assert 2 * pts[:, 3].max() == pytest.approx(width, rel=0.05)     # as thick as the fish
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_neighbouring_bodies_spheres_do_not_touch_within_joint_limits(size):
+    g = fish_geometry(*size, sphere_spacing=2.0)
+    t3 = fish_data.table3()
+    for j in range(4):
+        xj = g.joint_from_snout_m[j]
+        a, b = g.bodies[j], g.bodies[j + 1]
+        pa = np.array([[xj - (a.com_from_snout_m - x), y, 0.0] for x, y, _ in a.spheres])
+        pb = np.array([[xj - (b.com_from_snout_m - x), y, 0.0] for x, y, _ in b.spheres])
+        # (relative to the joint, x towards the head)
+        pa[:, 0], pb[:, 0] = -pa[:, 0], -pb[:, 0]
+        limits = (np.radians(t3.swing1_deg[j]), np.radians(t3.swing2_deg[j]))
+        assert not _spheres_overlap_at_limits(pa, np.array([r for *_, r in a.spheres]),
+                                              pb, np.array([r for *_, r in b.spheres]), limits)
+
+
+def test_joint_torque_is_smooth_and_stiffens_at_the_limit():
+    law = JointLaws(limit_rad=np.full((1, 3), 0.3), k_soft=np.full((1, 3), 1.0), k_limit=np.full((1, 3), 30.0),
+                    transition=0.15, damping=np.ones((1, 3)))
+    th = np.linspace(-0.6, 0.6, 2401)[:, None].repeat(3, axis=1)
+    laws = JointLaws(np.full_like(th, 0.3), np.full_like(th, 1.0), np.full_like(th, 30.0), 0.15, np.ones_like(th))
+    tau = torque(laws, th)[:, 0]
+    k = tangent(laws, th)[:, 0]
+    # continuous torque and stiffness (C1): no jumps between neighbouring samples
+    assert np.max(np.abs(np.diff(tau))) < 30.0 * (th[1, 0] - th[0, 0]) * 1.01
+    assert np.max(np.abs(np.diff(k))) < 1.0
+    # soft well inside, stiff well beyond, odd
+    assert tangent(law, np.array([[0.1, 0.1, 0.1]]))[0, 0] == pytest.approx(1.0)
+    assert tangent(law, np.array([[0.5, 0.5, 0.5]]))[0, 0] == pytest.approx(30.0)
+    assert np.allclose(tau, -tau[::-1])
+    # the derivative of the torque is the tangent stiffness
+    assert np.allclose(np.gradient(tau, th[:, 0]), k, atol=0.3)
+
+
+def test_linearisation_gives_the_exact_torque_now_and_is_stiff_ahead_of_a_limit():
+    law = JointLaws(np.full((2, 3), 0.3), np.full((2, 3), 1.0), np.full((2, 3), 30.0), 0.15, np.ones((2, 3)))
+    now = np.array([[0.2, 0.25, 0.4], [0.0, -0.1, -0.35]])
+    ahead = now + np.array([[0.2, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    k, off = linearize(law, now, ahead)
+    assert np.allclose(k * (now - off), torque(law, now))
+    assert k[0, 0] == pytest.approx(30.0)  # running into the limit: already stiff
+    assert k[1, 0] == pytest.approx(1.0)
+
+
+def test_joint_laws_use_table3_limits_and_lock_the_twist_of_joints_1_to_3():
+    p = PlantParams()
+    g = fish_geometry(0.6, 0.14, 0.065, 2.0)
+    laws = joint_laws(g, p.joints, p.numerics, 9.81)
+    t3 = fish_data.table3()
+    assert np.degrees(laws.limit_rad[:, 1]) == pytest.approx(t3.swing1_deg.to_numpy())
+    assert np.degrees(laws.limit_rad[:, 2]) == pytest.approx(t3.swing2_deg.to_numpy())
+    assert np.degrees(laws.limit_rad[3, 0]) == pytest.approx(22.5)
+    assert np.all(laws.k_soft[:3, 0] == laws.k_limit[:3, 0])  # locked twist: stiff everywhere
+    assert np.all(laws.k_soft[:, 1:] < laws.k_limit[:, 1:])
+
+
+def test_head_over_the_end_of_a_belt_droops_as_the_sag_rule_says():
+    """The joint stiffness is set so that the lighter side of a joint, held horizontally, bends
+    ``sag_fraction`` of its limit under its own weight.  Lay a fish on a stopped belt with its
+    head sticking out over the end: the head joint should bend by that much (the fish lies on
+    its side, so bending to the side is bending down)."""
+    params = PlantParams()
+    line = straight_line(("c1", 0.0, 1.5, 0.0))
+    f = fish(length_m=0.6, yaw_rad=0.0)
+    g = fish_geometry(f.length_m, f.height_m, f.width_m, f.weight_kg, min_body_fraction=0.06)
+    head_joint_from_mid = g.mid_from_snout_m - g.joint_from_snout_m[0]
+    # joint 1 a drum radius inside the end of the belt: the head overhangs
+    f = fish(length_m=0.6, x_m=1.5 - 0.035 - head_joint_from_mid)
+    plant = Plant(line, [f], params)
+    for _ in range(150):
+        plant.step({"c1": 0.0})
+    _, rot = plant.body_poses()
+    rel = rot[0].T @ rot[1]
+    bend = abs(np.degrees(np.arctan2(rel[0, 2], rel[0, 0])))  # rotation about the dorsal (y) axis
+    expected = params.joints.sag_fraction * 13.75
+    assert bend == pytest.approx(expected, rel=0.35)
+
+
+def test_sampled_population_is_reproducible_and_inside_the_guides():
+    spec = PopulationSpec(count=30)
+    a = sample_fish(spec, (0.0, 2.0), 0.25, np.random.default_rng(5))
+    b = sample_fish(spec, (0.0, 2.0), 0.25, np.random.default_rng(5))
+    assert a == b
+    for f in a:
+        ext_y = 0.5 * f.length_m * abs(np.sin(f.drop_yaw_rad)) + 0.5 * f.height_m * abs(np.cos(f.drop_yaw_rad))
+        ext_x = 0.5 * f.length_m * abs(np.cos(f.drop_yaw_rad)) + 0.5 * f.height_m * abs(np.sin(f.drop_yaw_rad))
+        assert abs(f.drop_y_m) + ext_y <= 0.25
+        assert f.drop_x_m - ext_x >= 0.0
