@@ -24,6 +24,7 @@ import pandas as pd
 from pydantic import Field, model_validator
 
 from plant.fish_data import length_regressions
+from plant.measured import FISH
 from plant.validation import Strict
 
 
@@ -132,8 +133,7 @@ def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_widt
     return fish
 
 
-FISH_COLUMNS = ["fish_id", "length_m", "weight_kg", "height_m", "width_m", "hours_post_mortem",
-                "drop_t_s", "drop_x_m", "drop_y_m", "drop_yaw_rad", "drop_z_m"]
+FISH_COLUMNS = list(FISH.columns)
 
 
 def fish_to_frame(fish: list[FishSpec]) -> pd.DataFrame:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from plant.measured import BELTS, PHOTOEYES, TRACKS
 from plant.plant import ON_LINE, FishState
 
 TRACK_PERIOD_S = 0.04
@@ -67,7 +68,7 @@ class RunRecorder:
                                              if s is not None]
         intervals.sort(key=lambda r: (r[1], r[0]))
         return {
-            "tracks": pd.DataFrame(self._tracks, columns=["t_s", "fish_id", "x_m", "y_m", "yaw_rad"]),
-            "photoeyes": pd.DataFrame(intervals, columns=["sensor_id", "t_on_s", "t_off_s"]),
-            "belts": pd.DataFrame(self._belts, columns=["t_s", "conveyor_id", "setpoint_mps", "speed_mps"]),
+            "tracks": pd.DataFrame(self._tracks, columns=list(TRACKS.columns)),
+            "photoeyes": pd.DataFrame(intervals, columns=list(PHOTOEYES.columns)),
+            "belts": pd.DataFrame(self._belts, columns=list(BELTS.columns)),
         }

@@ -1,0 +1,128 @@
+"""Singulation KPIs (contracts/kpis.md): one definition for measured and simulated runs.
+
+With N fish dropped and T from the first drop to the moment the last fish clears the outfeed
+beam: ``fpm_in = 60 N / T``, ``singulation_rate = singulated / N``, ``fpm_out = 60 singulated / T``.
+A fish is *singulated* when its passage of the outfeed beam overlaps no other and the gap to
+the fish before and after it is at least ``min_gap_m``.  A gap is the clear time between the end
+of the previous passages (the latest end so far) and a passage's start, times the outfeed belt's
+speed at the middle of that time; it is negative when passages overlap.  The first fish has no
+gap before it, the last none after.  A gap must also be positive: touching fish are not apart,
+even with ``min_gap_m = 0``.  Comparisons allow 1 nm for floating-point rounding.
+
+Passages come from :func:`plant.passages.passages` (re-exported here with
+:func:`~plant.passages.arrival_times`); :func:`kpis_from_passages` takes any table of passages,
+so the arithmetic can be checked by hand:
+
+>>> p = pd.DataFrame({"t_start_s": [10.0, 12.0, 12.5], "t_end_s": [10.5, 12.75, 13.0]})
+>>> k = kpis_from_passages(p, n_fish=4, first_drop_t_s=1.0, belt_speed_fn=lambda t: np.full(len(t), 2.0),
+...                        min_gap_m=0.05)
+>>> k["singulated"], k["lost"], k["throughput_time_s"], k["gap_min_m"], k["fpm_in"]
+(1, 1, 12.0, -0.5, 20.0)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from plant.line import KpiSettings, Line
+from plant.passages import MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages
+
+__all__ = ["arrival_times", "compute_kpis", "kpis_from_passages", "paper_rounded", "passages", "round_half_up",
+           "singulation_table"]
+
+TOL_M = 1e-9
+"""Floating-point tolerance on gap comparisons (1 nm)."""
+
+
+def _json(x: Any) -> float | None:
+    """A plain float, or None where undefined (NaN, inf, None)."""
+    if x is None:
+        return None
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def singulation_table(passages: pd.DataFrame, belt_speed_fn: SpeedFn, min_gap_m: float) -> pd.DataFrame:
+    """The passages sorted by start, with ``gap_before_m``, ``gap_after_m`` (NaN at the ends) and ``singulated``."""
+    p = passages.sort_values("t_start_s", kind="stable").reset_index(drop=True)
+    s, e = p["t_start_s"].to_numpy(float), p["t_end_s"].to_numpy(float)
+    gaps = np.full(len(p) + 1, np.nan)
+    if len(p) > 1:
+        last_end = np.maximum.accumulate(e)[:-1]
+        clear_s = s[1:] - last_end
+        gaps[1:-1] = clear_s * np.asarray(belt_speed_fn(0.5 * (s[1:] + last_end)), dtype=float)
+    ok = np.isnan(gaps) | ((gaps > TOL_M) & (gaps >= min_gap_m - TOL_M))
+    return p.assign(gap_before_m=gaps[:-1], gap_after_m=gaps[1:], singulated=ok[:-1] & ok[1:])
+
+
+def kpis_from_passages(passages: pd.DataFrame, n_fish: int, first_drop_t_s: float, belt_speed_fn: SpeedFn,
+                       min_gap_m: float) -> dict[str, Any]:
+    """The KPIs of contracts/kpis.md from a table of outfeed passages (``t_start_s``, ``t_end_s``,
+    optionally ``source``; one row per fish that passed).  Undefined values are None.
+
+    ``method``: "tracks" (no fish count estimated from the beam), "photoeyes" (every passage
+    estimated from photo-eye intervals), "mixed", or "none" (no fish passed).
+    """
+    table = singulation_table(passages, belt_speed_fn, min_gap_m)
+    n_out = len(table)
+    singulated = int(table["singulated"].sum())
+    throughput = float(table["t_end_s"].max() - first_drop_t_s) if n_out else math.nan
+    if not throughput > 0:
+        throughput = math.nan
+    gaps = table["gap_before_m"].to_numpy(float)[1:]
+    sources = table["source"] if "source" in table else pd.Series(["tracks"] * n_out, dtype=object)
+    n_estimated = int((sources == "photoeye").sum())
+    method = ("none" if n_out == 0 else "tracks" if n_estimated == 0 else
+              "photoeyes" if n_estimated == n_out else "mixed")
+    return {
+        "fish_in": int(n_fish),
+        "throughput_time_s": _json(throughput),
+        "fpm_in": _json(60.0 * n_fish / throughput),
+        "singulated": singulated,
+        "singulation_rate": _json(singulated / n_fish) if n_fish else None,
+        "fpm_out": _json(60.0 * singulated / throughput),
+        "lost": max(int(n_fish) - n_out, 0),
+        "gap_min_m": _json(gaps.min()) if len(gaps) else None,
+        "gap_median_m": _json(np.median(gaps)) if len(gaps) else None,
+        "gap_p10_m": _json(np.percentile(gaps, 10)) if len(gaps) else None,
+        "method": method,
+        "estimated_fish": n_estimated,
+        "passage_sources": {str(k): int(v) for k, v in sources.value_counts().sort_index().items()},
+        "min_gap_m": float(min_gap_m),
+    }
+
+
+def compute_kpis(run: RunTables, line: Line, kpi: KpiSettings, max_gap_s: float = MAX_TRACK_GAP_S) -> dict[str, Any]:
+    """Every KPI of one run (measured or simulated), JSON-serialisable, plus per-fish arrival
+    times at every photo-eye as ``arrival_t_s[sensor_id][fish_id]`` (None where not determined)."""
+    beam = line.photoeye(kpi.outfeed_photoeye)
+    speed = belt_speed_fn(run, line.conveyor_at(beam.x_m).id)
+    p = passages(run, line, kpi, max_gap_s)
+    out = kpis_from_passages(p, len(run.fish), float(run.fish["drop_t_s"].min()), speed, kpi.min_gap_m)
+    arr = arrival_times(run, line, max_gap_s)
+    out["arrival_t_s"] = {sid: {str(f): _json(t) for f, t in zip(g["fish_id"], g["t_s"])}
+                          for sid, g in arr.groupby("sensor_id", sort=False)}
+    return out
+
+
+def round_half_up(x: float, ndigits: int = 0) -> float:
+    """Round as people (and the paper's Table IV) do: halves away from zero.
+
+    >>> round_half_up(172.5), round(172.5)
+    (173.0, 172)
+    """
+    f = 10.0 ** ndigits
+    return math.copysign(math.floor(abs(x) * f + 0.5) / f, x)
+
+
+def paper_rounded(kpis: dict[str, Any]) -> dict[str, float | None]:
+    """The six rows of the paper's Table IV, rounded as it did (whole seconds, FPM and percent)."""
+    def r(x: float | None, scale: float = 1.0) -> float | None:
+        return None if x is None else round_half_up(scale * x)
+    return {"fish_in": kpis["fish_in"], "throughput_time_s": r(kpis["throughput_time_s"]),
+            "fpm_in": r(kpis["fpm_in"]), "singulated": kpis["singulated"],
+            "singulation_rate_pct": r(kpis["singulation_rate"], 100.0), "fpm_out": r(kpis["fpm_out"])}

@@ -1,0 +1,320 @@
+"""Reading and writing measured data (contracts/measured-data.md): real runs and simulated ones alike.
+
+A dataset is a folder with ``dataset.toml`` (``[dataset]``, ``[line]``, ``[kpi]``, ``[[runs]]``)
+and one folder per run under ``runs/`` with ``fish.csv``, ``tracks.csv``, ``photoeyes.csv`` and
+``belts.csv``.  Readers check everything the contract asks and stop at the first problem with
+an :class:`~plant.errors.InputError` naming the file and the key, or the row (as a person counts
+lines in the file: the header is line 1) and column.  Nothing is dropped silently: extra CSV
+columns are kept, extra keys of a ``[[runs]]`` entry are kept in ``Run.extra`` (unless they look
+like a misspelt known key), and empty ``height_m``, ``width_m``, ``hours_post_mortem`` in
+fish.csv are filled (length regressions, the run's value) and listed in ``Run.filled``;
+:func:`write_run` writes those cells empty again, so a round trip gives back the same files.
+Blank lines in a CSV are skipped; pandas' usual NaN spellings (empty, NaN, NA, null) are missing values.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pydantic
+import tomli_w
+from pydantic import Field
+
+from plant.errors import InputError
+from plant.fish_data import length_regressions
+from plant.line import Id, KpiSettings, Line
+from plant.validation import Strict, read_toml, validate
+
+
+@dataclass(frozen=True)
+class TableSpec:
+    """One CSV of a run: its columns in contract order, which hold text, which may be empty."""
+
+    name: str
+    columns: tuple[str, ...]
+    text: frozenset[str]
+    may_be_empty: frozenset[str] = frozenset()
+
+    @property
+    def file(self) -> str:
+        return f"{self.name}.csv"
+
+
+FISH = TableSpec("fish", ("fish_id", "length_m", "weight_kg", "height_m", "width_m", "hours_post_mortem",
+                          "drop_t_s", "drop_x_m", "drop_y_m", "drop_yaw_rad", "drop_z_m"),
+                 frozenset({"fish_id"}), frozenset({"height_m", "width_m", "hours_post_mortem"}))
+TRACKS = TableSpec("tracks", ("t_s", "fish_id", "x_m", "y_m", "yaw_rad"), frozenset({"fish_id"}))
+PHOTOEYES = TableSpec("photoeyes", ("sensor_id", "t_on_s", "t_off_s"), frozenset({"sensor_id"}))
+BELTS = TableSpec("belts", ("t_s", "conveyor_id", "setpoint_mps", "speed_mps"), frozenset({"conveyor_id"}))
+TABLES = (FISH, TRACKS, PHOTOEYES, BELTS)
+POSITIVE = ("length_m", "weight_kg", "height_m", "width_m")
+
+
+def empty_table(spec: TableSpec) -> pd.DataFrame:
+    """A table with the contract's columns and no rows."""
+    return pd.DataFrame({c: pd.Series(dtype=object if c in spec.text else float) for c in spec.columns})
+
+
+class DatasetInfo(Strict):
+    """The ``[dataset]`` table."""
+
+    name: str = Field(min_length=1, max_length=200)
+    description: str = ""
+
+
+class RunEntry(Strict):
+    """One ``[[runs]]`` entry; keys beyond these are kept as the run's metadata (``Run.extra``)."""
+
+    model_config = pydantic.ConfigDict(extra="allow")
+    id: Id
+    hours_post_mortem: float | None = Field(default=None, ge=0.0, le=10000.0)
+    notes: str = ""
+
+
+class DatasetFile(Strict):
+    """The whole ``dataset.toml``."""
+
+    dataset: DatasetInfo
+    line: Line
+    kpi: KpiSettings
+    runs: list[RunEntry] = Field(min_length=1)
+
+
+@dataclass
+class Run:
+    """One run: its ``[[runs]]`` entry and its four tables (contract column order, extra columns after)."""
+
+    id: str
+    hours_post_mortem: float | None
+    notes: str
+    fish: pd.DataFrame
+    tracks: pd.DataFrame = field(default_factory=lambda: empty_table(TRACKS))
+    photoeyes: pd.DataFrame = field(default_factory=lambda: empty_table(PHOTOEYES))
+    belts: pd.DataFrame = field(default_factory=lambda: empty_table(BELTS))
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Keys of the ``[[runs]]`` entry beyond id, hours_post_mortem and notes."""
+    filled: dict[str, list[str]] = field(default_factory=dict)
+    """fish.csv column -> ids of the fish whose empty value was filled in (regression or run value)."""
+    path: Path | None = None
+    """The run's folder when it was read from disk."""
+
+
+@dataclass
+class Dataset:
+    """A dataset: the line it was measured on, the KPI settings and its runs."""
+
+    name: str
+    description: str
+    line: Line
+    kpi: KpiSettings
+    runs: list[Run]
+    path: Path | None = None
+
+    def run(self, run_id: str) -> Run:
+        for r in self.runs:
+            if r.id == run_id:
+                return r
+        raise KeyError(run_id)
+
+
+# ---------------------------------------------------------------------------------------- reading
+def _row(index: Any) -> int:
+    """Line number in the file of a data row (header is line 1, blank lines counted)."""
+    return int(index) + 2
+
+
+def read_table(path: Path, spec: TableSpec) -> pd.DataFrame:
+    """Read one CSV: required columns present, numbers parsed, required values present and finite.
+
+    The returned frame keeps the file's line numbers in its index (``index + 2``).
+    """
+    try:
+        df = pd.read_csv(path, dtype={c: str for c in spec.text}, skip_blank_lines=False)
+    except FileNotFoundError:
+        raise InputError("file not found", file=path) from None
+    except IsADirectoryError:
+        raise InputError("is a folder, expected a CSV file", file=path) from None
+    except pd.errors.EmptyDataError:
+        raise InputError(f"file is empty; expected a header line: {','.join(spec.columns)}", file=path) from None
+    except (pd.errors.ParserError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"not a readable CSV file: {str(exc).strip()}", file=path) from None
+    df.columns = [str(c).strip() for c in df.columns]
+    df = df.dropna(how="all")  # blank lines
+    required = [c for c in spec.columns if c not in spec.may_be_empty]
+    missing = [c for c in required if c not in df.columns]
+    if missing:
+        raise InputError(f"missing required column{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
+                         f"(found: {', '.join(df.columns)}; expected: {', '.join(spec.columns)})",
+                         file=path, where="line 1 (header)")
+    for c in spec.may_be_empty:
+        if c not in df.columns:
+            df[c] = np.nan
+    for c in spec.columns:
+        if c in spec.text:
+            df[c] = df[c].str.strip()
+            _fail_first(df[c].isna() | (df[c] == ""), path, c, "empty, a value is required")
+            continue
+        if not pd.api.types.is_numeric_dtype(df[c]):
+            num = pd.to_numeric(df[c], errors="coerce")
+            text = num.isna() & df[c].notna()
+            if text.any():
+                _fail_first(text, path, c, f"not a number: {df[c][text].iloc[0]!r}")
+            df[c] = num
+        df[c] = df[c].astype(float)
+        if c not in spec.may_be_empty:
+            _fail_first(df[c].isna(), path, c, "empty or NaN, a value is required")
+        inf = np.isinf(df[c])
+        if inf.any():
+            _fail_first(inf, path, c, f"not a finite number ({df[c][inf].iloc[0]})")
+    return df[list(spec.columns) + [c for c in df.columns if c not in spec.columns]]
+
+
+def _fail_first(mask: pd.Series, path: Path, column: str, message: str) -> None:
+    """Raise, naming the first row where ``mask`` is True (if any)."""
+    if mask.any():
+        i = int(np.argmax(mask.to_numpy()))
+        raise InputError(message, file=path, where=f"row {_row(mask.index[i])}, column {column}")
+
+
+def _check_ids(df: pd.DataFrame, column: str, allowed: list[str], path: Path, what: str) -> None:
+    bad = ~df[column].isin(allowed)
+    if bad.any():
+        value = df[column][bad].iloc[0]
+        known = ", ".join(allowed[:12]) + (f", ... ({len(allowed)} in all)" if len(allowed) > 12 else "")
+        _fail_first(bad, path, column, f"unknown {column} '{value}': not {what} (known: {known or 'none'})")
+
+
+def _check_increasing(df: pd.DataFrame, key: str, path: Path) -> None:
+    """Within each ``key`` (a fish, a conveyor) ``t_s`` must increase from row to row."""
+    codes = pd.factorize(df[key])[0]
+    order = np.argsort(codes, kind="stable")
+    t = df["t_s"].to_numpy(float)[order]
+    bad = np.flatnonzero((codes[order][1:] == codes[order][:-1]) & (t[1:] <= t[:-1]))
+    if len(bad):
+        k = bad[np.argmin(order[bad + 1])]  # the first offending row in file order
+        row, prev = df.index[order[k + 1]], df.index[order[k]]
+        raise InputError(f"{key} '{df[key].iloc[order[k]]}': t_s = {t[k + 1]:g} is not after its previous sample "
+                         f"(t_s = {t[k]:g} in row {_row(prev)}); time must increase within each {key}",
+                         file=path, where=f"row {_row(row)}, column t_s")
+
+
+def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], line: Line) -> Run:
+    """Read and check ``runs/<id>/`` of the dataset at ``dataset_path`` (a folder)."""
+    entry = run_entry if isinstance(run_entry, RunEntry) else validate(RunEntry, dict(run_entry), prefix="runs")
+    folder = Path(dataset_path) / "runs" / entry.id
+    if not folder.is_dir():
+        raise InputError(f"run '{entry.id}' is listed in dataset.toml but its folder is missing", file=folder)
+    fish_file, tracks_file, pe_file, belts_file = (folder / s.file for s in TABLES)
+    fish = read_table(fish_file, FISH)
+    if fish.empty:
+        raise InputError("no fish: a run needs at least one fish row", file=fish_file)
+    dup = fish["fish_id"].duplicated()
+    if dup.any():
+        _fail_first(dup, fish_file, "fish_id", f"fish_id '{fish['fish_id'][dup].iloc[0]}' appears twice")
+    for c in POSITIVE:
+        bad = fish[c] <= 0
+        if bad.any():
+            _fail_first(bad, fish_file, c, f"must be > 0 (got {fish[c][bad].iloc[0]:g})")
+    tracks = read_table(tracks_file, TRACKS)
+    _check_ids(tracks, "fish_id", list(fish["fish_id"]), tracks_file, "a fish of fish.csv")
+    _check_increasing(tracks, "fish_id", tracks_file)
+    pe = read_table(pe_file, PHOTOEYES)
+    _check_ids(pe, "sensor_id", [p.id for p in line.photoeyes], pe_file, "a photo-eye of the line")
+    bad = pe["t_off_s"] < pe["t_on_s"]
+    _fail_first(bad, pe_file, "t_off_s", "t_off_s is before t_on_s: an interval must end after it starts")
+    belts = read_table(belts_file, BELTS)
+    _check_ids(belts, "conveyor_id", [c.id for c in line.conveyors], belts_file, "a conveyor of the line")
+    _check_increasing(belts, "conveyor_id", belts_file)
+
+    filled: dict[str, list[str]] = {}
+    reg = length_regressions()
+    for c, values in (("height_m", reg.height_m(fish["length_m"])), ("width_m", reg.width_m(fish["length_m"])),
+                      ("hours_post_mortem", np.full(len(fish), np.nan if entry.hours_post_mortem is None
+                                                    else entry.hours_post_mortem))):
+        empty = fish[c].isna()
+        if c == "hours_post_mortem":
+            _fail_first(empty & np.isnan(values), fish_file, c,
+                        "empty, and the run has no hours_post_mortem in dataset.toml to fall back on")
+        if empty.any():
+            fish.loc[empty, c] = np.asarray(values)[empty.to_numpy()]
+            filled[c] = list(fish["fish_id"][empty])
+    tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts)]
+    return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables, extra=dict(entry.model_extra or {}),
+               filled=filled, path=folder)
+
+
+def _check_run_entries(doc: DatasetFile, toml: Path) -> None:
+    seen: dict[str, int] = {}
+    known = list(RunEntry.model_fields)
+    for i, entry in enumerate(doc.runs):
+        if entry.id in seen:
+            raise InputError(f"run '{entry.id}' is listed twice (also runs[{seen[entry.id]}])", file=toml,
+                             where=f"runs[{i}].id")
+        seen[entry.id] = i
+        for key in entry.model_extra or {}:
+            close = difflib.get_close_matches(key, known, n=1, cutoff=0.8)
+            if close:
+                raise InputError(f"unknown key '{key}'; did you mean '{close[0]}'?", file=toml, where=f"runs[{i}].{key}")
+
+
+def read_dataset(path: str | Path) -> Dataset:
+    """Read a dataset folder (or its ``dataset.toml``) and all its runs."""
+    path = Path(path)
+    toml = path / "dataset.toml" if path.is_dir() else path
+    doc = validate(DatasetFile, read_toml(toml), file=toml)
+    try:
+        doc.kpi.check_against(doc.line)
+    except ValueError as exc:
+        raise InputError(str(exc), file=toml, where="kpi") from None
+    _check_run_entries(doc, toml)
+    runs = [read_run(toml.parent, entry, doc.line) for entry in doc.runs]
+    return Dataset(doc.dataset.name, doc.dataset.description, doc.line, doc.kpi, runs, toml.parent)
+
+
+# ---------------------------------------------------------------------------------------- writing
+def _ordered(df: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
+    missing = [c for c in spec.columns if c not in df.columns and c not in spec.may_be_empty]
+    if missing:
+        raise ValueError(f"{spec.file}: table lacks column(s) {', '.join(missing)}")
+    df = df.assign(**{c: np.nan for c in spec.may_be_empty if c not in df.columns})
+    return df[list(spec.columns) + [c for c in df.columns if c not in spec.columns]]
+
+
+def write_run(run: Run, folder: str | Path) -> None:
+    """Write the run's four CSVs into ``folder`` (created if needed); floats round-trip exactly."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fish = run.fish.copy()
+    for c, ids in run.filled.items():
+        fish.loc[fish["fish_id"].isin(ids), c] = np.nan  # written empty, as measured
+    for spec, df in zip(TABLES, (fish, run.tracks, run.photoeyes, run.belts)):
+        _ordered(df, spec).to_csv(folder / spec.file, index=False, na_rep="")
+
+
+def run_entry(run: Run) -> dict[str, Any]:
+    """The run's ``[[runs]]`` entry as a TOML-ready dict."""
+    entry: dict[str, Any] = {"id": run.id}
+    if run.hours_post_mortem is not None:
+        entry["hours_post_mortem"] = float(run.hours_post_mortem)
+    entry["notes"] = run.notes
+    return entry | run.extra
+
+
+def write_dataset(dataset: Dataset, path: str | Path) -> None:
+    """Write ``dataset.toml`` and every run under ``runs/`` into the folder ``path``."""
+    root = Path(path)
+    root.mkdir(parents=True, exist_ok=True)
+    doc = {"dataset": {"name": dataset.name, "description": dataset.description},
+           "line": dataset.line.model_dump(mode="json"),
+           "kpi": dataset.kpi.model_dump(mode="json", exclude_none=True),
+           "runs": [run_entry(r) for r in dataset.runs]}
+    with (root / "dataset.toml").open("wb") as fh:
+        tomli_w.dump(doc, fh)
+    for r in dataset.runs:
+        write_run(r, root / "runs" / r.id)
