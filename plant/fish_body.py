@@ -62,6 +62,9 @@ class BodyGeometry:
     """Distance of the centre of mass from the snout, along the spine."""
     spheres: tuple[tuple[float, float, float], ...]
     """Contact spheres as (local x, local y, radius) in metres; local z is 0."""
+    outline: tuple[tuple[float, float, float], ...] = ()
+    """The body's true shape for sensors: cross-sections every centimetre as (local x, half-height,
+    half-thickness); each is a stadium (a capsule along local y), unlike the coarser contact spheres."""
 
 
 @dataclass(frozen=True)
@@ -238,6 +241,9 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
         xc, inertia = _body_mass_properties(s0, s1, length_m, height_m, width_m, m)
         # local x points to the head: a point at distance d from the snout is at local x = xc - d
         spheres = tuple((xc - x, y, r) for x, y, r in raw[i])
-        bodies.append(BodyGeometry(BODY_NAMES[i], s0, s1, m, inertia, xc, spheres))
+        stations = np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) * length_m / 0.01)) + 1))
+        outline = tuple((float(xc - st * length_m), float(0.5 * height_m * np.interp(st, OUTLINE_S, OUTLINE_H)),
+                         float(0.5 * width_m * np.interp(st, OUTLINE_S, OUTLINE_W))) for st in stations)
+        bodies.append(BodyGeometry(BODY_NAMES[i], s0, s1, m, inertia, xc, spheres, outline))
     return FishGeometry(length_m, height_m, width_m, mass_kg, tuple(bodies),
                         tuple(c * length_m for c in cuts[1:-1]))

@@ -95,6 +95,12 @@ class PlantModel:
     sphere_local: np.ndarray
     """(n_spheres, 3) sphere centre in its body's frame."""
     sphere_radius: np.ndarray
+    section_body: np.ndarray
+    """(n_sections,) body index of each outline cross-section (for sensors, see plant.sensors)."""
+    section_x: np.ndarray
+    """(n_sections,) local x of each cross-section."""
+    section_half_len: np.ndarray
+    section_radius: np.ndarray
     search_box: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(3), np.zeros(3)))
 
 
@@ -224,6 +230,7 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
     body_nodes: list[int] = []
     body_mass: list[float] = []
     sphere_body, sphere_local, sphere_radius = [], [], []
+    section_body, section_x, section_half_len, section_radius = [], [], [], []
     for k, spec in enumerate(fish):
         geo = fish_geometry(spec.length_m, spec.height_m, spec.width_m, spec.weight_kg,
                             sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction)
@@ -252,6 +259,11 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
                 sphere_body.append(first + i)
                 sphere_local.append((x, y, 0.0))
                 sphere_radius.append(r)
+            for (x, half_h, half_w) in b.outline:
+                section_body.append(first + i)
+                section_x.append(x)
+                section_half_len.append(max(half_h - half_w, 0.0))
+                section_radius.append(half_w)
             objects.append(obj)
             body_nodes.append(node)
             body_mass.append(b.mass_kg)
@@ -296,7 +308,9 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
     belt_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in belt_nodes])
     return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_nodes, body_ltg, body_ref,
                       np.array(body_mass), belt_nodes, belt_ltg, belt_ref, np.array(sphere_body, dtype=np.int64),
-                      np.array(sphere_local).reshape(-1, 3), np.array(sphere_radius), (lo, hi))
+                      np.array(sphere_local).reshape(-1, 3), np.array(sphere_radius),
+                      np.array(section_body, dtype=np.int64), np.array(section_x), np.array(section_half_len),
+                      np.array(section_radius), (lo, hi))
 
 
 def pose_coordinates(model: PlantModel, fish_index: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

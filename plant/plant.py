@@ -280,14 +280,29 @@ class Plant:
 
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self.comm_step_s, self.params.gravity_mps2)
-        blocked = photoeyes_blocked(self._centres, self.model.sphere_radius, self._sphere_active, self._beams,
-                                    0.5 * self.line.guide_width_m)
+        blocked = self._beams_blocked()
         return PlantOutputs(
             t_s=self.t_s,
             belt_speed_mps=dict(zip(self.conveyor_ids, map(float, speeds))),
             belt_load_force_n=dict(zip(self.conveyor_ids, map(float, load))),
             belt_load_mass_kg=dict(zip(self.conveyor_ids, map(float, mass))),
             photoeyes=dict(zip(self.photoeye_ids, map(bool, blocked))))
+
+    def _beams_blocked(self) -> np.ndarray:
+        """Photo-eyes against the outline cross-sections of the fish bodies near a beam."""
+        m = self.model
+        if len(self._beams) == 0 or len(m.section_body) == 0:
+            return np.zeros(len(self._beams), dtype=bool)
+        body_on = (self.status == ON_LINE)[self._fish_of_body]
+        near = body_on & (np.min(np.abs(self._pos[:, 0][:, None] - self._beams[None, :, 0]), axis=1) < 0.5)
+        sel = near[m.section_body]
+        if not np.any(sel):
+            return np.zeros(len(self._beams), dtype=bool)
+        b = m.section_body[sel]
+        rot = self._rot[b]
+        centres = self._pos[b] + rot[:, :, 0] * m.section_x[sel][:, None]
+        return photoeyes_blocked(centres, rot[:, :, 1], m.section_half_len[sel], m.section_radius[sel],
+                                 self._beams, 0.5 * self.line.guide_width_m)
 
     def _retire_fish(self) -> None:
         """Fish past the end of the line (or fallen off its end) are parked and no longer simulated."""

@@ -1,7 +1,8 @@
 """What the plant measures, computed from the body states of one communication step.
 
-- photo-eyes: a beam across the line (along y) at (x, z) is blocked when it passes through any
-  contact sphere of a fish (the spheres are the fish's shape);
+- photo-eyes: a beam across the line (along y) at (x, z) is blocked when it passes through a
+  fish's body, taken from its outline (a stadium-shaped cross-section every centimetre), not from
+  the coarser contact spheres, whose valleys would let a beam through a fish;
 - belt load: the force the fish put on a belt along x and down, from the belt body's momentum
   change over the step (nothing else acts on it);
 - fish poses in the measured-data frame: the mid-length point of the spine and the heading.
@@ -20,19 +21,27 @@ def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.n
     return body_pos[sphere_body] + np.einsum("nij,nj->ni", body_rot[sphere_body], sphere_local)
 
 
-def photoeyes_blocked(centres: np.ndarray, radii: np.ndarray, active: np.ndarray, beams_xz: np.ndarray,
-                      half_width_m: float) -> np.ndarray:
-    """(n_beams,) True where a beam at (x, z), spanning |y| <= half_width_m, cuts an active sphere."""
-    if len(beams_xz) == 0:
-        return np.zeros(0, dtype=bool)
-    c = centres[active]
-    r = radii[active]
-    if len(c) == 0:
+def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, half_len: np.ndarray,
+                      radius: np.ndarray, beams_xz: np.ndarray, half_width_m: float) -> np.ndarray:
+    """(n_beams,) True where a beam at (x, z), spanning |y| <= half_width_m, cuts a fish cross-section.
+
+    A cross-section is a capsule: the segment ``centre +- s * axis`` (|s| <= half_len, axis = the
+    body's dorsal direction) thickened by ``radius``.  The beam runs along y, so only the distance
+    in the x-z plane counts: minimise it over s (a quadratic) and compare with the radius.
+    """
+    if len(beams_xz) == 0 or len(section_centres) == 0:
         return np.zeros(len(beams_xz), dtype=bool)
+    c, u = section_centres, section_axes
     dx = c[None, :, 0] - beams_xz[:, None, 0]
     dz = c[None, :, 2] - beams_xz[:, None, 1]
-    within = (dx * dx + dz * dz < r[None, :] ** 2) & (np.abs(c[None, :, 1]) < half_width_m + r[None, :])
-    return within.any(axis=1)
+    uu = u[:, 0] ** 2 + u[:, 2] ** 2
+    s = -(dx * u[None, :, 0] + dz * u[None, :, 2]) / np.where(uu > 1e-12, uu, 1.0)[None, :]
+    s = np.clip(s, -half_len[None, :], half_len[None, :])
+    ex = dx + s * u[None, :, 0]
+    ez = dz + s * u[None, :, 2]
+    y = c[None, :, 1] + s * u[None, :, 1]
+    hit = (ex * ex + ez * ez < radius[None, :] ** 2) & (np.abs(y) < half_width_m + radius[None, :])
+    return hit.any(axis=1)
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
