@@ -1,0 +1,204 @@
+"""Open any user's FMU file safely: check the archive before unpacking it, then its modelDescription.
+
+An FMU is a zip file from somewhere else.  Before anything is written, :func:`open_fmu` rejects
+members that would land outside the unpack folder (absolute paths, ``..``, backslashes, drive
+letters, symlinks) and archives that are too large or have too many members (zip bombs); while
+unpacking it counts the bytes actually written, so that a member whose header lies about its size
+is caught too.  Everything goes into one fresh temporary folder, removed on exit and on every
+error.  (The FMU's native code still runs with our rights once loaded: this checks the file, it
+does not sandbox the model.)
+
+Every problem is an :class:`~plant.errors.InputError` naming the file and the member or variable.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+import shutil
+import stat
+import tempfile
+import zipfile
+import zlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+from fmpy import read_model_description
+
+from plant.errors import InputError
+
+MAX_UNPACKED_BYTES = 1 << 30  # 1 GiB: far above any real FMU, far below filling a disk
+MAX_MEMBERS = 20_000
+LINUX_BINARY_DIR = "binaries/linux64"
+_CHUNK_BYTES = 1 << 20
+_DRIVE_LETTER = re.compile(r"^[A-Za-z]:")
+
+
+@dataclass(frozen=True)
+class FmuVariable:
+    """What an importer needs to know about one variable to connect it."""
+
+    name: str
+    causality: str  # parameter, calculatedParameter, input, output, local, independent
+    type: str  # Real, Integer, Boolean, String, Enumeration
+    variability: str
+    value_reference: int
+    unit: str | None
+    start: Any
+
+
+@dataclass(frozen=True)
+class OpenedFmu:
+    """An unpacked, checked FMI 2.0 co-simulation FMU; ``unzip_dir`` exists inside ``open_fmu`` only."""
+
+    path: Path
+    unzip_dir: Path
+    model_description: Any  # fmpy.model_description.ModelDescription
+    variables: dict[str, FmuVariable]
+
+    @property
+    def model_identifier(self) -> str:
+        return self.model_description.coSimulation.modelIdentifier
+
+
+def _member_problem(info: zipfile.ZipInfo) -> str | None:
+    """Why this member must not be unpacked, or None when it is harmless."""
+    name = info.filename
+    if "\\" in name:
+        return "contains a backslash"
+    if name.startswith("/") or _DRIVE_LETTER.match(name):
+        return "is an absolute path"
+    if ".." in PurePosixPath(name).parts:
+        return "climbs out of the archive with '..'"
+    if "\0" in name or name.strip("/") == "":
+        return "has an empty or invalid name"
+    mode = info.external_attr >> 16  # Unix mode when the archive was made on Unix, else 0
+    if stat.S_ISLNK(mode):
+        return "is a symbolic link"
+    if stat.S_IFMT(mode) and not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        return "is not a regular file or folder"
+    return None
+
+
+def _check_members(path: Path, zf: zipfile.ZipFile, max_unpacked_bytes: int, max_members: int) -> None:
+    members = zf.infolist()
+    if len(members) > max_members:
+        raise InputError(f"archive has {len(members)} members, more than the limit of {max_members}", file=path)
+    seen: set[str] = set()
+    for info in members:
+        problem = _member_problem(info)
+        if problem:
+            raise InputError(f"archive member '{info.filename}' {problem}; refusing to unpack", file=path)
+        key = info.filename.rstrip("/")
+        if key in seen:
+            raise InputError(f"archive member '{info.filename}' appears twice", file=path)
+        seen.add(key)
+    declared = sum(info.file_size for info in members)
+    if declared > max_unpacked_bytes:
+        raise InputError(f"archive would unpack to {declared} bytes, more than the limit of {max_unpacked_bytes} "
+                         "(zip bomb?)", file=path)
+
+
+def _unpack(path: Path, zf: zipfile.ZipFile, target: Path, max_unpacked_bytes: int) -> None:
+    """Write every member below ``target``, counting real bytes (headers may lie about sizes)."""
+    root = target.resolve()
+    written = 0
+    for info in zf.infolist():
+        dest = (root / info.filename).resolve()
+        if dest != root and root not in dest.parents:  # belt and braces after _member_problem
+            raise InputError(f"archive member '{info.filename}' would be written outside the folder", file=path)
+        if info.is_dir():
+            dest.mkdir(parents=True, exist_ok=True)
+            continue
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        member_bytes = 0
+        with zf.open(info) as src, open(dest, "xb") as out:
+            while chunk := src.read(_CHUNK_BYTES):
+                member_bytes += len(chunk)
+                written += len(chunk)
+                if member_bytes > info.file_size:
+                    raise InputError(f"archive member '{info.filename}' unpacks to more than the {info.file_size} "
+                                     "bytes its header declares", file=path)
+                if written > max_unpacked_bytes:
+                    raise InputError(f"archive unpacks to more than the limit of {max_unpacked_bytes} bytes "
+                                     f"(at member '{info.filename}'; zip bomb?)", file=path)
+                out.write(chunk)
+
+
+def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
+    if not (unzip_dir / "modelDescription.xml").is_file():
+        raise InputError("no modelDescription.xml at the top of the archive (not an FMU?)", file=path)
+    try:
+        md = read_model_description(str(unzip_dir), validate=True)
+    except Exception as exc:  # fmpy raises ValidationError, lxml errors, ValueError...
+        raise InputError(f"invalid modelDescription.xml: {exc}", file=path) from exc
+    if md.fmiVersion != "2.0":
+        raise InputError(f"modelDescription.xml is FMI {md.fmiVersion}; only FMI 2.0 is supported", file=path)
+    if md.coSimulation is None:
+        raise InputError("the FMU offers no co-simulation interface (model exchange only); "
+                         "export it for co-simulation", file=path)
+    binary = unzip_dir / LINUX_BINARY_DIR / f"{md.coSimulation.modelIdentifier}.so"
+    if not binary.is_file():
+        found = sorted(p.name for p in (unzip_dir / "binaries").iterdir()) if (unzip_dir / "binaries").is_dir() else []
+        raise InputError(f"no Linux binary {LINUX_BINARY_DIR}/{binary.name} in the archive (binaries for: "
+                         f"{', '.join(found) or 'none'}); rebuild or re-export the FMU for linux64", file=path)
+    return md
+
+
+@contextmanager
+def open_fmu(path: str | Path, *, max_unpacked_bytes: int = MAX_UNPACKED_BYTES,
+             max_members: int = MAX_MEMBERS) -> Iterator[OpenedFmu]:
+    """Check, unpack into a temporary folder and describe an FMI 2.0 co-simulation FMU.
+
+    The folder is removed when the ``with`` block ends or any check fails.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError("FMU file not found", file=path)
+    if not zipfile.is_zipfile(path):
+        raise InputError("not a zip archive (an FMU is a zip file)", file=path)
+    unzip_dir = Path(tempfile.mkdtemp(prefix="fishfmu-fmu-"))
+    try:
+        try:
+            with zipfile.ZipFile(path) as zf:
+                _check_members(path, zf, max_unpacked_bytes, max_members)
+                _unpack(path, zf, unzip_dir, max_unpacked_bytes)
+        except (zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError, EOFError, OSError,
+                ValueError) as exc:  # what zipfile raises for damaged, encrypted or unsupported members
+            raise InputError(f"corrupt or unreadable zip archive: {exc}", file=path) from exc
+        md = _read_checked_description(path, unzip_dir)
+        variables = {v.name: FmuVariable(v.name, v.causality, v.type, v.variability, v.valueReference, v.unit, v.start)
+                     for v in md.modelVariables}
+        yield OpenedFmu(path, unzip_dir, md, variables)
+    finally:
+        shutil.rmtree(unzip_dir, ignore_errors=True)
+
+
+def require_variables(fmu: OpenedFmu, wanted: dict[str, tuple[str, str]]) -> None:
+    """Check that the FMU has each variable with the given (causality, type); name every problem.
+
+    >>> from types import SimpleNamespace
+    >>> fmu = SimpleNamespace(path="drive.fmu", variables={
+    ...     "belt_speed": FmuVariable("belt_speed", "output", "Real", "continuous", 2, "m/s", None)})
+    >>> require_variables(fmu, {"belt_sped": ("output", "Real")})
+    Traceback (most recent call last):
+    ...
+    plant.errors.InputError: drive.fmu: no variable 'belt_sped' (did you mean 'belt_speed'?)
+    """
+    problems = []
+    for name, (causality, type_) in wanted.items():
+        var = fmu.variables.get(name)
+        if var is None:
+            close = difflib.get_close_matches(name, list(fmu.variables), n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            problems.append(f"no variable '{name}'{hint}")
+            continue
+        if var.causality != causality:
+            problems.append(f"variable '{name}' has causality '{var.causality}', expected '{causality}'")
+        if var.type != type_:
+            problems.append(f"variable '{name}' is of type {var.type}, expected {type_}")
+    if problems:
+        raise InputError("; ".join(problems), file=fmu.path)
