@@ -127,10 +127,17 @@ def load_spec(name: str) -> FmuSpec:
 
 # ---------------------------------------------------------------- what the build depends on
 
+def fmi2_headers() -> list[Path]:
+    """The FMI 2.0 headers, taken from the installed fmpy (its c-code/ ships them, BSD-2), so that
+    no third-party file is kept in this repository."""
+    c_code = Path(fmpy.__file__).parent / "c-code"
+    return [c_code / n for n in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")]
+
+
 def _source_files(name: str) -> list[Path]:
-    """Every file that goes into the FMU (the shared glue and headers, the model's own files)."""
+    """Every file that goes into the FMU (the shared glue, the model's own files, the FMI headers)."""
     return [p for d in (COMMON_DIR, FMUS_DIR / name) for p in sorted(d.rglob("*"))
-            if p.is_file() and "__pycache__" not in p.parts]
+            if p.is_file() and "__pycache__" not in p.parts] + fmi2_headers()
 
 
 def source_digest(name: str) -> str:
@@ -138,7 +145,7 @@ def source_digest(name: str) -> str:
     h = hashlib.sha256(f"{name}\0{fmpy.platform}\0".encode())
     h.update(Path(__file__).read_bytes() + b"\0")
     for path in _source_files(name):
-        h.update(path.relative_to(FMUS_DIR).as_posix().encode() + b"\0")
+        h.update(path.name.encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
     return h.hexdigest()[:20]
 
@@ -255,13 +262,13 @@ def write_fmu_tree(spec: FmuSpec, guid: str, root: Path) -> None:
     sources.mkdir(parents=True)
     (docs / "licenses").mkdir(parents=True)
     (root / "modelDescription.xml").write_text(model_description_xml(spec, guid))
-    for path in [*(COMMON_DIR / "fmi2").glob("*.h"), COMMON_DIR / "fmu_glue.h", COMMON_DIR / "fmu_glue.c",
+    for path in [*fmi2_headers(), COMMON_DIR / "fmu_glue.h", COMMON_DIR / "fmu_glue.c",
                  *(FMUS_DIR / name / s for s in spec.sources)]:
         shutil.copy2(path, sources / path.name)
     (sources / GENERATED_HEADER).write_text(c_header(spec, guid))
     (sources / GENERATED_TABLE).write_text(c_table(spec))
     shutil.copy2(FMUS_DIR / name / "README.md", docs / "README.md")
-    shutil.copy2(COMMON_DIR / "fmi2" / "LICENSE.txt", docs / "licenses" / "fmi2-headers.txt")
+    shutil.copy2(COMMON_DIR / "FMI2-HEADERS-LICENSE.txt", docs / "licenses" / "fmi2-headers.txt")
 
 
 # ---------------------------------------------------------------- compiling and packing
