@@ -298,10 +298,34 @@ def _zip_tree(root: Path, zip_path: Path) -> None:
             zf.write(path, path.relative_to(root).as_posix())
 
 
-def build_fmu(name: str, out_dir: Path) -> Path:
-    """Build ``<out_dir>/<name>.fmu``: modelDescription, Linux binary and the sources to rebuild it."""
-    spec = load_spec(name)
-    guid = fmu_guid(name, source_digest(name))
+def with_defaults(spec: FmuSpec, defaults: dict[str, float | int | bool]) -> FmuSpec:
+    """The spec with changed start values of parameters (baked into the FMU as its defaults)."""
+    import dataclasses
+    import difflib
+    names = {v.name: v for v in spec.variables}
+    for key, value in defaults.items():
+        v = names.get(key)
+        if v is None or v.causality != "parameter":
+            params = [n for n, x in names.items() if x.causality == "parameter"]
+            close = difflib.get_close_matches(key, params, n=1)
+            raise InputError(f"'{key}' is not a parameter of {spec.model_identifier}"
+                             + (f"; did you mean '{close[0]}'?" if close else ""))
+        if (v.min is not None and value < v.min) or (v.max is not None and value > v.max):
+            raise InputError(f"{key} = {value} is outside [{v.min}, {v.max}]")
+    variables = tuple(dataclasses.replace(v, start=defaults[v.name]) if v.name in defaults else v
+                      for v in spec.variables)
+    return dataclasses.replace(spec, variables=variables)
+
+
+def build_fmu(name: str, out_dir: Path, defaults: dict[str, float | int | bool] | None = None) -> Path:
+    """Build ``<out_dir>/<name>.fmu``: modelDescription, Linux binary and the sources to rebuild it.
+
+    ``defaults``: parameter start values to bake in (an FMU as a vendor would ship it for one line).
+    """
+    spec = with_defaults(load_spec(name), defaults or {})
+    digest = source_digest(name) + ("" if not defaults else "-" + hashlib.sha256(
+        repr(sorted(defaults.items())).encode()).hexdigest()[:8])
+    guid = fmu_guid(name, digest)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     fmu_path = out_dir / f"{name}.fmu"

@@ -1,0 +1,148 @@
+"""Writing a run's folder: resolved scenario, KPIs, signals, the run as measured data, a report.
+
+Files are written to a temporary name and renamed into place, so a crash or an interrupt never
+leaves a half-written file under its final name.  ``run_info.json`` says whether the run
+completed (``status``) and is written last.  An output folder that holds anything not written by
+fishfmu is never touched; one from an earlier run is replaced only when asked (``overwrite``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree as ET
+
+from plant.errors import InputError
+from plant.measured import write_dataset
+
+from fishfmu.runner import RunResult
+from fishfmu.scenario import resolved_toml
+
+MARKER = "run_info.json"
+
+
+def prepare_out_dir(out: str | Path, overwrite: bool) -> Path:
+    """Create ``out``; refuse a folder with foreign files, or an earlier run unless ``overwrite``."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError("exists and is not a folder", file=out)
+    if out.exists() and any(out.iterdir()):
+        if not (out / MARKER).exists():
+            raise InputError("output folder is not empty and was not written by fishfmu; choose another --out",
+                             file=out)
+        if not overwrite:
+            raise InputError("output folder holds an earlier run; pass --overwrite to replace it", file=out)
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def kpis_document(result: RunResult) -> dict[str, Any]:
+    """kpis.json: the KPIs as plain numbers, and the expect bounds with their outcome."""
+    doc = dict(result.kpis)
+    doc["expect"] = {e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok} for e in result.expect}
+    return _clean(doc)
+
+
+def _clean(x: Any) -> Any:
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python, keys -> str."""
+    import math
+
+    import numpy as np
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def write_outputs(result: RunResult, out: Path, partial: bool = False, report: bool = True) -> dict[str, Path]:
+    """Write every output of a run into ``out`` (already prepared); returns the paths written."""
+    paths = {
+        "scenario": out / "scenario.resolved.toml",
+        "kpis": out / "kpis.json",
+        "signals": out / "signals.csv",
+        "run": out / "run",
+        "report": out / "report.html",
+        "info": out / MARKER,
+    }
+    write_text_atomic(paths["scenario"], resolved_toml(result.scenario))
+    write_json_atomic(paths["kpis"], kpis_document(result))
+    write_text_atomic(paths["signals"], result.signals.to_csv(index=False, float_format="%.10g"))
+    tmp_run = out / ".run.part"
+    if tmp_run.exists():
+        shutil.rmtree(tmp_run)
+    write_dataset(result.dataset(), tmp_run)
+    if paths["run"].exists():
+        shutil.rmtree(paths["run"])
+    os.replace(tmp_run, paths["run"])
+    if report:
+        from fishfmu.report import write_report
+        write_report(result, out)
+    import exudyn
+    import fmpy
+    info = {
+        "status": "partial" if partial else result.status,
+        "error": result.error,
+        "t_end_s": round(result.t_end_s, 6),
+        "wall_s": round(result.wall_s, 3),
+        "real_time_factor": round(result.t_end_s / result.wall_s, 3) if result.wall_s > 0 else None,
+        "setup_s": round(result.timings_s.get("setup", 0.0), 3),
+        "seed": result.scenario.run.seed,
+        "drops_raised": [{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
+        "versions": {"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
+    }
+    write_json_atomic(paths["info"], _clean(info))
+    return paths
+
+
+def write_junit(result: RunResult, path: Path, scenario_file: str | None) -> None:
+    """Each [expect] bound as a JUnit test case (CI systems show them like unit tests)."""
+    name = result.scenario.run.name
+    suite = ET.Element("testsuite", name=f"fishfmu:{name}", tests=str(len(result.expect)),
+                       failures=str(sum(not e.ok for e in result.expect)),
+                       errors="1" if result.status != "ok" else "0", time=f"{result.wall_s:.3f}")
+    props = ET.SubElement(suite, "properties")
+    ET.SubElement(props, "property", name="scenario", value=str(scenario_file or name))
+    ET.SubElement(props, "property", name="seed", value=str(result.scenario.run.seed))
+    if result.status != "ok":
+        case = ET.SubElement(suite, "testcase", classname=f"fishfmu.{name}", name="simulation")
+        ET.SubElement(case, "error", message=result.error or "failed").text = result.error
+    for e in result.expect:
+        case = ET.SubElement(suite, "testcase", classname=f"fishfmu.{name}", name=f"expect.{e.kpi}")
+        if not e.ok:
+            ET.SubElement(case, "failure", message=e.message).text = e.message
+        else:
+            ET.SubElement(case, "system-out").text = e.message
+    tree = ET.ElementTree(suite)
+    ET.indent(tree)
+    write_text_atomic(Path(path), ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")

@@ -1,0 +1,173 @@
+"""Running a scenario: build the plant and the FMUs, wire them, step the master, compute the KPIs.
+
+>>> from fishfmu.runner import run_scenario                       # doctest: +SKIP
+>>> from fishfmu.scenario import load_scenario                    # doctest: +SKIP
+>>> sc = load_scenario("scenarios/paper_test.toml")               # doctest: +SKIP
+>>> sc.fish.count = 12                                            # doctest: +SKIP
+>>> result = run_scenario(sc)                                     # doctest: +SKIP
+>>> result.kpis["singulation_rate"], result.signals.columns[:3]   # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from plant.errors import SimulationError
+from plant.kpis import compute_kpis
+from plant.measured import Dataset, Run
+from plant.plant import LEFT, WAITING, Plant
+from plant.population import FishSpec, fish_to_frame, sample_fish
+from plant.recorder import RunRecorder
+
+from fishfmu.fmu_files import open_fmu
+from fishfmu.master import CoSimulation, setpoint_sources
+from fishfmu.scenario import Scenario
+from fishfmu.wiring import resolve_wiring
+
+
+@dataclass
+class ExpectResult:
+    kpi: str
+    value: float | None
+    min: float | None
+    max: float | None
+
+    @property
+    def ok(self) -> bool:
+        if self.value is None:
+            return False
+        return (self.min is None or self.value >= self.min) and (self.max is None or self.value <= self.max)
+
+    @property
+    def message(self) -> str:
+        if self.value is None:
+            return f"{self.kpi} is undefined in this run"
+        if self.min is not None and self.value < self.min:
+            return f"{self.kpi} = {self.value:.4g} is below the minimum {self.min:g} by {self.min - self.value:.4g}"
+        if self.max is not None and self.value > self.max:
+            return f"{self.kpi} = {self.value:.4g} is above the maximum {self.max:g} by {self.value - self.max:.4g}"
+        return f"{self.kpi} = {self.value:.4g} within [{self.min}, {self.max}]"
+
+
+@dataclass
+class RunResult:
+    """Everything a run produced; ``status`` is ``ok`` or ``failed`` (then ``error`` says why)."""
+
+    scenario: Scenario
+    fish: list[FishSpec]
+    run: Run
+    kpis: dict[str, Any]
+    signals: pd.DataFrame
+    expect: list[ExpectResult]
+    status: str
+    error: str | None
+    t_end_s: float
+    wall_s: float
+    timings_s: dict[str, float] = field(default_factory=dict)
+    drop_adjustments: list[Any] = field(default_factory=list)
+
+    @property
+    def expect_ok(self) -> bool:
+        return all(e.ok for e in self.expect)
+
+    def dataset(self) -> Dataset:
+        """The run as a one-run dataset in the measured-data format."""
+        return Dataset(name=self.scenario.run.name, description="simulated by fishfmu", line=self.scenario.line,
+                       kpi=self.scenario.kpi, runs=[self.run])
+
+
+def scenario_fish(scenario: Scenario) -> list[FishSpec]:
+    """The batch of a scenario: sampled from its seed (the same seed gives the same fish)."""
+    rng = np.random.default_rng([scenario.run.seed, scenario.fish.seed_offset])
+    first = scenario.line.conveyors[0]
+    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), 0.5 * scenario.line.guide_width_m, rng)
+
+
+def fmu_path(instance) -> Path:
+    if instance.builtin is not None:
+        from fishfmu.fmu_build import builtin_fmu
+        return builtin_fmu(instance.builtin)
+    return Path(instance.path)
+
+
+def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
+                 on_progress: Callable[[float, float], None] | None = None,
+                 fish: list[FishSpec] | None = None) -> RunResult:
+    """Run one scenario; a failure inside the run is returned as ``status = "failed"`` with what was
+    recorded until then (bad input is raised as InputError before anything runs)."""
+    fish = scenario_fish(scenario) if fish is None else fish
+    sfile = str(scenario_file) if scenario_file else None
+    timings = {"setup": 0.0}
+    t0 = time.perf_counter()
+    with contextlib.ExitStack() as stack:
+        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
+        from fishfmu.wiring import direct_feedthrough
+        wiring = resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
+                                {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
+        plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
+        fmus = _instantiate(scenario, opened, stack)
+        recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,
+                               scenario.run.comm_step_s)
+        cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in scenario.fmu}, wiring, scenario.event,
+                             scenario.run.comm_step_s, jacobi=scenario.run.coupling == "jacobi", recorder=recorder,
+                             setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
+        stack.callback(cosim.terminate)
+        timings["setup"] = time.perf_counter() - t0
+        status, error = "ok", None
+        t_run = time.perf_counter()
+        try:
+            _loop(cosim, scenario, on_progress)
+        except SimulationError as exc:
+            status, error = "failed", str(exc)
+        wall = time.perf_counter() - t_run
+        tables = recorder.tables()
+        run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
+                  notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
+                  photoeyes=tables["photoeyes"], belts=tables["belts"])
+        kpis = compute_kpis(run, scenario.line, scenario.kpi)
+        expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
+        return RunResult(scenario, fish, run, kpis, cosim.signal_frame(), expect, status, error, cosim.t_s, wall,
+                         timings, list(plant.drop_adjustments))
+
+
+def _number(value: Any) -> float | None:
+    return None if value is None else float(value)
+
+
+def _instantiate(scenario: Scenario, opened, stack: contextlib.ExitStack) -> dict[str, Any]:
+    from fishfmu.fmu_instance import FmuInstance
+    fmus = {}
+    for f in scenario.fmu:
+        if scenario.run.fmu_process == "worker":
+            from fishfmu.fmu_worker import WorkerFmu
+            fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
+        else:
+            fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
+    return fmus
+
+
+def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float, float], None] | None) -> None:
+    n = int(round(scenario.run.duration_s / scenario.run.comm_step_s))
+    clear_since: float | None = None
+    plant = cosim.plant
+    for k in range(n):
+        cosim.step()
+        if on_progress is not None and k % 50 == 0:
+            on_progress(cosim.t_s, scenario.run.duration_s)
+        if scenario.run.stop_when_clear and len(plant.fish_specs):
+            if np.all(plant.status == LEFT):
+                clear_since = cosim.t_s if clear_since is None else clear_since
+                if cosim.t_s - clear_since >= 1.0 - 1e-9:
+                    break
+            elif np.any(plant.status == WAITING):
+                clear_since = None
+    if on_progress is not None:
+        on_progress(cosim.t_s, cosim.t_s)
