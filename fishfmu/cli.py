@@ -79,6 +79,7 @@ def run(
     seed: int | None = typer.Option(None, "--seed", help="Override run.seed."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
     report: bool = typer.Option(True, "--report/--no-report", help="Write the HTML/PNG report."),
+    replay: bool = typer.Option(False, "--replay", help="Also write replay.html: the run in 3D in a browser."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
     from fishfmu.outputs import prepare_out_dir, write_junit, write_outputs
@@ -101,10 +102,14 @@ def run(
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[t]:.1f} s simulated"),
                       TimeElapsedColumn(), console=Console(stderr=True), transient=True) as bar:
             task = bar.add_task(sc.run.name, total=sc.run.duration_s, t=0.0)
-            result = run_scenario(sc, scenario, on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
+            result = run_scenario(sc, scenario, record_poses=replay,
+                                  on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
     else:
-        result = run_scenario(sc, scenario)
+        result = run_scenario(sc, scenario, record_poses=replay)
     write_outputs(result, out_dir, report=report)
+    if replay:
+        from fishfmu.replay import write_replay
+        console.print(f"replay: {write_replay(out_dir)}", highlight=False)
     if junit is not None:
         write_junit(result, junit, str(scenario))
     print_kpis(result, console)

@@ -163,7 +163,8 @@ class CoSimulation:
         self.signals.append(tuple(row))
         if self.recorder is not None:
             setpoints = {c: float(self.values.get(self.setpoint_sources.get(c, ""), speeds[c])) for c in speeds}
-            self.recorder.record(self.t_s, self.plant.fish_state(), out.photoeyes, setpoints, speeds)
+            poses = self.plant.body_poses() if self.recorder.record_poses else None
+            self.recorder.record(self.t_s, self.plant.fish_state(), out.photoeyes, setpoints, speeds, poses)
 
     def signal_frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.signals, columns=["t_s", *self.signal_names])

@@ -105,6 +105,12 @@ def write_outputs(result: RunResult, out: Path, partial: bool = False, report: b
     if paths["run"].exists():
         shutil.rmtree(paths["run"])
     os.replace(tmp_run, paths["run"])
+    if result.poses is not None:
+        paths["poses"] = out / "poses.npz"
+        tmp = out / ".poses.part.npz"
+        import numpy as np
+        np.savez_compressed(tmp, **result.poses)
+        os.replace(tmp, paths["poses"])
     if report:
         from fishfmu.report import write_report
         write_report(result, out)

@@ -73,6 +73,8 @@ class RunResult:
     wall_s: float
     timings_s: dict[str, float] = field(default_factory=dict)
     drop_adjustments: list[Any] = field(default_factory=list)
+    poses: dict[str, np.ndarray] | None = None
+    """Body poses at 25 Hz and body outlines (see :func:`pose_record`), when asked for."""
 
     @property
     def expect_ok(self) -> bool:
@@ -98,9 +100,31 @@ def fmu_path(instance) -> Path:
     return Path(instance.path)
 
 
+def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | None:
+    """Recorded body poses plus what is needed to draw the bodies (poses.npz in a run folder).
+
+    ``body_fish`` (B,) fish index of each body, ``fish_id`` (N,), ``section_body``/``section_x``/
+    ``section_half_height``/``section_half_width`` (S,): each body's outline as cross-sections along
+    its local x axis (local y towards the back, local z the thickness).
+    """
+    poses = recorder.poses()
+    if poses is None:
+        return None
+    m = plant.model
+    poses.update({
+        "fish_id": np.array([f.fish_id for f in plant.fish_specs]),
+        "body_fish": np.repeat(np.arange(len(plant.fish_specs)), 5).astype(np.int32),
+        "section_body": m.section_body.astype(np.int32),
+        "section_x": m.section_x.astype(np.float32),
+        "section_half_height": (m.section_half_len + m.section_radius).astype(np.float32),
+        "section_half_width": m.section_radius.astype(np.float32),
+    })
+    return poses
+
+
 def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
                  on_progress: Callable[[float, float], None] | None = None,
-                 fish: list[FishSpec] | None = None) -> RunResult:
+                 fish: list[FishSpec] | None = None, record_poses: bool = False) -> RunResult:
     """Run one scenario; a failure inside the run is returned as ``status = "failed"`` with what was
     recorded until then (bad input is raised as InputError before anything runs)."""
     fish = scenario_fish(scenario) if fish is None else fish
@@ -115,7 +139,7 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
         fmus = _instantiate(scenario, opened, stack)
         recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,
-                               scenario.run.comm_step_s)
+                               scenario.run.comm_step_s, record_poses=record_poses)
         cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in scenario.fmu}, wiring, scenario.event,
                              scenario.run.comm_step_s, jacobi=scenario.run.coupling == "jacobi", recorder=recorder,
                              setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
@@ -135,7 +159,7 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         kpis = compute_kpis(run, scenario.line, scenario.kpi)
         expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
         return RunResult(scenario, fish, run, kpis, cosim.signal_frame(), expect, status, error, cosim.t_s, wall,
-                         timings, list(plant.drop_adjustments))
+                         timings, list(plant.drop_adjustments), pose_record(recorder, plant))
 
 
 def _number(value: Any) -> float | None:

@@ -18,6 +18,7 @@ import pandas as pd
 
 from plant.measured import BELTS, PHOTOEYES, TRACKS
 from plant.plant import ON_LINE, FishState
+from plant.rotations import matrix_to_quaternion
 
 TRACK_PERIOD_S = 0.04
 BELT_PERIOD_S = 0.01
@@ -38,17 +39,30 @@ class RunRecorder:
     _last_track_t: float = -1.0
     _last_belt_t: float = -1.0
     _t_last: float = 0.0
+    record_poses: bool = False
+    """Also keep every body's pose at the track rate (for the 3D replay)."""
+    _pose_t: list[float] = field(default_factory=list)
+    _pose_pos: list[np.ndarray] = field(default_factory=list)
+    _pose_quat: list[np.ndarray] = field(default_factory=list)
+    _pose_status: list[np.ndarray] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self._blocked_since = {p: None for p in self.photoeye_ids}
 
     def record(self, t_s: float, fish: FishState | None, photoeyes: dict[str, bool],
-               belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float]) -> None:
+               belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
+               body_poses: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         eps = 1e-9
         if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
             for k in np.flatnonzero(fish.status == ON_LINE):
                 self._tracks.append((t_s, self.fish_ids[k], fish.x_m[k], fish.y_m[k], fish.yaw_rad[k]))
+            if self.record_poses and body_poses is not None:
+                pos, rot = body_poses
+                self._pose_t.append(t_s)
+                self._pose_pos.append(pos.astype(np.float32))
+                self._pose_quat.append(matrix_to_quaternion(rot).astype(np.float32))
+                self._pose_status.append(fish.status.copy())
         if t_s - self._last_belt_t >= BELT_PERIOD_S - eps:
             self._last_belt_t = t_s
             for c in self.conveyor_ids:
@@ -61,6 +75,17 @@ class RunRecorder:
                 self._intervals.append((p, since, t_s))
                 self._blocked_since[p] = None
         self._t_last = t_s
+
+    def poses(self) -> dict[str, np.ndarray] | None:
+        """Body poses at the track rate: ``t_s`` (F,), ``pos`` (F, B, 3), ``quat`` (F, B, 4: w, x, y, z),
+        ``status`` (F, n_fish) of WAITING/ON_LINE/LEFT; None unless ``record_poses``."""
+        if not self.record_poses:
+            return None
+        n_b = 5 * len(self.fish_ids)
+        return {"t_s": np.array(self._pose_t),
+                "pos": np.array(self._pose_pos, dtype=np.float32).reshape(-1, n_b, 3),
+                "quat": np.array(self._pose_quat, dtype=np.float32).reshape(-1, n_b, 4),
+                "status": np.array(self._pose_status, dtype=np.int8).reshape(-1, len(self.fish_ids))}
 
     def tables(self) -> dict[str, pd.DataFrame]:
         """tracks, photoeyes and belts tables; a beam still blocked at the end closes at the last time."""

@@ -73,3 +73,11 @@ def lying_orientation(yaw_rad: float, side: int) -> np.ndarray:
     flank is down (body z up); ``side = -1``: the left flank is down (body z down).
     """
     return rot_z(yaw_rad) @ (np.eye(3) if side >= 0 else rot_x(np.pi))
+
+
+def matrix_to_quaternion(rot: np.ndarray) -> np.ndarray:
+    """(n, 3, 3) rotation matrices -> (n, 4) unit quaternions (w, x, y, z), w >= 0."""
+    rv = matrix_to_rotvec(rot)
+    th = np.linalg.norm(rv, axis=-1, keepdims=True)
+    axis = np.where(th > 1e-12, rv / np.where(th > 1e-12, th, 1.0), 0.0)
+    return np.concatenate([np.cos(th / 2), axis * np.sin(th / 2)], axis=-1)
