@@ -80,6 +80,10 @@ def run(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
     report: bool = typer.Option(True, "--report/--no-report", help="Write the HTML/PNG report."),
     replay: bool = typer.Option(False, "--replay", help="Also write replay.html: the run in 3D in a browser."),
+    seeds: int = typer.Option(1, "--seeds", min=1, help="Run this many seeds (run.seed and the ones after it) on "
+                                                          "Dask; KPIs as mean and 95 % CI, [expect] on the means."),
+    workers: int | None = typer.Option(None, "--workers", help="With --seeds: local worker processes (default: cores)."),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
     from fishfmu.outputs import prepare_out_dir, write_junit, write_outputs
@@ -94,6 +98,14 @@ def run(
         overrides[key.strip()] = parse_value(value.strip())
     if seed is not None:
         overrides["run.seed"] = seed
+    if seeds > 1:  # Monte-Carlo over seeds: fishfmu.montecarlo
+        if replay:
+            raise InputError("--replay shows one run; drop it or run without --seeds")
+        from fishfmu.montecarlo import run_seeds_command
+        load_scenario(scenario, overrides)
+        out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
+        raise typer.Exit(run_seeds_command(scenario, overrides, seeds, out_dir, junit, scheduler, workers,
+                                           _show_progress()))
     sc = load_scenario(scenario, overrides)
     out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
     console = Console()
@@ -118,6 +130,104 @@ def run(
         raise SimulationError(f"{result.error} (results so far written to {out_dir})")
     if not result.expect_ok:
         raise typer.Exit(EXIT_EXPECT_FAILED)
+
+
+@app.command("sweep")
+def sweep(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML)."),
+    param: list[str] = typer.Option([], "--param", help="Swept key and values: --param fish.length_mean_m=0.5,0.6 "
+                                                         "or KEY=START:STOP:N (repeatable; every combination runs)."),
+    seeds: int = typer.Option(5, "--seeds", min=1, help="Fish batches per point: run.seed and the N-1 after it."),
+    out: Path = typer.Option(..., "--out", help="Sweep folder; the same command on the same folder resumes."),
+    set_: list[str] = typer.Option([], "--set", help="Fixed override at every point: --set fish.count=30."),
+    scheduler: str | None = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler "
+                                                                   "(default: a local cluster)."),
+    workers: int | None = typer.Option(None, "--workers", help="Local worker processes (default: cores)."),
+    threads_per_worker: int = typer.Option(1, "--threads-per-worker", min=1, help="Threads per local worker."),
+    max_runs: int | None = typer.Option(None, "--max-runs", min=0, help="Stop after this many runs (resume later)."),
+    retry_failed: bool = typer.Option(False, "--retry-failed", help="Re-run failed runs when resuming."),
+) -> None:
+    """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
+    from fishfmu.sweep import make_spec, parse_param, run_sweep
+    from fishfmu.sweep_report import print_summary
+    from fishfmu.scenario import parse_value
+    fixed = {}
+    for item in set_:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise InputError(f"--set '{item}': expected KEY=VALUE")
+        fixed[key.strip()] = parse_value(value.strip())
+    params = dict(parse_param(p) for p in param)
+    if len(params) != len(param):
+        raise InputError("a key is given twice with --param")
+    spec = make_spec(scenario, params, seeds, fixed)
+    result = run_sweep(spec, out, scheduler=scheduler, workers=workers, threads_per_worker=threads_per_worker,
+                       progress=_show_progress(), max_runs=max_runs, retry_failed=retry_failed)
+    console = Console()
+    if len(result.summary):
+        print_summary(result.summary, list(spec.parameters), console, title=scenario.stem)
+    done = len(result.runs)
+    console.print(f"{done} of {result.n_runs} runs done ({result.n_executed} now, {result.n_skipped} from before), "
+                  f"{int((result.runs['status'] != 'ok').sum()) if done else 0} failed, {result.wall_s:.0f} s; "
+                  f"tables and plots in {result.out}", highlight=False)
+    if result.interrupted:
+        console.print("[yellow]interrupted[/]: run the same command again to resume", highlight=False)
+        raise typer.Exit(130)
+
+
+@app.command("bench")
+def bench(
+    fish: str = typer.Option("18,50,100,200", "--fish", help="Fish counts, comma separated."),
+    duration: float = typer.Option(5.0, "--duration", help="Simulated seconds measured after the drop."),
+    comm_step: float = typer.Option(0.01, "--comm-step", help="Communication step [s]."),
+    threads: int = typer.Option(1, "--threads", help="Exudyn threads."),
+    json_file: Path | None = typer.Option(None, "--json", help="Write the records as a JSON list here."),
+    plot_file: Path | None = typer.Option(None, "--plot", help="Write a PNG of cost against fish count here."),
+) -> None:
+    """Real-time factor of plant and co-simulation for several fish counts, where time goes, peak memory."""
+    import json
+
+    from rich.table import Table
+
+    from fishfmu.bench import per_fish_cost, plot, records_json, run_bench
+    try:
+        counts = [int(x) for x in fish.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
+    if not counts or min(counts) < 0:
+        raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
+    console = Console()
+    table = Table(title=f"fishfmu bench: {duration:g} s simulated after the drop, step {comm_step:g} s, {threads} thread(s)")
+    for col in ("fish", "RTF plant", "RTF co-sim", "Exudyn", "plant py", "FMUs", "master", "recording",
+                "FMU+master+rec", "peak MB"):
+        table.add_column(col, justify="right")
+
+    def row(r) -> None:
+        w = r.wall_cosim_s
+        table.add_row(str(r.fish), f"{r.rtf_plant:.2f}", f"{r.rtf_cosim:.2f}", f"{100 * r.plant_exudyn_s / w:.0f} %",
+                      f"{100 * r.plant_python_s / w:.0f} %", f"{100 * r.fmu_s / w:.1f} %", f"{100 * r.master_s / w:.1f} %",
+                      f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
+        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}", highlight=False)
+
+    records = run_bench(counts, duration, comm_step, threads, on_record=row)
+    console.print(table)
+    base, per = per_fish_cost(records)
+    console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
+                  "measured counts)", highlight=False)
+    if json_file is not None:
+        json_file.write_text(json.dumps(records_json(records), indent=2) + "\n")
+    if plot_file is not None:
+        plot(records, plot_file)
+
+
+@app.command("replay")
+def replay_cmd(
+    run_dir: Path = typer.Argument(..., help="Output folder of a `fishfmu run --replay`."),
+    out: Path | None = typer.Option(None, "--out", help="HTML file to write (default: RUN_DIR/replay.html)."),
+) -> None:
+    """Write a run as one HTML page that replays it in 3D in a browser (offline, from the file)."""
+    from fishfmu.replay import write_replay
+    print(write_replay(run_dir, out))
 
 
 def main() -> None:

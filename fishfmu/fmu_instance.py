@@ -50,6 +50,7 @@ class FmuInstance:
         check_parameters(name, fmu, parameters)
         self.name = name
         self.variables = fmu.variables
+        self._ref_cache: dict[tuple[str, ...], dict[str, list[tuple[str, int]]]] = {}
         md = fmu.model_description
         self._time = start_time_s
         self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
@@ -71,11 +72,16 @@ class FmuInstance:
                                   + ("" if status is not None else f" ({exc})"), self._time) from None
 
     def _refs(self, names: Iterable[str]) -> dict[str, list[tuple[str, int]]]:
+        key = tuple(names)
+        cached = self._ref_cache.get(key)
+        if cached is not None:
+            return cached
         by_type: dict[str, list[tuple[str, int]]] = {}
-        for n in names:
+        for n in key:
             v = self.variables[n]
             t = "Integer" if v.type == "Enumeration" else v.type
             by_type.setdefault(t, []).append((n, v.value_reference))
+        self._ref_cache[key] = by_type
         return by_type
 
     def set(self, values: Mapping[str, Any]) -> None:

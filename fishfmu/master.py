@@ -73,6 +73,9 @@ class CoSimulation:
         names += [k for k in self.wiring.constants if k not in names]
         self.signal_names = names
         self._feeding = {c.target.key: c for c in self.wiring.connections}
+        self._sent: dict[str, Any] = {}
+        self._constants_of = {name: [(key, key.partition(".")[2], v) for key, v in self.wiring.constants.items()
+                                     if key.partition(".")[0] == name] for name in self.fmus}
         # initial values: FMU outputs after initialisation, the plant at rest
         for name, fmu in self.fmus.items():
             for var, v in fmu.get(self._outputs_of[name]).items():
@@ -111,11 +114,11 @@ class CoSimulation:
 
     def _step_fmu(self, name: str, held: dict[str, Any], t: float, dt: float) -> None:
         fmu = self.fmus[name]
-        inputs = {c.target.variable: self._transmit(c, held) for c in self._inputs_of[name]}
-        for key, value in self.wiring.constants.items():
-            comp, _, var = key.partition(".")
-            if comp == name:
-                inputs[var] = self._with_event(key, value)
+        inputs = {}
+        for c in self._inputs_of[name]:
+            inputs[c.target.variable] = self._sent[c.target.key] = self._transmit(c, held)
+        for key, var, value in self._constants_of[name]:
+            inputs[var] = self._sent[key] = self._with_event(key, value)
         fmu.set(inputs)
         fmu.do_step(t, dt)
         for var, v in fmu.get(self._outputs_of[name]).items():
@@ -125,10 +128,15 @@ class CoSimulation:
 
     def _input_value(self, key: str, held: dict[str, Any]) -> Any:
         if key in self._feeding:
-            return self._transmit(self._feeding[key], held)
-        return self._with_event(key, self.wiring.constants[key])
+            value = self._transmit(self._feeding[key], held)
+        else:
+            value = self._with_event(key, self.wiring.constants[key])
+        self._sent[key] = value
+        return value
 
     def _transmit(self, c: Connection, held: dict[str, Any]) -> Any:
+        if not self.overrides:
+            return held[c.source.key]
         value = self._with_event(c.source.key, held[c.source.key])
         return self._with_event(c.target.key, value)
 
@@ -152,19 +160,13 @@ class CoSimulation:
 
     # ---- recording ---------------------------------------------------------------------------
     def _record(self, speeds: dict[str, float], out) -> None:
-        row = [self.t_s]
-        for key in self.signal_names:
-            if key in self.wiring.constants:
-                row.append(self._with_event(key, self.wiring.constants[key]))
-            elif key in self._feeding:
-                row.append(self._transmit(self._feeding[key], self.values))
-            else:
-                row.append(self._with_event(key, self.values.get(key)))
-        self.signals.append(tuple(row))
+        """Inputs as they were sent this step, outputs as they are now (before any event on them)."""
+        sent, values = self._sent, self.values
+        self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
         if self.recorder is not None:
-            setpoints = {c: float(self.values.get(self.setpoint_sources.get(c, ""), speeds[c])) for c in speeds}
-            poses = self.plant.body_poses() if self.recorder.record_poses else None
-            self.recorder.record(self.t_s, self.plant.fish_state(), out.photoeyes, setpoints, speeds, poses)
+            setpoints = {c: float(values.get(self.setpoint_sources.get(c, ""), speeds[c])) for c in speeds}
+            self.recorder.record(self.t_s, self.plant.fish_state, out.photoeyes, setpoints, speeds,
+                                 self.plant.body_poses)
 
     def signal_frame(self) -> pd.DataFrame:
         return pd.DataFrame(self.signals, columns=["t_s", *self.signal_names])

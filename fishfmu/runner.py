@@ -110,14 +110,21 @@ def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | 
     poses = recorder.poses()
     if poses is None:
         return None
-    m = plant.model
+    body, x, half_h, half_w = [], [], [], []
+    for k, prep in enumerate(plant.prepared):
+        for i, b in enumerate(prep.geometry.bodies):
+            for (sx, hh, hw) in b.outline:
+                body.append(5 * k + i)
+                x.append(sx)
+                half_h.append(hh)
+                half_w.append(hw)
     poses.update({
         "fish_id": np.array([f.fish_id for f in plant.fish_specs]),
         "body_fish": np.repeat(np.arange(len(plant.fish_specs)), 5).astype(np.int32),
-        "section_body": m.section_body.astype(np.int32),
-        "section_x": m.section_x.astype(np.float32),
-        "section_half_height": (m.section_half_len + m.section_radius).astype(np.float32),
-        "section_half_width": m.section_radius.astype(np.float32),
+        "section_body": np.array(body, dtype=np.int32),
+        "section_x": np.array(x, dtype=np.float32),
+        "section_half_height": np.array(half_h, dtype=np.float32),
+        "section_half_width": np.array(half_w, dtype=np.float32),
     })
     return poses
 

@@ -40,10 +40,11 @@ class Port:
     variable: str
     causality: str  # input | output
     type: str
+    key: str = field(init=False, compare=False)
+    """``component.variable``, the name used in connections, events and recorded signals."""
 
-    @property
-    def key(self) -> str:
-        return f"{self.component}.{self.variable}"
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "key", f"{self.component}.{self.variable}")
 
 
 @dataclass(frozen=True)

@@ -32,16 +32,19 @@ def _read(name: str) -> pd.DataFrame:
         return pd.read_csv(fh)
 
 
+@functools.cache
 def table1() -> pd.DataFrame:
-    """Table I: length, height, width and weight of salmon samples #14-#20."""
+    """Table I: length, height, width and weight of salmon samples #14-#20 (read once; do not modify)."""
     return _read("paper_table1.csv")
 
 
+@functools.cache
 def table2() -> pd.DataFrame:
     """Table II: weight of the five bodies of sample #16 (head, upper body, lower body, tail, tail fin)."""
     return _read("paper_table2.csv")
 
 
+@functools.cache
 def table3() -> pd.DataFrame:
     """Table III: joint limits of the Unity rag-doll, in degrees (swing 1, swing 2, twist)."""
     return _read("paper_table3.csv")

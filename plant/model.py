@@ -13,8 +13,11 @@ What is in it:
   Lie-group integrator, gravity as a mass-proportional load per body (switched off while a fish
   waits for its drop or after it has left the line), contact spheres, and four rigid-body
   spring-dampers (stiff in translation, ``plant.joints`` laws in rotation).
-- Fish that are not on the line wait in a parking grid below it, inside the contact search box
-  and spread out so that they never share a search cell.
+- Only the fish in play are in the system: every contact sphere costs time at every force
+  evaluation whether it touches anything or not, so a fish waiting for its drop or gone past the
+  outfeed would cost as much as one on the line.  The plant rebuilds the system when fish are
+  about to be dropped or enough have left (:class:`Member` carries each body's state over); a fish
+  admitted shortly before its drop waits in a parking grid below the line with gravity off.
 
 The numbers that decide stability are documented in ``plant.params.NumericsParams``.
 """
@@ -54,20 +57,51 @@ DRUM_RADIUS_M = 0.03
 PARK_SPACING_M = (0.8, 0.25, 0.2)
 
 
+@dataclass(frozen=True)
+class PreparedFish:
+    """What a fish is, worked out once per run: bodies, simulated inertias, joint laws."""
+
+    spec: FishSpec
+    geometry: FishGeometry
+    inertias: tuple[np.ndarray, ...]
+    laws: JointLaws
+    body_offsets_m: np.ndarray
+    """(5, 3) body centre of mass relative to the mid-length point, in the fish frame."""
+    n_spheres: int
+
+
+@dataclass
+class Member:
+    """A fish to put into the system, with its bodies' state (positions, rotation vectors, velocities,
+    body-frame angular velocities) and its joints' current linearisation."""
+
+    index: int
+    """The fish's index in the run's list of fish."""
+    prepared: PreparedFish
+    coords: np.ndarray
+    """(5, 6): position and rotation vector of each body."""
+    velocities: np.ndarray
+    """(5, 6): velocity and angular velocity (body frame) of each body."""
+    gravity: bool
+    joint_k: np.ndarray
+    """(4, 3) current rotational stiffness of each joint (see plant.joints.linearize)."""
+    joint_offset: np.ndarray
+
+
 @dataclass
 class FishModel:
     """Where one fish lives in the Exudyn system."""
 
-    spec: FishSpec
-    geometry: FishGeometry
-    laws: JointLaws
+    index: int
+    prepared: PreparedFish
     first_body: int
-    """Index of its head in the plant's body arrays (bodies are consecutive, head to tail fin)."""
+    """Index of its head in the model's body arrays (bodies are consecutive, head to tail fin)."""
     connectors: list[int]
     gravity_loads: list[int]
-    park_position: np.ndarray
-    body_offsets_m: np.ndarray
-    """(5, 3) body centre of mass relative to the mid-length point, in the fish frame."""
+
+    @property
+    def spec(self) -> FishSpec:
+        return self.prepared.spec
 
 
 @dataclass
@@ -81,15 +115,11 @@ class PlantModel:
     line: Line
     params: PlantParams
     fish: list[FishModel]
-    body_nodes: list[int]
     body_ltg: np.ndarray
     """(n_bodies, 6) indices of each body's coordinates in the system's ODE2 vectors."""
     body_ref: np.ndarray
     """(n_bodies, 6) reference coordinates (position, rotation vector) of each body node."""
-    body_mass_kg: np.ndarray
-    belt_nodes: list[int]
     belt_ltg: np.ndarray
-    belt_ref: np.ndarray
     sphere_body: np.ndarray
     """(n_spheres,) body index of each contact sphere."""
     sphere_local: np.ndarray
@@ -102,6 +132,11 @@ class PlantModel:
     section_half_len: np.ndarray
     section_radius: np.ndarray
     search_box: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(3), np.zeros(3)))
+
+    @property
+    def member_index(self) -> np.ndarray:
+        """The run's fish index of each fish in the system."""
+        return np.array([f.index for f in self.fish], dtype=np.int64)
 
 
 def _quad(pts: list[list[float]], trigs: list[list[int]], a, b, c, d) -> None:
@@ -177,7 +212,7 @@ def _shaped_inertia(body, enabled: bool) -> np.ndarray:
 
 
 def park_positions(line: Line, n: int) -> np.ndarray:
-    """Waiting places for n fish: a grid below the line, one search cell apart or more."""
+    """Waiting places for n fish: a grid below the line (at most four layers deep: few fish wait)."""
     dx, dy, dz = PARK_SPACING_M
     nx = max(1, int((line.x_end_m - line.x_start_m) // dx))
     ny = max(1, int(line.guide_width_m // dy) + 1)
@@ -190,12 +225,26 @@ def park_positions(line: Line, n: int) -> np.ndarray:
     return out
 
 
-def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
-                joint_factors: list[tuple[float, float]] | None = None) -> PlantModel:
-    """Create, connect and assemble everything; all fish start parked with gravity off.
+def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float, float] = (1.0, 1.0)) -> PreparedFish:
+    """Cut a fish into bodies and work out its inertias and joint laws (once per run)."""
+    num = params.numerics
+    geo = fish_geometry(spec.length_m, spec.height_m, spec.width_m, spec.weight_kg,
+                        sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction)
+    inertias = tuple(_shaped_inertia(b, num.inertia_shaping) for b in geo.bodies)
+    laws = joint_laws(geo, params.joints, num, params.gravity_mps2, list(inertias), *joint_factor)
+    offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
+    return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies))
 
-    ``joint_factors``: per fish (stiffness factor, limit factor) for its joints (default 1, 1).
-    """
+
+def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray) -> Member:
+    """A fish straight and at rest at a parking place, gravity off, joints at their soft stiffness."""
+    coords = np.zeros((5, 6))
+    coords[:, :3] = park_m[None, :] + prepared.body_offsets_m
+    return Member(index, prepared, coords, np.zeros((5, 6)), False, prepared.laws.k_soft.copy(), np.zeros((4, 3)))
+
+
+def build_model(line: Line, members: list[Member], params: PlantParams, gravity: np.ndarray) -> PlantModel:
+    """Create, connect and assemble the line and the given fish in their given states."""
     num = params.numerics
     system = exu.SystemContainer()
     mbs = system.AddSystem()
@@ -213,11 +262,9 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
     pts, trigs = _guides(line, params)
     gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                   frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
-
     belt_nodes = []
     for c in line.conveyors:
-        ref = [c.x_start_m, 0.0, c.z_top_m, 0.0, 0.0, 0.0]
-        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=ref))
+        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[c.x_start_m, 0.0, c.z_top_m, 0.0, 0.0, 0.0]))
         body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
         marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
         pts, trigs = _belt_surface(c.length_m, c.width_m)
@@ -225,33 +272,27 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
                                       frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
         belt_nodes.append(node)
 
-    parks = park_positions(line, len(fish))
     fish_models: list[FishModel] = []
     body_nodes: list[int] = []
-    body_mass: list[float] = []
     sphere_body, sphere_local, sphere_radius = [], [], []
     section_body, section_x, section_half_len, section_radius = [], [], [], []
-    for k, spec in enumerate(fish):
-        geo = fish_geometry(spec.length_m, spec.height_m, spec.width_m, spec.weight_kg,
-                            sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction)
-        inertias = [_shaped_inertia(b, num.inertia_shaping) for b in geo.bodies]
-        sf, lf = joint_factors[k] if joint_factors else (1.0, 1.0)
-        laws = joint_laws(geo, params.joints, num, params.gravity_mps2, inertias, sf, lf)
-        offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
-        n_spheres = sum(len(b.spheres) for b in geo.bodies)
+    for mem in members:
+        prep = mem.prepared
+        geo = prep.geometry
         first = len(body_nodes)
+        # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
+        # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
+        m_share = prep.spec.weight_kg / prep.n_spheres
+        k_c = m_share * num.contact_omega_rad_s**2
+        d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
         objects, loads = [], []
-        for i, (b, inertia) in enumerate(zip(geo.bodies, inertias)):
-            pos = parks[k] + offsets[i]
-            node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(pos) + [0.0, 0.0, 0.0]))
+        for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
+            node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(mem.coords[i]),
+                                                     initialVelocities=list(mem.velocities[i])))
             obj = mbs.AddObject(ObjectRigidBody(mass=b.mass_kg, inertia=list(inertia) + [0.0] * 3, nodeNumber=node))
+            load_vector = list(gravity) if mem.gravity else [0.0, 0.0, 0.0]
             loads.append(mbs.AddLoad(LoadMassProportional(markerNumber=mbs.AddMarker(MarkerBodyMass(bodyNumber=obj)),
-                                                          loadVector=[0.0, 0.0, 0.0])))
-            # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
-            # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
-            m_share = spec.weight_kg / n_spheres
-            k_c = m_share * num.contact_omega_rad_s**2
-            d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
+                                                          loadVector=load_vector)))
             for (x, y, r) in b.spheres:
                 marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=obj, localPosition=[x, y, 0.0]))
                 gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
@@ -266,7 +307,6 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
                 section_radius.append(half_w)
             objects.append(obj)
             body_nodes.append(node)
-            body_mass.append(b.mass_kg)
         connectors = []
         for j in range(len(geo.bodies) - 1):
             a, b = geo.bodies[j], geo.bodies[j + 1]
@@ -276,20 +316,20 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
             m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
             k_t = m_red * num.joint_translation_omega_rad_s**2
             d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
-            stiffness = np.diag([k_t] * 3 + list(laws.k_soft[j]))
-            damping = np.diag([d_t] * 3 + list(laws.damping[j]))
             connectors.append(mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
-                markerNumbers=[m0, m1], stiffness=stiffness, damping=damping, useIntrinsicFormulation=True)))
-        fish_models.append(FishModel(spec, geo, laws, first, connectors, loads, parks[k], offsets))
+                markerNumbers=[m0, m1], stiffness=np.diag([k_t] * 3 + list(mem.joint_k[j])),
+                damping=np.diag([d_t] * 3 + list(prep.laws.damping[j])), offset=[0.0] * 3 + list(mem.joint_offset[j]),
+                useIntrinsicFormulation=True)))
+        fish_models.append(FishModel(mem.index, prep, first, connectors, loads))
 
-    # contact search: a box over the line, the space above it and the parking grid
-    z_park = parks[:, 2].min() if len(parks) else -1.0
-    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15, z_park - 0.3])
+    # contact search: a box over the line, the space above it and the parking grid below it
+    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
+                   min(c.z_top_m for c in line.conveyors) - 0.6 - PARK_SPACING_M[2] * 4 - 0.3])
     hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
                    max(c.z_top_m for c in line.conveyors) + 1.2])
     cell = 0.1
     gc.SetSearchTreeBox(lo, hi)
-    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s / cell))) for s in hi - lo])
+    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / cell))) for s_ in hi - lo])
     mbs.Assemble()
 
     ss = exu.SimulationSettings()
@@ -305,19 +345,17 @@ def build_model(line: Line, fish: list[FishSpec], params: PlantParams,
     body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in body_nodes], dtype=np.int64).reshape(-1, 6)
     body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in body_nodes]).reshape(-1, 6)
     belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
-    belt_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in belt_nodes])
-    return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_nodes, body_ltg, body_ref,
-                      np.array(body_mass), belt_nodes, belt_ltg, belt_ref, np.array(sphere_body, dtype=np.int64),
-                      np.array(sphere_local).reshape(-1, 3), np.array(sphere_radius),
-                      np.array(section_body, dtype=np.int64), np.array(section_x), np.array(section_half_len),
-                      np.array(section_radius), (lo, hi))
+    return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_ltg, body_ref, belt_ltg,
+                      np.array(sphere_body, dtype=np.int64), np.array(sphere_local).reshape(-1, 3),
+                      np.array(sphere_radius), np.array(section_body, dtype=np.int64), np.array(section_x),
+                      np.array(section_half_len), np.array(section_radius), (lo, hi))
 
 
-def pose_coordinates(model: PlantModel, fish_index: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """ODE2 indices and values that put a fish's bodies straight at ``mid_m`` with ``rotation``."""
-    fm = model.fish[fish_index]
-    idx = slice(fm.first_body, fm.first_body + len(fm.geometry.bodies))
-    pos = mid_m[None, :] + fm.body_offsets_m @ rotation.T
+def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """ODE2 indices and values that put the fish in ``slot`` of the model straight at ``mid_m`` with ``rotation``."""
+    fm = model.fish[slot]
+    idx = slice(fm.first_body, fm.first_body + 5)
+    pos = mid_m[None, :] + fm.prepared.body_offsets_m @ rotation.T
     rv = matrix_to_rotvec(rotation[None])[0]
     values = np.hstack([pos, np.repeat(rv[None, :], len(pos), axis=0)]) - model.body_ref[idx]
     return model.body_ltg[idx].ravel(), values.ravel()

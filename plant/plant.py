@@ -11,31 +11,39 @@
 
 One step is a short, fixed pipeline (read it top to bottom):
 
-1. release the fish whose drop time has come (placed clear of the fish already there);
+1. admit and release the fish whose drop time has come (placed clear of the fish already there);
 2. set the belt speeds (each belt body back in place, moving at its speed);
 3. re-linearise the joints that are at or running into their limits;
 4. let Exudyn integrate to the end of the step;
 5. read the state, work out the sensors, retire fish that have left the line, check health.
+
+Only fish in play are in the Exudyn system (see :mod:`plant.model`): when fish are about to be
+dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
+state of every body carried over.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass
 
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.joints import linearize, stack_laws
+from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
-from plant.model import BELT_MASS_KG, build_model, pose_coordinates
+from plant.model import (BELT_MASS_KG, Member, PlantModel, build_model, park_positions, parked_member, pose_coordinates,
+                         prepare_fish)
 from plant.params import PlantParams
 from plant.population import FishSpec
 from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
-from plant.sensors import belt_loads, fish_pose, photoeyes_blocked, sphere_centres, spine_point_local
+from plant.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
 
 WAITING, ON_LINE, LEFT = 0, 1, 2
 MAX_SPEED_MPS = 25.0
 """Anything faster than this in a fish plant is a numerical blow-up, not physics."""
+ADMIT_AHEAD_S = 1.0
+"""Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
 
 
 @dataclass
@@ -92,37 +100,25 @@ class Plant:
             raise ValueError(f"communication step {comm_step_s} s is not a whole multiple of the integration "
                              f"step {self.params.numerics.step_s} s")
         self.comm_step_s = comm_step_s
-        self.model = build_model(line, self.fish_specs, self.params, joint_factors)
         self.conveyor_ids = [c.id for c in line.conveyors]
         self.photoeye_ids = [p.id for p in line.photoeyes]
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._x_starts = np.array([c.x_start_m for c in line.conveyors])
         self._z_top = np.array([c.z_top_m for c in line.conveyors])
-        self.status = np.full(len(self.fish_specs), WAITING, dtype=np.int8)
-        self.drop_adjustments: list[DropAdjustment] = []
-        self._steps = 0
-        self._belt_speed = np.zeros(len(self.conveyor_ids))
         self._gravity = self.params.gravity_mps2 * np.array(
             [np.sin(np.radians(self.params.incline_deg)), 0.0, -np.cos(np.radians(self.params.incline_deg))])
-        self._pose_refs = [(spine_point_local(f.geometry, 0.5), spine_point_local(f.geometry, 0.2),
-                            spine_point_local(f.geometry, 0.8)) for f in self.model.fish]
-        n_joints = 4 * len(self.fish_specs)
-        self._laws = stack_laws([f.laws for f in self.model.fish])
-        self._k_now = self._laws.k_soft.copy()
-        self._offset_now = np.zeros((n_joints, 3))
-        self._joint_bodies = np.array([(f.first_body + j, f.first_body + j + 1)
-                                       for f in self.model.fish for j in range(4)], dtype=np.int64).reshape(-1, 2)
-        self._sphere_active = np.zeros(len(self.model.sphere_body), dtype=bool)
-        self._fish_of_body = np.repeat(np.arange(len(self.fish_specs)), 5)
-
-        import exudyn as exu
-        self._solver = exu.MainSolverExplicit()
-        ss = self.model.settings
-        ss.timeIntegration.endTime = 1.0e6  # extended chunk by chunk
-        ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self.params.numerics.step_s))
-        self._solver.InitializeSolver(self.model.mbs, ss)
-        self._read_state()
+        self.prepared = [prepare_fish(f, self.params, joint_factors[k] if joint_factors else (1.0, 1.0))
+                         for k, f in enumerate(self.fish_specs)]
+        self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self.prepared]
+        self.status = np.full(len(self.fish_specs), WAITING, dtype=np.int8)
+        self.drop_adjustments: list[DropAdjustment] = []
+        self.rebuilds = 0
+        self.timings_s = {"exudyn": 0.0, "rebuild": 0.0}
+        """Wall time spent in Exudyn's solver and in rebuilding the system (for benchmarks)."""
+        self._steps = 0
+        self._t_model0 = 0.0
+        self._set_model(build_model(line, [], self.params, self._gravity), [])
 
     # ---- ports -------------------------------------------------------------------------------
     def input_ports(self) -> list[str]:
@@ -142,12 +138,13 @@ class Plant:
     def step(self, belt_speeds_mps: dict[str, float] | np.ndarray) -> PlantOutputs:
         """Advance one communication step with the given belt surface speeds."""
         speeds = self._speeds_array(belt_speeds_mps)
-        t_end = (self._steps + 1) * self.comm_step_s
-        self._release_due_fish(self.t_s + 1e-9)
+        self._admit_and_release(self.t_s + 1e-9)
         self._set_belts(speeds)
         self._relinearize_joints()
-        self._solver.it.endTime = t_end
+        self._solver.it.endTime = (self._steps + 1) * self.comm_step_s - self._t_model0
+        t0 = time.perf_counter()
         self._solver.SolveSteps(self.model.mbs, self.model.settings)
+        self.timings_s["exudyn"] += time.perf_counter() - t0
         self._steps += 1
         self._read_state()
         outputs = self._sensors(speeds)
@@ -155,45 +152,88 @@ class Plant:
         self._check_health()
         return outputs
 
-    # ---- 1. drops ----------------------------------------------------------------------------
-    def _release_due_fish(self, t: float) -> None:
-        due = [k for k, f in enumerate(self.fish_specs) if self.status[k] == WAITING and f.drop_t_s <= t]
+    # ---- the system: which fish are in it ----------------------------------------------------
+    def _set_model(self, model: PlantModel, members: list[Member]) -> None:
+        import exudyn as exu
+        self.model = model
+        self._slot_of = {m.index: i for i, m in enumerate(members)}
+        self._member = model.member_index
+        self._fish_of_body = np.repeat(self._member, 5)
+        self._laws = stack_laws([m.prepared.laws for m in members])
+        self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
+        self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
+        self._joint_bodies = np.array([(5 * i + j, 5 * i + j + 1) for i in range(len(members)) for j in range(4)],
+                                      dtype=np.int64).reshape(-1, 2)
+        self._pose_bodies = np.array([[5 * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
+                                     dtype=np.int64).reshape(-1, 3)
+        self._pose_local = np.array([[r[1] for r in self._spine_refs[m.index]] for m in members]).reshape(-1, 3, 3)
+        self._solver = exu.MainSolverExplicit()
+        ss = model.settings
+        ss.timeIntegration.endTime = 1.0e6  # extended chunk by chunk
+        ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self.params.numerics.step_s))
+        self._solver.InitializeSolver(model.mbs, ss)
+        self._t_model0 = self.t_s
+        self._read_state()
+
+    def _rebuild(self, t: float) -> None:
+        """A new system with the fish on the line (state carried over) and those due soon (parked)."""
+        members = []
+        for slot, k in enumerate(self._member):
+            if self.status[k] == ON_LINE:
+                b = slice(5 * slot, 5 * slot + 5)
+                coords = np.hstack([self._pos[b], matrix_to_rotvec(self._rot[b])])
+                vel = np.hstack([self._vel[b], self._omega_local[b]])
+                j = slice(4 * slot, 4 * slot + 4)
+                members.append(Member(int(k), self.prepared[k], coords, vel, True, self._k_now[j].copy(),
+                                      self._offset_now[j].copy()))
+        due = [k for k in np.flatnonzero(self.status == WAITING) if self.fish_specs[k].drop_t_s <= t + ADMIT_AHEAD_S]
+        parks = park_positions(self.line, len(due))
+        members += [parked_member(int(k), self.prepared[k], parks[i]) for i, k in enumerate(due)]
+        t0 = time.perf_counter()
+        self._set_model(build_model(self.line, members, self.params, self._gravity), members)
+        self.timings_s["rebuild"] += time.perf_counter() - t0
+        self.rebuilds += 1
+
+    def _admit_and_release(self, t: float) -> None:
+        due = [k for k in np.flatnonzero(self.status == WAITING) if self.fish_specs[k].drop_t_s <= t]
+        if not due:
+            return
+        if any(k not in self._slot_of for k in due):
+            self._rebuild(t)
         for k in due:
             self._release(k)
-        if due:
-            self._read_state()
+        self._read_state()
 
+    # ---- 1. drops ----------------------------------------------------------------------------
     def _release(self, k: int) -> None:
         spec = self.fish_specs[k]
-        fm = self.model.fish[k]
+        slot = self._slot_of[k]
+        fm = self.model.fish[slot]
         rot = lying_orientation(spec.drop_yaw_rad, spec.side)
         mid = np.array([spec.drop_x_m, spec.drop_y_m, 0.0])
         sph = self.model.sphere_body
         mine = (sph >= fm.first_body) & (sph < fm.first_body + 5)
         local_body = sph[mine] - fm.first_body
         # sphere centres of the fish placed with its mid point at z = 0
-        centres = (fm.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
+        centres = (fm.prepared.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
         radii = self.model.sphere_radius[mine]
         surface = self.line.z_top_at(spec.drop_x_m)
         z_mid = surface + spec.drop_z_m - float(np.min(centres[:, 2] - radii))
         # clear of fish already on the line below it: lowest sphere above their highest, plus the drop height
-        others = self._sphere_active & ~mine
-        raised = 0.0
-        if np.any(others):
-            oc, orad = self._centres[others], self.model.sphere_radius[others]
+        on_line = (self.status[self._fish_of_body] == ON_LINE)[sph]
+        if np.any(on_line):
+            oc = sphere_centres(self._pos, self._rot, sph[on_line], self.model.sphere_local[on_line])
+            orad = self.model.sphere_radius[on_line]
             d_xy = np.linalg.norm(centres[:, None, :2] - oc[None, :, :2], axis=2)
             near = d_xy < (radii[:, None] + orad[None, :] + 0.01)
             if np.any(near):
                 top = np.max(np.where(near, oc[None, :, 2] + orad[None, :], -np.inf), axis=1)
-                bottoms = z_mid + centres[:, 2] - radii
-                need = float(np.max(top + spec.drop_z_m - bottoms))
+                need = float(np.max(top + spec.drop_z_m - (z_mid + centres[:, 2] - radii)))
                 if need > 0:
                     z_mid += need
-                    raised = need
-        if raised > 0:
-            self.drop_adjustments.append(DropAdjustment(spec.fish_id, raised))
+                    self.drop_adjustments.append(DropAdjustment(spec.fish_id, need))
         mid[2] = z_mid
-        idx, values = pose_coordinates(self.model, k, mid, rot)
+        idx, values = pose_coordinates(self.model, slot, mid, rot)
         sd = self.model.mbs.systemData
         q = sd.GetODE2Coordinates()
         v = sd.GetODE2Coordinates_t()
@@ -204,6 +244,7 @@ class Plant:
         for load in fm.gravity_loads:
             self.model.mbs.SetLoadParameter(load, "loadVector", list(self._gravity))
         self.status[k] = ON_LINE
+        self._read_state()
 
     # ---- 2. belts ----------------------------------------------------------------------------
     def _speeds_array(self, belt_speeds_mps: dict[str, float] | np.ndarray) -> np.ndarray:
@@ -230,31 +271,35 @@ class Plant:
         v[ltg[:, 0]] = speeds
         sd.SetODE2Coordinates(q)
         sd.SetODE2Coordinates_t(v)
-        self._belt_speed = speeds
 
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
         if len(self._joint_bodies) == 0:
             return
         a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
-        ra, rb = self._rot[a], self._rot[b]
-        rel = np.einsum("nji,njk->nik", ra, rb)
+        rel = np.einsum("nji,njk->nik", self._rot[a], self._rot[b])
         theta = matrix_to_rotvec(rel)
         # relative angular velocity in the frame of body a (node velocities are body-frame)
         w_b_in_a = np.einsum("nij,nj->ni", rel, self._omega_local[b])
         theta_next = theta + (w_b_in_a - self._omega_local[a]) * self.comm_step_s
-        k_new, off_new = linearize(self._laws, theta, theta_next)
-        idle = np.repeat(self.status != ON_LINE, 4)
-        k_new[idle] = self._laws.k_soft[idle]
-        off_new[idle] = 0.0
+        # joints well inside their limits (most of them) keep the soft spring: evaluate the law only
+        # for those near a limit now or by the end of the step
+        soft_until = self._laws.limit_rad * (1.0 - self._laws.transition)
+        near = np.any((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until), axis=1)
+        near &= np.repeat(self.status[self._member] == ON_LINE, 4)
+        k_new = self._laws.k_soft.copy()
+        off_new = np.zeros_like(self._offset_now)
+        if np.any(near):
+            sub = JointLaws(self._laws.limit_rad[near], self._laws.k_soft[near], self._laws.k_limit[near],
+                            self._laws.transition, self._laws.damping[near])
+            k_new[near], off_new[near] = linearize(sub, theta[near], theta_next[near])
         changed = (np.any(np.abs(k_new - self._k_now) > 0.02 * self._k_now, axis=1)
                    | np.any(np.abs(off_new - self._offset_now) > 0.005, axis=1))
         if not np.any(changed):
             return
         mbs = self.model.mbs
         for j in np.flatnonzero(changed):
-            fm = self.model.fish[j // 4]
-            conn = fm.connectors[j % 4]
+            conn = self.model.fish[j // 4].connectors[j % 4]
             stiffness = np.array(mbs.GetObjectParameter(conn, "stiffness"))
             stiffness[3:, 3:] = np.diag(k_new[j])
             mbs.SetObjectParameter(conn, "stiffness", stiffness)
@@ -274,9 +319,6 @@ class Plant:
         self._vel = vel[:, :3]
         self._omega_local = vel[:, 3:]
         self._belt_vel_end = v[self.model.belt_ltg[:, :3]] if len(self.model.belt_ltg) else np.zeros((0, 3))
-        self._centres = sphere_centres(self._pos, self._rot, self.model.sphere_body, self.model.sphere_local)
-        self._sphere_active = (self.status == ON_LINE)[self._fish_of_body][self.model.sphere_body] \
-            if len(self.fish_specs) else np.zeros(0, dtype=bool)
 
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self.comm_step_s, self.params.gravity_mps2)
@@ -293,7 +335,7 @@ class Plant:
         m = self.model
         if len(self._beams) == 0 or len(m.section_body) == 0:
             return np.zeros(len(self._beams), dtype=bool)
-        body_on = (self.status == ON_LINE)[self._fish_of_body]
+        body_on = self.status[self._fish_of_body] == ON_LINE
         near = body_on & (np.min(np.abs(self._pos[:, 0][:, None] - self._beams[None, :, 0]), axis=1) < 0.5)
         sel = near[m.section_body]
         if not np.any(sel):
@@ -305,24 +347,35 @@ class Plant:
                                  self._beams, 0.5 * self.line.guide_width_m)
 
     def _retire_fish(self) -> None:
-        """Fish past the end of the line (or fallen off its end) are parked and no longer simulated."""
-        if not np.any(self.status == ON_LINE):
+        """Fish past the end of the line (or fallen off its end) are parked; the next rebuild drops them.
+
+        Checked every tenth step: a fish takes far longer than that to clear the end of the line."""
+        if self._steps % 10:
+            return
+        on = self.status[self._member] == ON_LINE
+        if not np.any(on):
             return
         pos = self._pos.reshape(-1, 5, 3)
         x_gone = self.line.x_end_m + self.params.retire_after_m
         z_floor = min(c.z_top_m for c in self.line.conveyors) - 0.5
         past = np.all(pos[:, :, 0] > x_gone, axis=1)
         fell_off_end = np.all(pos[:, :, 0] > self.line.x_end_m, axis=1) & np.all(pos[:, :, 2] < z_floor, axis=1)
-        retired = np.flatnonzero((self.status == ON_LINE) & (past | fell_off_end))
-        for k in retired:
-            self._park(int(k))
-            self.status[k] = LEFT
-        if len(retired):
+        slots = np.flatnonzero(on & (past | fell_off_end))
+        if not len(slots):
+            return
+        parks = park_positions(self.line, len(self.model.fish))
+        for slot in slots:
+            self._park(int(slot), parks[slot])
+            self.status[self._member[slot]] = LEFT
+        gone = int(np.sum(self.status[self._member] == LEFT))
+        if gone >= max(2, len(self._member) // 4):
+            self._rebuild(self.t_s)
+        else:
             self._read_state()
 
-    def _park(self, k: int) -> None:
-        fm = self.model.fish[k]
-        idx, values = pose_coordinates(self.model, k, fm.park_position, np.eye(3))
+    def _park(self, slot: int, where: np.ndarray) -> None:
+        fm = self.model.fish[slot]
+        idx, values = pose_coordinates(self.model, slot, where, np.eye(3))
         sd = self.model.mbs.systemData
         q = sd.GetODE2Coordinates()
         v = sd.GetODE2Coordinates_t()
@@ -334,10 +387,9 @@ class Plant:
             self.model.mbs.SetLoadParameter(load, "loadVector", [0.0, 0.0, 0.0])
 
     def _check_health(self) -> None:
-        on = self.status == ON_LINE
-        if not np.any(on):
+        body_on = self.status[self._fish_of_body] == ON_LINE
+        if not np.any(body_on):
             return
-        body_on = on[self._fish_of_body]
         pos, vel = self._pos[body_on], self._vel[body_on]
         fish_of = self._fish_of_body[body_on]
         bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
@@ -371,18 +423,37 @@ class Plant:
 
     # ---- state for recording -----------------------------------------------------------------
     def fish_state(self) -> FishState:
+        """Mid-length point and heading of every fish on the line (NaN for the others).
+
+        The heading is that of the chord from the spine point at 80 % of the length to the one at
+        20 %: what an overhead camera sees as the fish's direction, robust to a wagging head or tail.
+        """
         n = len(self.fish_specs)
         x, y, z, yaw = (np.full(n, np.nan) for _ in range(4))
-        for k in np.flatnonzero(self.status == ON_LINE):
-            fm = self.model.fish[k]
-            sl = slice(fm.first_body, fm.first_body + 5)
-            p, h = fish_pose(self._pos[sl], self._rot[sl], *self._pose_refs[k])
-            x[k], y[k], z[k], yaw[k] = p[0], p[1], p[2], h
+        slots = np.flatnonzero(self.status[self._member] == ON_LINE)
+        if len(slots):
+            b = self._pose_bodies[slots]  # (m, 3): bodies holding the 50 %, 20 %, 80 % points
+            pts = self._pos[b] + np.einsum("mkij,mkj->mki", self._rot[b], self._pose_local[slots])
+            chord = pts[:, 1] - pts[:, 2]
+            k = self._member[slots]
+            x[k], y[k], z[k] = pts[:, 0, 0], pts[:, 0, 1], pts[:, 0, 2]
+            yaw[k] = np.arctan2(chord[:, 1], chord[:, 0])
         return FishState(self.t_s, x, y, z, yaw, self.status.copy())
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(positions (n_bodies, 3), rotation matrices (n_bodies, 3, 3)) of all fish bodies."""
-        return self._pos.copy(), self._rot.copy()
+        """(positions (5 n_fish, 3), rotation matrices (5 n_fish, 3, 3)) of every fish's bodies, in the
+        run's fish order; NaN for fish not in the system (waiting or gone)."""
+        n = 5 * len(self.fish_specs)
+        pos = np.full((n, 3), np.nan)
+        rot = np.full((n, 3, 3), np.nan)
+        body_index = (5 * self._fish_of_body + np.tile(np.arange(5), len(self._member))) if len(self._member) else []
+        pos[body_index] = self._pos
+        rot[body_index] = self._rot
+        return pos, rot
 
     def body_velocities(self) -> np.ndarray:
-        return self._vel.copy()
+        n = 5 * len(self.fish_specs)
+        vel = np.full((n, 3), np.nan)
+        if len(self._member):
+            vel[5 * self._fish_of_body + np.tile(np.arange(5), len(self._member))] = self._vel
+        return vel

@@ -11,6 +11,7 @@ seen blocked and first seen clear again (resolution: one communication step).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -49,16 +50,18 @@ class RunRecorder:
     def __post_init__(self) -> None:
         self._blocked_since = {p: None for p in self.photoeye_ids}
 
-    def record(self, t_s: float, fish: FishState | None, photoeyes: dict[str, bool],
+    def record(self, t_s: float, fish: Callable[[], FishState] | None, photoeyes: dict[str, bool],
                belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
-               body_poses: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+               body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+        """One communication step; ``fish`` and ``body_poses`` are called only when a sample is due."""
         eps = 1e-9
         if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
+            fish = fish()
             for k in np.flatnonzero(fish.status == ON_LINE):
                 self._tracks.append((t_s, self.fish_ids[k], fish.x_m[k], fish.y_m[k], fish.yaw_rad[k]))
             if self.record_poses and body_poses is not None:
-                pos, rot = body_poses
+                pos, rot = body_poses()
                 self._pose_t.append(t_s)
                 self._pose_pos.append(pos.astype(np.float32))
                 self._pose_quat.append(matrix_to_quaternion(rot).astype(np.float32))

@@ -17,23 +17,28 @@ from __future__ import annotations
 import numpy as np
 
 
-def _skew(v: np.ndarray) -> np.ndarray:
-    z = np.zeros(v.shape[:-1])
-    return np.stack([np.stack([z, -v[..., 2], v[..., 1]], -1),
-                     np.stack([v[..., 2], z, -v[..., 0]], -1),
-                     np.stack([-v[..., 1], v[..., 0], z], -1)], -2)
-
-
 def rotvec_to_matrix(rv: np.ndarray) -> np.ndarray:
     """Rodrigues' formula for an (n, 3) array of rotation vectors -> (n, 3, 3)."""
     rv = np.asarray(rv, dtype=float)
-    th = np.linalg.norm(rv, axis=-1)[..., None, None]
-    k = _skew(rv)
-    small = th < 1e-8
+    th2 = np.einsum("...i,...i->...", rv, rv)
+    th = np.sqrt(th2)
+    small = th < 1e-6
     safe = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - th**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    return np.eye(3) + a * k + b * (k @ k)
+    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
+    out = np.empty(rv.shape[:-1] + (3, 3))
+    out[..., 0, 0] = 1.0 - b * (y * y + z * z)
+    out[..., 1, 1] = 1.0 - b * (x * x + z * z)
+    out[..., 2, 2] = 1.0 - b * (x * x + y * y)
+    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
+    out[..., 0, 1] = bxy - a * z
+    out[..., 1, 0] = bxy + a * z
+    out[..., 0, 2] = bxz + a * y
+    out[..., 2, 0] = bxz - a * y
+    out[..., 1, 2] = byz - a * x
+    out[..., 2, 1] = byz + a * x
+    return out
 
 
 def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:

@@ -56,7 +56,7 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     for _ in range(n_steps):
         speeds = speed_fn(plant.t_s)
         out = plant.step(speeds)
-        rec.record(plant.t_s, plant.fish_state(), out.photoeyes, speeds, out.belt_speed_mps)
+        rec.record(plant.t_s, plant.fish_state, out.photoeyes, speeds, out.belt_speed_mps)
         if on_step is not None:
             on_step(plant)
         if stop_when_clear and len(fish):
