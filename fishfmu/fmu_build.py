@@ -53,6 +53,7 @@ UNITS: dict[str, tuple[dict[str, int], float]] = {
     "N.s/m": ({"kg": 1, "s": -1}, 1.0),
     "N.m.s/rad": ({"kg": 1, "m": 2, "s": -1, "rad": -1}, 1.0),
     "rpm": ({"s": -1, "rad": 1}, 2.0 * math.pi / 60.0),
+    "s/kg": ({"kg": -1, "s": 1}, 1.0),  # (m/s) per N
 }
 C_TYPE = {"Real": "TYPE_REAL", "Integer": "TYPE_INTEGER", "Boolean": "TYPE_BOOLEAN"}
 C_CAUSALITY = {"parameter": "CAUSALITY_PARAMETER", "calculatedParameter": "CAUSALITY_CALCULATED_PARAMETER",
@@ -369,4 +370,27 @@ def builtin_fmu(name: str) -> Path:
                 raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
+    return fmu_path
+
+
+def install_cached_fmu(name: str, digest: str, data: bytes) -> Path:
+    """Put a built FMU made elsewhere (``data``, built from sources hashing to ``digest``) into this
+    machine's cache, where :func:`builtin_fmu` finds it without compiling.
+
+    Used by sweep workers that did not build the FMUs (no compiler, or an empty cache).  Refuses
+    when this installation's sources hash differently: its plant and FMU code are not the client's.
+    """
+    local = source_digest(name)
+    if local != digest:
+        raise InputError(f"built-in FMU '{name}': this installation's sources (digest {local}) differ from the "
+                         f"client's ({digest}); install the same fishfmu version on every worker")
+    final_dir = cache_dir() / digest
+    fmu_path = final_dir / f"{name}.fmu"
+    if fmu_path.is_file() and fmu_path.stat().st_size == len(data):
+        return fmu_path
+    final_dir.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=final_dir, prefix=f".{name}.", suffix=".part")
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, fmu_path)  # several worker processes may install at once: each rename is whole
     return fmu_path

@@ -36,9 +36,10 @@ if "exudyn" not in sys.modules:
 with contextlib.redirect_stdout(io.StringIO()):  # it announces the fast build on stdout
     import exudyn as exu  # noqa: E402
 from exudyn.itemInterface import (  # noqa: E402
-    LoadMassProportional, MarkerBodyMass, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectConnectorRigidBodySpringDamper,
-    ObjectGround, ObjectRigidBody)
+    LoadForceVector, LoadMassProportional, MarkerBodyMass, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG,
+    ObjectConnectorRigidBodySpringDamper, ObjectGround, ObjectRigidBody)
 
+from plant.extensions import FRICTION_LEVELS  # noqa: E402
 from plant.fish_body import FishGeometry, fish_geometry  # noqa: E402
 from plant.joints import JointLaws, joint_laws  # noqa: E402
 from plant.line import Line  # noqa: E402
@@ -48,7 +49,8 @@ from plant.rotations import matrix_to_rotvec  # noqa: E402
 
 exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
-MAT_BELT, MAT_FISH, MAT_GUIDE = 0, 1, 2
+MAT_BELT, MAT_GUIDE, MAT_FISH0 = 0, 1, 2
+"""Friction materials: belts, guides, then one per fish friction level (plant.extensions.FRICTION_LEVELS)."""
 BELT_MASS_KG = 1.0e5
 """Mass of a belt body: the fish cannot move it measurably within one step (1 N for 10 ms -> 1e-7 m/s)."""
 TRIANGLE_STIFFNESS = 1.0e8
@@ -86,6 +88,8 @@ class Member:
     joint_k: np.ndarray
     """(4, 3) current rotational stiffness of each joint (see plant.joints.linearize)."""
     joint_offset: np.ndarray
+    friction_level: int = 80
+    """Index into FRICTION_LEVELS of the fish's current friction multiplier (80: x 1.0)."""
 
 
 @dataclass
@@ -98,6 +102,10 @@ class FishModel:
     """Index of its head in the model's body arrays (bodies are consecutive, head to tail fin)."""
     connectors: list[int]
     gravity_loads: list[int]
+    first_sphere: int
+    n_spheres: int
+    adhesion_loads: list[int] = field(default_factory=list)
+    """A force load at each body's centre of mass, when adhesion is on."""
 
     @property
     def spec(self) -> FishSpec:
@@ -225,6 +233,17 @@ def park_positions(line: Line, n: int) -> np.ndarray:
     return out
 
 
+def friction_pairings(params: PlantParams) -> np.ndarray:
+    """Coulomb coefficients between materials: fish levels scale their friction on belts and guides."""
+    n = MAT_FISH0 + len(FRICTION_LEVELS)
+    mu = np.zeros((n, n))
+    fish = slice(MAT_FISH0, n)
+    mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = params.friction.fish_belt * FRICTION_LEVELS
+    mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = params.friction.fish_guide * FRICTION_LEVELS
+    mu[fish, fish] = params.friction.fish_fish
+    return mu
+
+
 def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float, float] = (1.0, 1.0)) -> PreparedFish:
     """Cut a fish into bodies and work out its inertias and joint laws (once per run)."""
     num = params.numerics
@@ -236,11 +255,12 @@ def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float,
     return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies))
 
 
-def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray) -> Member:
+def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, friction_level: int) -> Member:
     """A fish straight and at rest at a parking place, gravity off, joints at their soft stiffness."""
     coords = np.zeros((5, 6))
     coords[:, :3] = park_m[None, :] + prepared.body_offsets_m
-    return Member(index, prepared, coords, np.zeros((5, 6)), False, prepared.laws.k_soft.copy(), np.zeros((4, 3)))
+    return Member(index, prepared, coords, np.zeros((5, 6)), False, prepared.laws.k_soft.copy(), np.zeros((4, 3)),
+                  friction_level)
 
 
 def build_model(line: Line, members: list[Member], params: PlantParams, gravity: np.ndarray) -> PlantModel:
@@ -251,11 +271,8 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
     gc = mbs.AddGeneralContact()
     gc.verboseMode = 0
     gc.frictionProportionalZone = num.friction_regularization_mps
-    mu = np.zeros((3, 3))
-    mu[MAT_BELT, MAT_FISH] = mu[MAT_FISH, MAT_BELT] = params.friction.fish_belt
-    mu[MAT_FISH, MAT_FISH] = params.friction.fish_fish
-    mu[MAT_GUIDE, MAT_FISH] = mu[MAT_FISH, MAT_GUIDE] = params.friction.fish_guide
-    gc.SetFrictionPairings(mu)
+    gc.SetFrictionPairings(friction_pairings(params))
+    adhesion = params.extensions.adhesion.on
 
     ground = mbs.AddObject(ObjectGround())
     m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
@@ -285,7 +302,9 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
         m_share = prep.spec.weight_kg / prep.n_spheres
         k_c = m_share * num.contact_omega_rad_s**2
         d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
-        objects, loads = [], []
+        objects, loads, sticky = [], [], []
+        first_sphere = len(sphere_body)
+        material = MAT_FISH0 + int(mem.friction_level)
         for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
             node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(mem.coords[i]),
                                                      initialVelocities=list(mem.velocities[i])))
@@ -296,7 +315,7 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
             for (x, y, r) in b.spheres:
                 marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=obj, localPosition=[x, y, 0.0]))
                 gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
-                                       frictionMaterialIndex=MAT_FISH)
+                                       frictionMaterialIndex=material)
                 sphere_body.append(first + i)
                 sphere_local.append((x, y, 0.0))
                 sphere_radius.append(r)
@@ -305,6 +324,9 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
                 section_x.append(x)
                 section_half_len.append(max(half_h - half_w, 0.0))
                 section_radius.append(half_w)
+            if adhesion:
+                com = mbs.AddMarker(MarkerBodyPosition(bodyNumber=obj, localPosition=[0.0, 0.0, 0.0]))
+                sticky.append(mbs.AddLoad(LoadForceVector(markerNumber=com, loadVector=[0.0, 0.0, 0.0])))
             objects.append(obj)
             body_nodes.append(node)
         connectors = []
@@ -320,7 +342,8 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
                 markerNumbers=[m0, m1], stiffness=np.diag([k_t] * 3 + list(mem.joint_k[j])),
                 damping=np.diag([d_t] * 3 + list(prep.laws.damping[j])), offset=[0.0] * 3 + list(mem.joint_offset[j]),
                 useIntrinsicFormulation=True)))
-        fish_models.append(FishModel(mem.index, prep, first, connectors, loads))
+        fish_models.append(FishModel(mem.index, prep, first, connectors, loads, first_sphere,
+                                     len(sphere_body) - first_sphere, sticky))
 
     # contact search: a box over the line, the space above it and the parking grid below it
     lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,

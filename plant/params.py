@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
+from plant.extensions import Extensions
 from plant.validation import Strict
 
 
@@ -97,6 +98,9 @@ class PlantParams(Strict):
     gravity_mps2: float = Field(9.81, ge=0.0, le=20.0)
     incline_deg: float = Field(0.0, ge=-45.0, le=45.0, description=(
         "tilts gravity about y (positive: the line rises downstream), for incline tests and inclined lines"))
+    extensions: Extensions = Field(default_factory=Extensions, description=(
+        "effects beyond the paper's model (direction-dependent and mucus friction, rigor mortis, adhesion); "
+        "all off by default, see plant.extensions"))
     retire_after_m: float = Field(0.3, ge=0.0, le=5.0, description=(
         "a fish whose every body is this far beyond the end of the last conveyor has left the line and is "
         "taken out of the simulation"))

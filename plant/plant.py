@@ -13,7 +13,8 @@ One step is a short, fixed pipeline (read it top to bottom):
 
 1. admit and release the fish whose drop time has come (placed clear of the fish already there);
 2. set the belt speeds (each belt body back in place, moving at its speed);
-3. re-linearise the joints that are at or running into their limits;
+3. re-linearise the joints that are at or running into their limits; with the model's extensions
+   (plant.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
 4. let Exudyn integrate to the end of the step;
 5. read the state, work out the sensors, retire fish that have left the line, check health.
 
@@ -30,10 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
+from plant.extensions import friction_level
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
-from plant.model import (BELT_MASS_KG, Member, PlantModel, build_model, park_positions, parked_member, pose_coordinates,
-                         prepare_fish)
+from plant.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, park_positions, parked_member,
+                         pose_coordinates, prepare_fish)
 from plant.params import PlantParams
 from plant.population import FishSpec
 from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
@@ -108,8 +110,14 @@ class Plant:
         self._z_top = np.array([c.z_top_m for c in line.conveyors])
         self._gravity = self.params.gravity_mps2 * np.array(
             [np.sin(np.radians(self.params.incline_deg)), 0.0, -np.cos(np.radians(self.params.incline_deg))])
-        self.prepared = [prepare_fish(f, self.params, joint_factors[k] if joint_factors else (1.0, 1.0))
-                         for k, f in enumerate(self.fish_specs)]
+        ext = self.params.extensions
+        if joint_factors is None:
+            joint_factors = [ext.rigor_mortis.joint_factors(f.hours_post_mortem) if ext.rigor_mortis.on else (1.0, 1.0)
+                             for f in self.fish_specs]
+        self.prepared = [prepare_fish(f, self.params, joint_factors[k]) for k, f in enumerate(self.fish_specs)]
+        # each fish's friction multiplier on belts and guides: mucus (hours post mortem) x direction of slip
+        self._mucus = np.array([ext.mucus_friction.factor(f.hours_post_mortem) for f in self.fish_specs])
+        self._level = friction_level(self._mucus) if len(self.fish_specs) else np.zeros(0, dtype=np.int64)
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self.prepared]
         self.status = np.full(len(self.fish_specs), WAITING, dtype=np.int8)
         self.drop_adjustments: list[DropAdjustment] = []
@@ -141,6 +149,8 @@ class Plant:
         self._admit_and_release(self.t_s + 1e-9)
         self._set_belts(speeds)
         self._relinearize_joints()
+        self._update_friction(speeds)
+        self._apply_adhesion()
         self._solver.it.endTime = (self._steps + 1) * self.comm_step_s - self._t_model0
         t0 = time.perf_counter()
         self._solver.SolveSteps(self.model.mbs, self.model.settings)
@@ -173,6 +183,7 @@ class Plant:
         ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self.params.numerics.step_s))
         self._solver.InitializeSolver(model.mbs, ss)
         self._t_model0 = self.t_s
+        self._adhesion_force = None
         self._read_state()
 
     def _rebuild(self, t: float) -> None:
@@ -185,10 +196,10 @@ class Plant:
                 vel = np.hstack([self._vel[b], self._omega_local[b]])
                 j = slice(4 * slot, 4 * slot + 4)
                 members.append(Member(int(k), self.prepared[k], coords, vel, True, self._k_now[j].copy(),
-                                      self._offset_now[j].copy()))
+                                      self._offset_now[j].copy(), int(self._level[k])))
         due = [k for k in np.flatnonzero(self.status == WAITING) if self.fish_specs[k].drop_t_s <= t + ADMIT_AHEAD_S]
         parks = park_positions(self.line, len(due))
-        members += [parked_member(int(k), self.prepared[k], parks[i]) for i, k in enumerate(due)]
+        members += [parked_member(int(k), self.prepared[k], parks[i], int(self._level[k])) for i, k in enumerate(due)]
         t0 = time.perf_counter()
         self._set_model(build_model(self.line, members, self.params, self._gravity), members)
         self.timings_s["rebuild"] += time.perf_counter() - t0
@@ -306,6 +317,70 @@ class Plant:
             mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
         self._k_now[changed] = k_new[changed]
         self._offset_now[changed] = off_new[changed]
+
+    def _update_friction(self, speeds: np.ndarray) -> None:
+        """Direction-dependent friction: each fish's multiplier from the way it slips over its belt now."""
+        direction = self.params.extensions.direction_friction
+        if not direction.on or len(self._member) == 0:
+            return
+        on = np.flatnonzero(self.status[self._member] == ON_LINE)
+        if not len(on):
+            return
+        pts = self._pos[self._pose_bodies[on]] + np.einsum("mkij,mkj->mki", self._rot[self._pose_bodies[on]],
+                                                           self._pose_local[on])
+        heading = pts[:, 1, :2] - pts[:, 2, :2]
+        heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
+        mid_vel = self._vel[self._pose_bodies[on, 0], :2]
+        belt = self._conveyor_index(pts[:, 0, 0])
+        slip = mid_vel - np.stack([speeds[belt], np.zeros(len(on))], axis=1)
+        along = np.einsum("ij,ij->i", slip, heading)
+        across = heading[:, 0] * slip[:, 1] - heading[:, 1] * slip[:, 0]
+        moving = np.hypot(along, across) > 0.5 * self.params.numerics.friction_regularization_mps
+        k = self._member[on]
+        new = np.where(moving, friction_level(self._mucus[k] * direction.factor(along, across)), self._level[k])
+        changed = np.flatnonzero(new != self._level[k])
+        gc = self.model.contact
+        for i in changed:
+            fm = self.model.fish[on[i]]
+            material = MAT_FISH0 + int(new[i])
+            for sphere in range(fm.first_sphere, fm.first_sphere + fm.n_spheres):
+                gc.SetSphereMarkerBased(sphere, frictionMaterialIndex=material)
+        self._level[k] = new
+
+    def _apply_adhesion(self) -> None:
+        """Touching fish attract: a force per pair of touching spheres of different fish, on both bodies."""
+        adhesion = self.params.extensions.adhesion
+        if not adhesion.on or len(self._member) == 0:
+            return
+        from scipy.spatial import cKDTree
+        m = self.model
+        body_on = self.status[self._fish_of_body] == ON_LINE
+        sel = np.flatnonzero(body_on[m.sphere_body])
+        force = np.zeros((len(self._pos), 3))
+        if len(sel) > 1:
+            centres = sphere_centres(self._pos, self._rot, m.sphere_body[sel], m.sphere_local[sel])
+            radii = m.sphere_radius[sel]
+            pairs = cKDTree(centres).query_pairs(2.0 * float(radii.max()) + adhesion.range_m, output_type="ndarray")
+            if len(pairs):
+                i, j = pairs[:, 0], pairs[:, 1]
+                bi, bj = m.sphere_body[sel][i], m.sphere_body[sel][j]
+                d = centres[j] - centres[i]
+                dist = np.linalg.norm(d, axis=1)
+                touching = (self._fish_of_body[bi] != self._fish_of_body[bj]) & (dist < radii[i] + radii[j] + adhesion.range_m)
+                unit = d[touching] / np.maximum(dist[touching], 1e-9)[:, None]
+                np.add.at(force, bi[touching], adhesion.force_n * unit)
+                np.add.at(force, bj[touching], -adhesion.force_n * unit)
+        prev = getattr(self, "_adhesion_force", None)
+        if prev is None or prev.shape != force.shape:
+            prev = np.zeros_like(force)
+        for b in np.flatnonzero(np.any(force != prev, axis=1)):
+            fm = m.fish[b // 5]
+            m.mbs.SetLoadParameter(fm.adhesion_loads[b % 5], "loadVector", list(force[b]))
+        self._adhesion_force = force
+
+    def _conveyor_index(self, x_m: np.ndarray) -> np.ndarray:
+        """Index of the conveyor under each x (in a gap: the downstream one)."""
+        return np.clip(np.searchsorted(self._x_ends, x_m, side="right"), 0, len(self._x_ends) - 1)
 
     # ---- 5. state, sensors, retirement, health ------------------------------------------------
     def _read_state(self) -> None:

@@ -254,3 +254,15 @@ def test_inconsistent_parameters_fail_initialization(drive_dir: Path, params: di
         start_slave(drive_dir, params, log=log)
     assert failure.value.function == "fmi2ExitInitializationMode"
     assert any(message in line for line in log), log
+
+
+def test_belt_slip_lowers_the_belt_speed_in_proportion_to_the_load(drive_dir: Path) -> None:
+    """The drive_droop extension: belt speed = drum surface speed - belt_slip * load_force."""
+    slip, force = 2e-4, 150.0  # (m/s)/N, N
+    speeds = []
+    for belt_slip in (0.0, slip):
+        slave = start_slave(drive_dir, {"ramp_acceleration": 50.0, "belt_slip": belt_slip},
+                            inputs={"speed_setpoint": 1.0, "load_force": force})
+        speeds.append(run(slave, 2.0, 0.01, "belt_speed")["belt_speed"][-1])
+        slave.close()
+    assert speeds[1] == pytest.approx(speeds[0] - slip * force, abs=1e-9)

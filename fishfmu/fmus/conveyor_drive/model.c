@@ -21,7 +21,8 @@
  *                      T_L = T_d eta_g / i     when the load drives the motor
  *   J_eq w' = T - T_L,  J_eq = J_motor + (J_drum + m_belt r^2) / i^2
  *
- * Outputs: belt_speed = v, motor_torque = T, motor_speed = w in rpm, ramp_reference = v_ref,
+ * Outputs: belt_speed = v - belt_slip * load_force (the belt creeps on its drum under load; 0 by
+ *   default), motor_torque = T, motor_speed = w in rpm, ramp_reference = v_ref,
  *   electrical_power = T w / eta_m when T w >= 0 (motoring), T w eta_m when braking.
  *
  * Integration: doStep(dt) takes n = ceil(dt / max_internal_step) classic RK4 steps of h = dt / n on
@@ -102,7 +103,7 @@ static void update_outputs(ModelInstance *inst, const DriveState *d) {
     double torque = motor_torque(d, d->ramp_ref_mps, d->w_motor_rad_s, d->slip_comp_rad_s);
     double p_mech_w = torque * d->w_motor_rad_s;
     double eta_m = V(MOTOR_EFFICIENCY);
-    V(BELT_SPEED) = d->w_motor_rad_s / d->mps_to_rad_s;
+    V(BELT_SPEED) = d->w_motor_rad_s / d->mps_to_rad_s - V(BELT_SLIP) * V(LOAD_FORCE);
     V(MOTOR_TORQUE) = torque;
     V(MOTOR_SPEED) = d->w_motor_rad_s / RPM_TO_RAD_S;
     V(RAMP_REFERENCE) = d->ramp_ref_mps;

@@ -1,0 +1,123 @@
+"""Extensions of the fish model for effects the paper left out (its discussion lists them).
+
+Each is a ``[plant.extensions.<name>]`` table of a scenario; the defaults switch it off.  They
+are the candidate causes that ``fishfmu diagnose`` fits to measured data (with ``drive_droop``,
+which lives in the conveyor-drive FMU as its ``belt_slip`` parameter).
+
+- ``direction_friction``: salmon scales lie towards the tail, so skin slides more easily head
+  first than tail first, and differently again sideways.  The fish-belt friction coefficient is
+  multiplied by ``head``, ``tail`` or ``across`` according to the direction in which the fish
+  slips over the belt, blended smoothly between them (``cos^2``/``sin^2`` of the angle between
+  the slip and the fish's heading).
+- ``rigor_mortis``: joints stiffen and their range shrinks as rigor sets in and resolves, a bump
+  in hours post mortem: ``R(h) = exp(-((h - peak_h) / width_h)^2)``; stiffness x ``1 + stiffness_gain
+  R``, limits x ``1 - limit_loss R``.
+- ``mucus_friction``: the mucus layer dries and thins after death, so friction on belts and guides
+  changes with hours post mortem: x ``1 + gain (1 - exp(-h / time_constant_h))``.
+- ``adhesion``: slime makes touching fish stick: an attracting force ``force_n`` per pair of touching
+  contact spheres of different fish (within ``range_m`` of touching).
+
+>>> ext = Extensions()
+>>> ext.active()
+[]
+>>> ext.rigor_mortis.stiffness_gain = 3.0
+>>> ext.active(), round(ext.rigor_mortis.joint_factors(24.0)[0], 3)
+(['rigor_mortis'], 4.0)
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydantic import Field
+
+from plant.validation import Strict
+
+FRICTION_LEVELS = np.round(np.arange(0.2, 3.0001, 0.01), 2)
+"""Multipliers of the fish-belt friction a fish can take: one GeneralContact friction material each."""
+
+
+class DirectionFriction(Strict):
+    """Friction multipliers by the direction in which the fish slips over the belt."""
+
+    head: float = Field(1.0, gt=0.2, le=3.0, description="slipping head first (along the scales)")
+    tail: float = Field(1.0, gt=0.2, le=3.0, description="slipping tail first (against the scales)")
+    across: float = Field(1.0, gt=0.2, le=3.0, description="slipping sideways")
+
+    @property
+    def on(self) -> bool:
+        return (self.head, self.tail, self.across) != (1.0, 1.0, 1.0)
+
+    def factor(self, along: np.ndarray, across: np.ndarray) -> np.ndarray:
+        """Multiplier for slip components along the heading (+: head first) and across it."""
+        norm2 = along**2 + across**2
+        c2 = np.where(norm2 > 0, along**2 / np.where(norm2 > 0, norm2, 1.0), 1.0)
+        longitudinal = np.where(along >= 0, self.head, self.tail)
+        return longitudinal * c2 + self.across * (1.0 - c2)
+
+
+class RigorMortis(Strict):
+    """Joint stiffness and range against hours post mortem."""
+
+    stiffness_gain: float = Field(0.0, ge=0.0, le=50.0, description="extra stiffness at full rigor, x soft stiffness")
+    limit_loss: float = Field(0.0, ge=0.0, le=0.9, description="fraction of the joint range lost at full rigor")
+    peak_h: float = Field(24.0, gt=0.0, le=200.0, description=(
+        "hours post mortem of full rigor (farmed salmon at ice temperature: onset after some hours, "
+        "strongest about a day after death; assumption from the processing literature)"))
+    width_h: float = Field(20.0, gt=1.0, le=200.0, description="how long rigor lasts around its peak (assumption)")
+
+    @property
+    def on(self) -> bool:
+        return self.stiffness_gain > 0.0 or self.limit_loss > 0.0
+
+    def index(self, hours: float) -> float:
+        return math.exp(-(((hours - self.peak_h) / self.width_h) ** 2))
+
+    def joint_factors(self, hours: float) -> tuple[float, float]:
+        """(stiffness factor, limit factor) for a fish this many hours after death."""
+        r = self.index(hours)
+        return 1.0 + self.stiffness_gain * r, 1.0 - self.limit_loss * r
+
+
+class MucusFriction(Strict):
+    """Friction on belts and guides against hours post mortem."""
+
+    gain: float = Field(0.0, ge=-0.8, le=2.0, description="relative change of friction once the mucus has dried")
+    time_constant_h: float = Field(24.0, gt=0.5, le=500.0, description="how fast it dries (assumption)")
+
+    @property
+    def on(self) -> bool:
+        return self.gain != 0.0
+
+    def factor(self, hours: float) -> float:
+        return 1.0 + self.gain * (1.0 - math.exp(-hours / self.time_constant_h))
+
+
+class Adhesion(Strict):
+    """Touching fish attract each other (slime)."""
+
+    force_n: float = Field(0.0, ge=0.0, le=50.0, description="attraction per pair of touching contact spheres")
+    range_m: float = Field(0.005, ge=0.0, le=0.05, description="how far apart two sphere surfaces still stick")
+
+    @property
+    def on(self) -> bool:
+        return self.force_n > 0.0
+
+
+class Extensions(Strict):
+    """The ``[plant.extensions]`` table: every candidate effect, off by default."""
+
+    direction_friction: DirectionFriction = Field(default_factory=DirectionFriction)
+    rigor_mortis: RigorMortis = Field(default_factory=RigorMortis)
+    mucus_friction: MucusFriction = Field(default_factory=MucusFriction)
+    adhesion: Adhesion = Field(default_factory=Adhesion)
+
+    def active(self) -> list[str]:
+        return [name for name in type(self).model_fields if getattr(self, name).on]
+
+
+def friction_level(multiplier: float | np.ndarray) -> np.ndarray:
+    """Index of the nearest friction level for a multiplier (clipped to the available range)."""
+    m = np.clip(np.asarray(multiplier, dtype=float), FRICTION_LEVELS[0], FRICTION_LEVELS[-1])
+    return np.rint((m - FRICTION_LEVELS[0]) / 0.01).astype(np.int64)
