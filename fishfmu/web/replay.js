@@ -1,0 +1,314 @@
+// fishfmu replay, the page: decodes the run packed by fishfmu/replay.py (see decodeInts), keeps the
+// time, the camera and the controls, and hands each picture to ReplayRender (render.js).  Works
+// offline from file://.  Frame: x along the line, y across, z up; metres.
+"use strict";
+(function () {
+
+const header = JSON.parse(document.getElementById("replay-header").textContent);
+const canvas = document.getElementById("view");
+const ui = {
+  play: document.getElementById("play"), time: document.getElementById("time"),
+  clock: document.getElementById("clock"), speed: document.getElementById("speed"),
+  status: document.getElementById("status"), title: document.getElementById("title"),
+  legend: document.getElementById("legend"), sim: document.getElementById("toggle-sim"),
+  measured: document.getElementById("toggle-measured"),
+};
+const state = { time: 0, playing: false, speed: 1, lastNow: null, dirty: true, showSim: true, showMeasured: true,
+               sliderHeld: false };
+let data = null;      // decoded arrays (see loadData)
+let renderer = null;
+const camera = { yaw: -1.2, pitch: 0.55, dist: 6, target: [3, 0, 0], fovY: 0.7 };
+
+// ------------------------------------------------------------------------------------ the data
+async function inflate(base64) {
+  const text = atob(base64);
+  const bytes = new Uint8Array(text.length);
+  for (let i = 0; i < text.length; i++) bytes[i] = text.charCodeAt(i);
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("deflate"));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
+}
+
+// Inverse of replay.py's encode_ints: 4 byte planes -> zig-zag -> running sum along each row
+// (int32 wrap-around, as the encoder's deltas) -> times the array's unit.
+function decodeInts(raw, entry, ArrayType) {
+  const n = entry.rows * entry.cols, o = entry.offset, out = new ArrayType(n);
+  for (let r = 0; r < entry.rows; r++) {
+    let acc = 0;
+    for (let c = 0; c < entry.cols; c++) {
+      const i = r * entry.cols + c;
+      const z = (raw[o + i] | raw[o + n + i] << 8 | raw[o + 2 * n + i] << 16 | raw[o + 3 * n + i] << 24) >>> 0;
+      acc = (acc + ((z >>> 1) ^ -(z & 1))) | 0;
+      out[i] = acc * entry.unit;
+    }
+  }
+  return out;
+}
+
+async function loadData() {
+  const raw = await inflate(document.getElementById("replay-data").textContent.trim());
+  const a = {};
+  for (const [name, entry] of Object.entries(header.arrays)) {
+    a[name] = decodeInts(raw, entry, name === "t" || name === "m_t" ? Float64Array : Float32Array);
+  }
+  return {
+    t: a.t, frames: a.t.length, pos: a.pos, quat: a.quat, status: a.status,
+    bodies: header.fish.body_fish.length, bodyFish: header.fish.body_fish,
+    beltTravel: a.belt_travel, beltSpeed: a.belt_speed,
+    sections: { body: a.sec_body, x: a.sec_x, hh: a.sec_half_height, hw: a.sec_half_width },
+    measured: header.measured ? { t: a.m_t, xy: a.m_xy, yaw: a.m_yaw, fish: header.measured.fish } : null,
+  };
+}
+
+// The frame at or before t and the fraction towards the next one.
+function frameAt(t) {
+  const T = data.t, n = data.frames;
+  if (n === 0 || t <= T[0]) return { k: 0, k1: 0, a: 0 };
+  if (t >= T[n - 1]) return { k: n - 1, k1: n - 1, a: 0 };
+  let lo = 0, hi = n - 1;
+  while (hi - lo > 1) { const mid = (lo + hi) >> 1; if (T[mid] <= t) lo = mid; else hi = mid; }
+  return { k: lo, k1: hi, a: (t - T[lo]) / (T[hi] - T[lo]) };
+}
+
+// Every body's position (x, y, z, visible) and orientation (x, y, z, w) at time t, interpolated.
+function bodyPoses(t) {
+  const { k, k1, a } = frameAt(t), F = data.frames, B = data.bodies;
+  const near = a < 0.5 ? k : k1;
+  const pos = new Float32Array(4 * B), rot = new Float32Array(4 * B);
+  for (let b = 0; b < B; b++) {
+    for (let c = 0; c < 3; c++) {
+      const row = (3 * b + c) * F;
+      pos[4 * b + c] = data.pos[row + k] * (1 - a) + data.pos[row + k1] * a;
+    }
+    pos[4 * b + 3] = data.status[data.bodyFish[b] * F + near] === 1 ? 1 : 0;
+    const q = [0, 0, 0, 0];   // w, x, y, z; signs were made continuous when packed, so lerp + normalise
+    for (let c = 0; c < 4; c++) {
+      const row = (4 * b + c) * F;
+      q[c] = data.quat[row + k] * (1 - a) + data.quat[row + k1] * a;
+    }
+    const norm = Math.hypot(q[0], q[1], q[2], q[3]) || 1;
+    rot[4 * b] = q[1] / norm; rot[4 * b + 1] = q[2] / norm; rot[4 * b + 2] = q[3] / norm; rot[4 * b + 3] = q[0] / norm;
+  }
+  return { pos, rot };
+}
+
+function beltAt(t) {
+  const { k, k1, a } = frameAt(t), F = data.frames, C = header.line.conveyors.length;
+  const travel = [], speed = [];
+  for (let c = 0; c < C; c++) {
+    travel.push(data.beltTravel[c * F + k] * (1 - a) + data.beltTravel[c * F + k1] * a);
+    speed.push(data.beltSpeed[c * F + k] * (1 - a) + data.beltSpeed[c * F + k1] * a);
+  }
+  return { travel, speed };
+}
+
+function photoeyesBlocked(t) {
+  const out = {};
+  for (const [id, intervals] of Object.entries(header.photoeyes)) {
+    out[id] = intervals.some(([on, off]) => t >= on && t < off);
+  }
+  return out;
+}
+
+const MAX_TRACK_GAP_S = 0.5;   // a measured fish is hidden in tracking gaps longer than this
+
+// Measured fish at time t: mid-point and heading interpolated between the samples around t.
+function measuredAt(t) {
+  const m = data.measured, out = [];
+  if (!m) return out;
+  for (const f of m.fish) {
+    const s = f.start, e = f.start + f.count - 1;
+    if (f.count === 0 || t < m.t[s] - 0.02 || t > m.t[e] + 0.02) continue;
+    let lo = s, hi = e;
+    while (hi - lo > 1) { const mid = (lo + hi) >> 1; if (m.t[mid] <= t) lo = mid; else hi = mid; }
+    if (m.t[lo] > t) hi = lo;
+    if (m.t[hi] - m.t[lo] > MAX_TRACK_GAP_S) continue;
+    const a = hi === lo ? 0 : Math.min(1, Math.max(0, (t - m.t[lo]) / (m.t[hi] - m.t[lo])));
+    const n = m.t.length, lerp = (arr, off) => arr[off + lo] * (1 - a) + arr[off + hi] * a;
+    out.push({ id: f.id, x: lerp(m.xy, 0), y: lerp(m.xy, n), yaw: lerp(m.yaw, 0),
+               length_m: f.length_m, height_m: f.height_m });
+  }
+  return out;
+}
+
+// ----------------------------------------------------------------------------------- drawing
+function viewProjection() {
+  return ReplayRender.viewProjection(camera, canvas.clientWidth / Math.max(1, canvas.clientHeight));
+}
+
+function project(p, vp = viewProjection()) {
+  return ReplayRender.project(p, vp, canvas.clientWidth, canvas.clientHeight);
+}
+
+function draw() {
+  const t = state.time, belts = beltAt(t);
+  renderer.draw({ vp: viewProjection(), belts, blocked: photoeyesBlocked(t), poses: bodyPoses(t),
+                  showSim: state.showSim, measured: state.showMeasured ? measuredAt(t) : [] });
+  updateText(belts);
+  state.dirty = false;
+}
+
+function updateText(belts) {
+  const t = state.time, { k } = frameAt(t), F = data.frames;
+  let onLine = 0;
+  for (let n = 0; n < header.fish.ids.length; n++) if (data.status[n * F + k] === 1) onLine++;
+  const speeds = header.line.conveyors.map((c, i) => `${c.id} ${belts.speed[i].toFixed(2)}`).join(", ");
+  ui.status.textContent = `${onLine} of ${header.fish.ids.length} fish on the line · belts (m/s): ${speeds}`;
+  ui.clock.textContent = `${t.toFixed(2)} s / ${header.duration_s.toFixed(2)} s`;
+  if (!state.sliderHeld) ui.time.value = t;
+  ui.play.innerHTML = state.playing ? "&#10074;&#10074;" : "&#9654;";
+}
+
+// ---------------------------------------------------------------------------- time and camera
+function setTime(t) { state.time = Math.min(Math.max(t, 0), header.duration_s); state.dirty = true; }
+function play() { if (state.time >= header.duration_s) setTime(0); state.playing = true; state.lastNow = null; state.dirty = true; }
+function pause() { state.playing = false; state.dirty = true; }
+
+function tick(now) {
+  if (state.playing) {
+    if (state.lastNow !== null) setTime(state.time + (now - state.lastNow) / 1000 * state.speed);
+    state.lastNow = now;
+    if (state.time >= header.duration_s) pause();
+  }
+  if (state.dirty) draw();
+  requestAnimationFrame(tick);
+}
+
+function setView(name) {
+  const ext = ReplayRender.lineExtent(header.line), length = ext.x1 - ext.x0;
+  const aspect = canvas.clientWidth / Math.max(1, canvas.clientHeight);
+  const halfFovX = Math.atan(Math.tan(camera.fovY / 2) * aspect);
+  camera.target = [(ext.x0 + ext.x1) / 2, 0, (ext.zTop + ext.zLow) / 2];
+  const fit = (0.55 * length + 0.3) / Math.tan(halfFovX);   // the whole line across the window
+  if (name === "top") Object.assign(camera, { yaw: -Math.PI / 2, pitch: 1.5, dist: fit });
+  else if (name === "side") Object.assign(camera, { yaw: -Math.PI / 2, pitch: 0.08, dist: fit });
+  else Object.assign(camera, { yaw: -Math.PI / 2 - 0.35, pitch: 0.55, dist: 1.0 * fit });
+  state.dirty = true;
+}
+
+function setupInput() {
+  const pointers = new Map();
+  let pinch = null;
+  canvas.addEventListener("contextmenu", (e) => e.preventDefault());
+  canvas.addEventListener("pointerdown", (e) => {
+    canvas.setPointerCapture(e.pointerId);
+    pointers.set(e.pointerId, { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey });
+    pinch = null;
+  });
+  const release = (e) => { pointers.delete(e.pointerId); pinch = null; };
+  canvas.addEventListener("pointerup", release);
+  canvas.addEventListener("pointercancel", release);
+  canvas.addEventListener("pointermove", (e) => {
+    const p = pointers.get(e.pointerId);
+    if (!p) return;
+    const dx = e.clientX - p.x, dy = e.clientY - p.y;
+    p.x = e.clientX; p.y = e.clientY;
+    if (pointers.size === 2) {          // two fingers: pinch to zoom
+      const [a, b] = [...pointers.values()], span = Math.hypot(a.x - b.x, a.y - b.y);
+      if (pinch) camera.dist *= pinch / Math.max(span, 1);
+      pinch = span;
+    } else if (p.pan) {
+      panCamera(dx, dy);
+    } else {
+      camera.yaw -= dx * 0.006;
+      camera.pitch = Math.min(1.55, Math.max(-0.2, camera.pitch + dy * 0.006));
+    }
+    state.dirty = true;
+  });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    camera.dist = Math.min(100, Math.max(0.2, camera.dist * Math.exp(e.deltaY * 0.001)));
+    state.dirty = true;
+  }, { passive: false });
+  canvas.addEventListener("dblclick", () => setView("3d"));
+  ui.play.addEventListener("click", () => (state.playing ? pause() : play()));
+  ui.time.addEventListener("input", () => setTime(parseFloat(ui.time.value)));
+  ui.time.addEventListener("pointerdown", () => { state.sliderHeld = true; });
+  for (const type of ["pointerup", "pointercancel", "change"]) ui.time.addEventListener(type, () => { state.sliderHeld = false; });
+  ui.speed.addEventListener("change", () => { state.speed = parseFloat(ui.speed.value); });
+  for (const name of ["3d", "top", "side"]) document.getElementById(`view-${name}`).addEventListener("click", () => setView(name));
+  ui.sim.addEventListener("change", () => { state.showSim = ui.sim.checked; state.dirty = true; });
+  ui.measured.addEventListener("change", () => { state.showMeasured = ui.measured.checked; state.dirty = true; });
+  window.addEventListener("resize", () => { state.dirty = true; });
+  window.addEventListener("keydown", (e) => {
+    if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
+    if (e.key === " ") { e.preventDefault(); state.playing ? pause() : play(); }
+    if (e.key === "ArrowRight") setTime(state.time + 0.04);
+    if (e.key === "ArrowLeft") setTime(state.time - 0.04);
+    if (e.key === "Home") setTime(0);
+  });
+}
+
+function panCamera(dx, dy) {
+  const scale = camera.dist * 0.0015, c = Math.cos(camera.yaw), s = Math.sin(camera.yaw);
+  camera.target[0] += (s * dx - c * dy * Math.sin(camera.pitch)) * scale;   // minus right * dx, plus up * dy
+  camera.target[1] += (-c * dx - s * dy * Math.sin(camera.pitch)) * scale;
+  camera.target[2] += dy * Math.cos(camera.pitch) * scale;
+}
+
+// --------------------------------------------------------------------- the page and its API
+function describe() {
+  ui.title.textContent = `${header.name} · run ${header.run_id} · ${header.fish.ids.length} fish`;
+  let legend = '<span class="swatch" style="background:#8a7"></span>simulated fish (a colour each)';
+  if (header.measured) legend += '<span class="swatch" style="background:rgba(240,130,30,.45);border:1px solid #a50"></span>measured (outline)';
+  legend += '<span class="swatch" style="background:#2a5"></span>photo-eye clear<span class="swatch" style="background:#e21"></span>blocked';
+  ui.legend.innerHTML = legend;
+  ui.time.max = header.duration_s;
+  ui.time.step = 0.01;
+  document.getElementById("toggle-measured-label").hidden = !header.measured;
+}
+
+// For tests and scripts: the state, and where things are drawn (CSS pixels from the canvas' top-left).
+const api = {
+  ready: null,
+  duration: () => header.duration_s,
+  time: () => state.time,
+  setTime: (t) => { setTime(t); draw(); },
+  play, pause,
+  playing: () => state.playing,
+  speed: () => state.speed,
+  render: () => draw(),
+  setLayer: (name, on) => { state[name === "measured" ? "showMeasured" : "showSim"] = on; draw(); },
+  camera: () => JSON.parse(JSON.stringify(camera)),
+  setCamera: (c) => { Object.assign(camera, c); draw(); },
+  setView: (name) => { setView(name); draw(); },
+  viewProjection: () => Array.from(viewProjection()),
+  project: (p) => project(p),
+  canvasSize: () => [canvas.clientWidth, canvas.clientHeight],
+  bodyWorldPositions: () => {
+    const { pos } = bodyPoses(state.time), out = [];
+    for (let b = 0; b < data.bodies; b++) out.push([pos[4 * b], pos[4 * b + 1], pos[4 * b + 2], pos[4 * b + 3]]);
+    return out;
+  },
+  fishScreenPositions: () => {
+    const { pos } = bodyPoses(state.time), vp = viewProjection();
+    return header.fish.ids.map((id, n) => {
+      const bodies = [];
+      data.bodyFish.forEach((f, b) => { if (f === n) bodies.push(project([pos[4 * b], pos[4 * b + 1], pos[4 * b + 2]], vp)); });
+      const first = data.bodyFish.indexOf(n);
+      return { id, visible: first >= 0 && pos[4 * first + 3] === 1 && state.showSim, bodies };
+    });
+  },
+  photoeyesBlocked: () => photoeyesBlocked(state.time),
+  beltTravel: () => beltAt(state.time).travel,
+  measuredFish: () => measuredAt(state.time),
+};
+window.replay = api;
+
+api.ready = (async function start() {
+  describe();
+  try {
+    data = await loadData();
+    renderer = ReplayRender.createRenderer(canvas, header, data);
+    setupInput();
+    setView("3d");
+    draw();
+    requestAnimationFrame(tick);
+    document.body.dataset.ready = "1";
+  } catch (err) {
+    ui.status.textContent = `cannot show the replay: ${err.message}`;
+    document.body.dataset.ready = "error";
+    window.replayError = String(err && err.stack || err);
+    throw err;
+  }
+})();
+})();
