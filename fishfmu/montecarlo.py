@@ -1,0 +1,123 @@
+"""``fishfmu run SCENARIO --seeds N``: one scenario over N fish batches, KPIs as mean and CI.
+
+The N runs are a sweep without parameters (same engine, same seeds rule: ``run.seed`` .. +N-1).
+The output folder holds ``kpis.json`` (each KPI's mean as a plain number, as for a single run,
+plus ``statistics`` per KPI and ``expect``), ``run_info.json``, and the sweep itself in
+``seeds/`` (``runs.csv``, ``summary.csv``, ...).
+
+Exit code, as ``fishfmu run``: 3 when any seed's run failed, else 1 when an ``[expect]`` bound
+fails **on the mean over seeds** (not on single runs, nor on the interval), else 0.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree as ET
+
+import pandas as pd
+from rich.console import Console
+
+from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
+
+from fishfmu.runner import ExpectResult
+from fishfmu.scenario import KPI_KEYS, load_scenario
+from fishfmu.sweep import SweepResult, make_spec, run_sweep
+
+SHOWN_KPIS = ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
+              "gap_min_m", "gap_p10_m", "gap_median_m")
+
+
+@dataclass
+class SeedsResult:
+    """The statistics of one scenario over seeds, and its [expect] bounds checked on the means."""
+
+    sweep: SweepResult
+    statistics: pd.Series
+    """the sweep's single summary row (see :func:`fishfmu.stats.summarise`)"""
+    expect: list[ExpectResult]
+
+    @property
+    def n_failed(self) -> int:
+        return int(self.statistics["n_failed"])
+
+    @property
+    def exit_code(self) -> int:
+        if self.n_failed or self.sweep.interrupted:
+            return EXIT_SIMULATION_FAILED
+        return EXIT_OK if all(e.ok for e in self.expect) else EXIT_EXPECT_FAILED
+
+
+def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,
+              scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
+    """Run the scenario for ``n_seeds`` seeds into ``out_dir`` (already prepared) and write its KPIs."""
+    from fishfmu.outputs import _clean, write_json_atomic
+    sc = load_scenario(scenario, overrides)
+    spec = make_spec(scenario, {}, n_seeds, overrides)
+    t0 = time.perf_counter()
+    write_json_atomic(out_dir / "run_info.json", {"status": "running", "seeds": spec.seeds})  # marks the folder ours
+    sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
+    if sweep.summary.empty:
+        raise InputError("no run finished", file=scenario)
+    stats = sweep.summary.iloc[0]
+    expect = [ExpectResult(k, _mean(stats, k), b.min, b.max) for k, b in sc.expect.items()]
+    result = SeedsResult(sweep, stats, expect)
+    doc: dict[str, Any] = {k: _mean(stats, k) for k in KPI_KEYS}
+    doc.update(seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed, errors=stats["errors"],
+               statistics={k: {f: stats[f"{k}_{f}"] for f in ("n", "n_undefined", "mean", "sd", "ci_low", "ci_high")}
+                           for k in KPI_KEYS},
+               singulation_rate_pooled={f: stats.get(f"singulation_rate_{f}") for f in ("pooled", "wilson_low",
+                                                                                        "wilson_high")},
+               expect={e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok, "on": "mean over seeds"}
+                       for e in expect})
+    write_json_atomic(out_dir / "kpis.json", _clean(doc))
+    write_json_atomic(out_dir / "run_info.json", _clean({
+        "status": "interrupted" if sweep.interrupted else ("failed" if result.n_failed else "ok"),
+        "seeds": spec.seeds, "n_ok": int(stats["n_ok"]), "n_failed": result.n_failed,
+        "wall_s": round(time.perf_counter() - t0, 3), "workers": workers, "scheduler": scheduler}))
+    return result
+
+
+def _mean(stats: pd.Series, kpi: str) -> float | None:
+    v = stats.get(f"{kpi}_mean")
+    return None if v is None or v != v else float(v)
+
+
+def write_junit_means(result: SeedsResult, path: Path, scenario_file: str) -> None:
+    """Each [expect] bound, checked on the mean over seeds, as a JUnit test case."""
+    from fishfmu.outputs import write_text_atomic
+    suite = ET.Element("testsuite", name=f"fishfmu:{Path(scenario_file).stem}:seeds", tests=str(len(result.expect)),
+                       failures=str(sum(not e.ok for e in result.expect)), errors=str(min(result.n_failed, 1)))
+    if result.n_failed:
+        case = ET.SubElement(suite, "testcase", classname="fishfmu.seeds", name="simulation")
+        ET.SubElement(case, "error", message=f"{result.n_failed} runs failed").text = str(result.statistics["errors"])
+    for e in result.expect:
+        case = ET.SubElement(suite, "testcase", classname="fishfmu.seeds", name=f"expect.{e.kpi}")
+        ET.SubElement(case, "failure" if not e.ok else "system-out", message=f"mean {e.message}").text = e.message
+    ET.indent(suite)
+    write_text_atomic(Path(path), ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")
+
+
+def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, junit: Path | None,
+                      scheduler: str | None, workers: int | None, progress: bool) -> int:
+    """What ``fishfmu run --seeds N`` does after preparing the folder; returns the exit code."""
+    result = run_seeds(scenario, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers, progress=progress)
+    from fishfmu.sweep_report import print_statistics
+    console = Console()
+    seeds = result.sweep.runs["seed"]
+    print_statistics(result.statistics, SHOWN_KPIS, console,
+                     f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
+                     f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), "
+                     f"{result.sweep.wall_s:.0f} s")
+    if result.n_failed:
+        console.print(f"[red]failed runs:[/] {result.statistics['errors']}", highlight=False)
+    for e in result.expect:
+        console.print(("[green]ok[/]   " if e.ok else "[red]FAIL[/] ") + "mean " + e.message, highlight=False)
+    if junit is not None:
+        write_junit_means(result, junit, str(scenario))
+    if result.sweep.interrupted:
+        console.print("[yellow]interrupted[/]: the statistics cover the runs that finished", highlight=False)
+    console.print(f"outputs: {out_dir}", highlight=False)
+    return result.exit_code

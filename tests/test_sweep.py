@@ -1,0 +1,183 @@
+"""Sweeps and Monte-Carlo KPIs: the same numbers on a cluster as one by one, failures recorded,
+resuming, FMUs reaching workers that cannot build them, and the statistics by hand."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+from plant.errors import InputError
+
+from fishfmu.engine import scalar_kpis
+from fishfmu.scenario import KPI_KEYS
+from fishfmu.stats import mean_ci, summarise, wilson_interval
+from fishfmu.sweep import make_spec, run_sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "scenarios" / "paper_test.toml"
+# two fish dropped early on a line that starts quickly: they reach the outfeed within 12 s
+SMALL = {"fish.count": 2, "run.duration_s": 12.0, "fish.first_drop_s": 1.0, "fmu[0].parameters.startup_delay": 0.3}
+# nothing reaches the outfeed: cheap runs for bookkeeping tests
+SHORT = {"fish.count": 2, "run.duration_s": 4.0, "fish.first_drop_s": 1.0}
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory, builtin_fmus: dict[str, Path]):
+    """Two worker processes that cannot build FMUs: an empty FMU cache of their own and a ``cmake``
+    that only leaves a mark (a build would fail and be seen)."""
+    from distributed import LocalCluster
+    cache = tmp_path_factory.mktemp("worker_fmu_cache")
+    fake_bin = tmp_path_factory.mktemp("fake_bin")
+    marker = fake_bin / "cmake-was-called"
+    (fake_bin / "cmake").write_text(f"#!/bin/sh\ntouch {marker}\nexit 1\n")
+    (fake_bin / "cmake").chmod(0o755)
+    env = {"FISHFMU_CACHE": str(cache), "PATH": f"{fake_bin}{os.pathsep}{os.environ.get('PATH', '')}"}
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None, env=env) as c:
+        yield SimpleNamespace(address=c.scheduler_address, cache=cache, marker=marker)
+
+
+def test_sweep_on_cluster_gives_the_same_kpis_as_runs_one_by_one(cluster, tmp_path: Path) -> None:
+    from fishfmu.runner import run_scenario
+    from fishfmu.scenario import load_scenario
+    params = {"fmu[0].parameters.speed_1": [0.35, 0.45], "fish.length_mean_m": [0.55, 0.65]}
+    spec = make_spec(PAPER, params, 2, SMALL)
+    res = run_sweep(spec, tmp_path / "sweep", scheduler=cluster.address)
+    assert res.n_executed == 8 and len(res.runs) == 8 and (res.runs["status"] == "ok").all()
+    assert res.runs["worker"].nunique() == 2  # both workers took part
+    assert res.runs["throughput_time_s"].notna().any()  # fish did reach the outfeed
+    for _, row in res.runs.iterrows():
+        point = {k: row[k] for k in params}
+        sc = load_scenario(PAPER, {**SMALL, **point, "run.seed": int(row["seed"])})
+        alone = scalar_kpis(run_scenario(sc, PAPER).kpis)
+        for k in KPI_KEYS:
+            got = row[k]
+            if alone[k] is None:
+                assert got is None or math.isnan(got), k
+            else:
+                assert got == alone[k], (k, point, row["seed"])  # identical, not close
+    assert len(res.summary) == 4 and (res.summary["n_ok"] == 2).all()
+    for name in ("runs.parquet", "runs.csv", "summary.parquet", "summary.csv", "sweep.json"):
+        assert (tmp_path / "sweep" / name).is_file()
+    assert (tmp_path / "sweep" / "plots" / "singulation_rate__fmu_0_parameters_speed_1.png").is_file()
+
+
+def test_failed_points_are_recorded_and_the_others_complete(cluster, tmp_path: Path) -> None:
+    fixed = {**SHORT, "event": [{"t_s": 2.0, "target": "drive_c1.speed_setpoint", "action": "override",
+                                 "value": 0.5}]}
+    # speed_2 = -0.5 is outside the controller's declared range [0, 2]: caught before any run;
+    # overriding the drive's setpoint with 5.0 (range [-2, 2]) makes the FMU fail during the run
+    params = {"fmu[0].parameters.speed_2": [0.5, -0.5], "event[0].value": [0.5, 5.0]}
+    res = run_sweep(make_spec(PAPER, params, 1, fixed), tmp_path / "sweep", scheduler=cluster.address, plots=False)
+    runs = res.runs.set_index(["fmu[0].parameters.speed_2", "event[0].value"])
+    assert res.n_executed == 2  # the two bad points were never sent to a worker
+    assert runs.loc[(0.5, 0.5), "status"] == "ok"
+    sim = runs.loc[(0.5, 5.0)]
+    assert sim["status"] == "failed" and sim["error_kind"] == "simulation"
+    assert "drive_c1" in sim["error"] and "t = 2.0" in sim["error"]
+    for v in (0.5, 5.0):
+        bad = runs.loc[(-0.5, v)]
+        assert bad["status"] == "failed" and bad["error_kind"] == "input"
+        assert "speed_2" in bad["error"] and "outside" in bad["error"]
+    summary = res.summary.set_index(["fmu[0].parameters.speed_2", "event[0].value"])
+    assert summary.loc[(0.5, 0.5), "n_ok"] == 1 and summary.loc[(0.5, 5.0), "n_failed"] == 1
+
+
+def test_resume_skips_finished_runs(cluster, tmp_path: Path) -> None:
+    spec = make_spec(PAPER, {"fish.length_mean_m": [0.55, 0.65]}, 2, SHORT)
+    out = tmp_path / "sweep"
+    first = run_sweep(spec, out, scheduler=cluster.address, max_runs=1, plots=False)  # as if stopped after one run
+    assert (first.n_executed, len(first.runs)) == (1, 1)
+    kept = next((out / "points").glob("*.json"))
+    before = kept.read_bytes()
+    second = run_sweep(spec, out, scheduler=cluster.address, plots=False)
+    assert (second.n_executed, second.n_skipped, len(second.runs)) == (3, 1, 4)
+    assert (second.runs["status"] == "ok").all() and kept.read_bytes() == before
+    third = run_sweep(spec, out, scheduler=cluster.address, plots=False)
+    assert (third.n_executed, third.n_skipped) == (0, 4)
+    other = make_spec(PAPER, {"fish.length_mean_m": [0.55, 0.60]}, 2, SHORT)
+    with pytest.raises(InputError, match="different sweep"):
+        run_sweep(other, out, scheduler=cluster.address)
+
+
+def test_worker_without_fmu_cache_gets_the_clients_fmus_and_does_not_compile(cluster, tmp_path: Path,
+                                                                             builtin_fmus: dict[str, Path]) -> None:
+    from distributed import Client
+
+    from fishfmu.fmu_build import source_digest
+    with Client(cluster.address) as client:  # the workers' cmake is the fake one: a build would be seen
+        assert set(client.run(shutil.which, "cmake").values()) == {str(cluster.marker.parent / "cmake")}
+    res = run_sweep(make_spec(PAPER, {}, 2, SHORT), tmp_path / "sweep", scheduler=cluster.address, plots=False)
+    assert (res.runs["status"] == "ok").all()
+    for name, client_fmu in builtin_fmus.items():
+        assert (cluster.cache / source_digest(name) / f"{name}.fmu").read_bytes() == client_fmu.read_bytes()
+    assert not cluster.marker.exists()
+    assert sorted(p.name for p in cluster.cache.iterdir()) == sorted(source_digest(n) for n in builtin_fmus)
+
+
+def test_mean_ci_matches_hand_computation() -> None:
+    # x = 0.2, 0.4, 0.3, 0.5: mean 0.35, deviations -0.15, 0.05, -0.05, 0.15 -> sd = sqrt(0.05 / 3);
+    # t(0.975, 3 degrees of freedom) = 3.182446 (t table) -> half width = 3.182446 * sd / 2
+    ci = mean_ci([0.2, 0.4, None, 0.3, 0.5])
+    sd = math.sqrt(0.05 / 3)
+    half = 3.182446 * sd / 2
+    assert (ci.n, ci.n_undefined) == (4, 1)
+    assert ci.mean == pytest.approx(0.35, abs=1e-12) and ci.sd == pytest.approx(sd, rel=1e-12)
+    assert ci.ci_low == pytest.approx(0.35 - half, rel=1e-6) and ci.ci_high == pytest.approx(0.35 + half, rel=1e-6)
+    assert mean_ci([0.7]).ci_low is None and mean_ci([None]).mean is None
+
+
+def test_wilson_bounds_solve_the_score_equation() -> None:
+    # the Wilson bounds are the two p with (p_hat - p)^2 = z^2 p (1 - p) / n, z = 1.959964
+    lo, hi = wilson_interval(10, 18)
+    for p in (lo, hi):
+        assert (10 / 18 - p) ** 2 == pytest.approx(1.959964 ** 2 * p * (1 - p) / 18, rel=1e-5)
+    assert lo < 10 / 18 < hi and wilson_interval(0, 0) is None
+
+
+def test_summary_leaves_out_failed_runs_and_pools_fish() -> None:
+    import pandas as pd
+    runs = pd.DataFrame({"p": [1, 1, 1], "status": ["ok", "ok", "failed"], "error": [None, None, "boom"],
+                         "fish_in": [18, 18, None], "singulated": [9, 3, None], "singulation_rate": [0.5, 1 / 6, None]})
+    row = summarise(runs, ["p"], ["singulation_rate"]).iloc[0]
+    assert (row["n_ok"], row["n_failed"], row["errors"]) == (2, 1, "boom")
+    assert row["singulation_rate_mean"] == pytest.approx(1 / 3) and row["singulation_rate_n"] == 2
+    assert row["singulation_rate_pooled"] == pytest.approx(12 / 36)
+
+
+def test_sweep_command_rejects_bad_input_with_exit_2(tmp_path: Path) -> None:
+    for args in (["--param", "fish.count"], ["--param", "run.seed=1,2"], ["--param", "fish.count=3", "--seeds", "0"],
+                 ["--param", "fish.nonsense=1,2"]):
+        done = subprocess.run([sys.executable, "-m", "fishfmu.cli", "sweep", str(PAPER), "--out", str(tmp_path / "s"),
+                               *args], capture_output=True, text=True, cwd=tmp_path)
+        assert done.returncode == 2, (args, done.stderr)
+
+
+def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) -> None:
+    sets = [a for k, v in SHORT.items() for a in ("--set", f"{k}={v}")]
+    done = subprocess.run([sys.executable, "-m", "fishfmu.cli", "run", str(PAPER), "--seeds", "2", "--workers", "2",
+                           "--out", str(tmp_path / "mc"), *sets], capture_output=True, text=True, cwd=tmp_path,
+                          env={**os.environ, "CI": "1"})
+    kpis = json.loads((tmp_path / "mc" / "kpis.json").read_text())
+    # no fish reaches the outfeed in 4 s: the paper's "lost <= 0" bound fails on the mean (exit 1)
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert kpis["seeds"] == [1, 2] and kpis["lost"] == 2.0 and kpis["expect"]["lost"]["ok"] is False
+    assert kpis["statistics"]["fish_in"]["n"] == 2
+    assert (tmp_path / "mc" / "seeds" / "runs.csv").is_file()
+
+
+@pytest.mark.bench
+def test_bench_runs_per_minute_with_one_and_two_workers(tmp_path: Path) -> None:
+    from fishfmu.sweep_bench import bench
+    doc = bench(PAPER, n_runs=4, workers=(1, 2), fixed=SMALL)
+    (tmp_path / "sweep_bench.json").write_text(json.dumps(doc, indent=2))
+    one, two = doc["results"]
+    assert one["failed"] == two["failed"] == 0
+    assert two["runs_per_min"] > one["runs_per_min"]
