@@ -230,6 +230,69 @@ def replay_cmd(
     print(write_replay(run_dir, out))
 
 
+def _dataset_and_params(dataset: Path, scenario: Path | None):
+    from plant.measured import read_dataset
+    from plant.params import PlantParams
+    ds = read_dataset(dataset)
+    if scenario is None:
+        return ds, PlantParams(), None
+    from fishfmu.scenario import load_scenario
+    sc = load_scenario(scenario)
+    drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
+    return ds, sc.plant, (drives[0] if drives else None)
+
+
+@app.command("compare")
+def compare(
+    dataset: Path = typer.Argument(..., help="Measured dataset folder (contracts/measured-data.md)."),
+    out: Path = typer.Option(..., "--out", help="Output folder."),
+    scenario: Path | None = typer.Option(None, "--scenario", help="Take plant parameters (and drive parameters) "
+                                                                 "from this scenario instead of the defaults."),
+    workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
+) -> None:
+    """Re-simulate every measured run and show what the simulation gets wrong (KPIs, arrivals, tracks, belts)."""
+    from fishfmu.compare import compare_dataset, write_comparison
+    from fishfmu.outputs import prepare_out_dir, write_json_atomic
+    ds, params, drive = _dataset_and_params(dataset, scenario)
+    out_dir = prepare_out_dir(out, overwrite)
+    c = compare_dataset(ds, params, workers, drive)
+    paths = write_comparison(c, out_dir)
+    write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "compare", "dataset": str(dataset)})
+    from rich.table import Table
+    table = Table(title=f"{ds.name}: simulated - measured, over {len(ds.runs)} runs")
+    for col in ("measure", "mean", "sd", "min", "max"):
+        table.add_column(col, justify="right" if col != "measure" else "left")
+    for row in c.summary().itertuples():
+        table.add_row(row.measure, *[f"{getattr(row, k):.4g}" for k in ("mean", "sd", "min", "max")])
+    Console().print(table)
+    Console().print(f"report: {paths['report']}", highlight=False)
+
+
+@app.command("diagnose")
+def diagnose_cmd(
+    dataset: Path = typer.Argument(..., help="Measured dataset folder (contracts/measured-data.md)."),
+    out: Path = typer.Option(..., "--out", help="Output folder."),
+    scenario: Path | None = typer.Option(None, "--scenario", help="Start from this scenario's plant parameters."),
+    workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
+    max_fit: int = typer.Option(3, "--max-fit", help="Fit at most this many plant candidates by simulation."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
+) -> None:
+    """Name the cause of what the simulation gets wrong, fit it, and measure the gain on held-out runs."""
+    from fishfmu.diagnose import diagnose
+    from fishfmu.diagnose_report import decision_text, write_diagnosis
+    from fishfmu.outputs import prepare_out_dir, write_json_atomic
+    ds, params, _ = _dataset_and_params(dataset, scenario)
+    out_dir = prepare_out_dir(out, overwrite)
+    d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text, highlight=False))
+    paths = write_diagnosis(d, out_dir)
+    write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "diagnose", "dataset": str(dataset)})
+    Console().print(f"cause: [bold]{d.cause}[/]", highlight=False)
+    Console().print(decision_text(d), highlight=False)
+    Console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}",
+                    highlight=False)
+
+
 def main() -> None:
     """Entry point: turn our own errors into one clear line and the matching exit code."""
     try:

@@ -133,8 +133,10 @@ def joint_laws(geometry: FishGeometry, joints: JointParams, numerics: NumericsPa
         m_side = sum(b.mass_kg for b in side)
         lever = abs(sum(b.mass_kg * b.com_from_snout_m for b in side) / m_side - xj)
         tau_g = m_side * gravity_mps2 * lever
-        soft = tau_g / (joints.sag_fraction * lim) * joints.stiffness_scale * stiffness_factor
-        soft = np.minimum(soft, k_lim / 3.0)
+        # a limp fish is at most a third as stiff inside its limits as beyond them; rigor (stiffness_factor)
+        # stiffens it from there, up to the limit stiffness (a fish in full rigor is nearly rigid)
+        soft = np.minimum(tau_g / (joints.sag_fraction * lim) * joints.stiffness_scale, k_lim / 3.0)
+        soft = np.minimum(soft * stiffness_factor, k_lim)
         if locked:
             soft[0] = k_lim[0]
         limits.append(lim)

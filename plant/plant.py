@@ -158,6 +158,7 @@ class Plant:
         self._steps += 1
         self._read_state()
         outputs = self._sensors(speeds)
+        self.last_outputs = outputs
         self._retire_fish()
         self._check_health()
         return outputs

@@ -1,0 +1,136 @@
+"""``fishfmu compare``: what the simulation gets wrong on measured runs, side by side.
+
+Every run of a dataset is re-simulated with the same fish, drops and measured belt speeds
+(:mod:`fishfmu.resim`); then, per run and over the dataset:
+
+- the KPIs, measured and simulated;
+- each fish's arrival at every photo-eye, measured and simulated;
+- track errors: the simulated mid-point and heading at each measured sample, minus the measured;
+- belt speed errors: the drive FMU fed the logged setpoints (and the simulated belt loads) against
+  the logged belt speeds.
+
+Error measures are given per run and as mean, sd, min and max across runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from plant.kpis import arrival_times, compute_kpis
+from plant.measured import Dataset, Run
+from plant.params import PlantParams
+
+from fishfmu.residuals import drive_residuals, track_errors
+from fishfmu.resim import Resim, drive_check, resimulate_many
+
+KPI_KEYS = ("throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost", "gap_median_m")
+
+
+@dataclass
+class Comparison:
+    dataset: Dataset
+    resims: list[Resim]
+    kpis: pd.DataFrame
+    """run_id, kpi, measured, simulated, error."""
+    arrivals: pd.DataFrame
+    """run_id, fish_id, sensor_id, measured_t_s, simulated_t_s, error_s."""
+    track: pd.DataFrame
+    """Track errors at every measured sample (run_id, fish_id, t_s, ex_m, ey_m, eyaw_rad, since_drop_s)."""
+    belts: pd.DataFrame
+    """run_id, conveyor_id, t_s, setpoint, measured, model speeds and load."""
+    measures: pd.DataFrame
+    """One row per run and error measure."""
+
+    def summary(self) -> pd.DataFrame:
+        """Each error measure over the runs: mean, sd, min, max."""
+        g = self.measures.groupby("measure")["value"]
+        return pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "min": g.min(), "max": g.max(),
+                             "runs": g.count()}).reset_index()
+
+
+def simulated_run(run: Run, resim: Resim) -> Run:
+    return Run(run.id, run.hours_post_mortem, "simulated", resim.sim.fish, resim.sim.tracks, resim.sim.photoeyes,
+               resim.sim.belts)
+
+
+def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers: int | None = None,
+                    drive_parameters: dict | None = None) -> Comparison:
+    params = params or PlantParams()
+    resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers)
+    kpi_rows, arrival_rows, track_rows, belt_rows, measures = [], [], [], [], []
+    for run, r in zip(dataset.runs, resims):
+        if r.error:
+            measures.append({"run_id": run.id, "measure": "simulation failed", "value": np.nan, "note": r.error})
+            continue
+        sim = simulated_run(run, r)
+        km, ks = compute_kpis(run, dataset.line, dataset.kpi), compute_kpis(sim, dataset.line, dataset.kpi)
+        for k in KPI_KEYS:
+            m, s = km.get(k), ks.get(k)
+            err = (s - m) if (m is not None and s is not None) else np.nan
+            kpi_rows.append({"run_id": run.id, "kpi": k, "measured": m, "simulated": s, "error": err})
+        am = arrival_times(run, dataset.line)
+        asim = arrival_times(sim, dataset.line)
+        a = am.merge(asim, on=["fish_id", "sensor_id"], how="outer", suffixes=("_measured", "_simulated"))
+        a = a.rename(columns={"t_s_measured": "measured_t_s", "t_s_simulated": "simulated_t_s"})
+        a["error_s"] = a["simulated_t_s"] - a["measured_t_s"]
+        arrival_rows.append(a[["fish_id", "sensor_id", "measured_t_s", "simulated_t_s", "error_s"]].assign(run_id=run.id))
+        e = track_errors(run.tracks, sim.tracks)
+        drops = run.fish.set_index("fish_id")["drop_t_s"]
+        e["since_drop_s"] = e["t_s"] - e["fish_id"].map(drops)
+        track_rows.append(e.assign(run_id=run.id))
+        for c in dataset.line.conveyors:
+            chk = drive_check(run, r.loads, c.id, drive_parameters)
+            belt_rows.append(chk.assign(run_id=run.id, conveyor_id=c.id))
+            steady = drive_residuals(chk)
+            if len(steady):
+                measures.append({"run_id": run.id, "measure": f"belt speed RMS error {c.id} [m/s]",
+                                 "value": float(np.sqrt(np.mean(steady["residual_mps"] ** 2)))})
+        if len(e):
+            measures += [
+                {"run_id": run.id, "measure": "track RMS error along [m]", "value": float(np.sqrt(np.mean(e["ex_m"] ** 2)))},
+                {"run_id": run.id, "measure": "track RMS error across [m]", "value": float(np.sqrt(np.mean(e["ey_m"] ** 2)))},
+                {"run_id": run.id, "measure": "heading RMS error [deg]",
+                 "value": float(np.degrees(np.sqrt(np.mean(e["eyaw_rad"] ** 2))))}]
+        err = a["error_s"].dropna()
+        if len(err):
+            measures.append({"run_id": run.id, "measure": "arrival RMS error [s]", "value": float(np.sqrt(np.mean(err**2)))})
+            measures.append({"run_id": run.id, "measure": "arrival mean error [s]", "value": float(err.mean())})
+        for k in ("singulation_rate", "throughput_time_s"):
+            m, s = km.get(k), ks.get(k)
+            if m is not None and s is not None:
+                measures.append({"run_id": run.id, "measure": f"{k} error", "value": float(s - m)})
+    cat = (lambda rows, cols: pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols))
+    return Comparison(dataset, resims, pd.DataFrame(kpi_rows, columns=["run_id", "kpi", "measured", "simulated", "error"]),
+                      cat(arrival_rows, ["run_id", "fish_id", "sensor_id", "measured_t_s", "simulated_t_s", "error_s"]),
+                      cat(track_rows, ["run_id", "fish_id", "t_s", "ex_m", "ey_m", "eyaw_rad", "since_drop_s"]),
+                      cat(belt_rows, ["run_id", "conveyor_id", "t_s", "setpoint_mps", "measured_mps", "model_mps"]),
+                      pd.DataFrame(measures, columns=["run_id", "measure", "value", "note"]))
+
+
+def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
+    """Tables (CSV), plots (PNG), a report (HTML) and the simulated runs (measured-data format)."""
+    from plant.measured import write_dataset
+
+    from fishfmu.compare_report import write_compare_report
+    from fishfmu.outputs import write_json_atomic, write_text_atomic
+    paths = {}
+    for name, df in (("kpis", c.kpis), ("arrivals", c.arrivals), ("error_measures", c.measures),
+                     ("error_summary", c.summary())):
+        paths[name] = out / f"{name}.csv"
+        write_text_atomic(paths[name], df.to_csv(index=False, float_format="%.6g"))
+    sim_runs = [simulated_run(r, s) for r, s in zip(c.dataset.runs, c.resims) if not s.error]
+    write_dataset(Dataset(c.dataset.name + "-simulated", "re-simulated by fishfmu compare", c.dataset.line,
+                          c.dataset.kpi, sim_runs), out / "simulated")
+    paths["simulated"] = out / "simulated"
+    summary = c.summary()
+    write_json_atomic(out / "compare.json", {
+        "dataset": c.dataset.name, "runs": len(c.dataset.runs),
+        "failed": {s.run_id: s.error for s in c.resims if s.error},
+        "error_summary": {row.measure: {"mean": row.mean, "sd": row.sd, "min": row.min, "max": row.max}
+                          for row in summary.itertuples()}})
+    paths["report"] = write_compare_report(c, out)
+    return paths

@@ -1,0 +1,162 @@
+"""What the simulation gets wrong, fish by fish: residuals and the conditions they happened in.
+
+From a measured run and its re-simulation (same fish, drops, belt speeds):
+
+- **track errors**: the simulated mid-point interpolated at each measured sample, minus the
+  measured one (along the line ``ex_m``, across ``ey_m``, heading ``eyaw_rad``);
+- **belt residuals** (one row per fish and belt it rode alone on): the mean along-line error
+  while the fish lay wholly on that belt, and its change since the previous belt (``lag_m``).
+  The change across a transfer is what friction decides (a fish slips until it has caught up
+  with the faster belt), so it is the quantity in which friction effects show; the row carries
+  the fish's heading on the belt, hours post mortem, and whether another fish was within a fish
+  length (``crowded``), the conditions in which the candidate causes differ;
+- **pair residuals**: for two fish touching when the leading one crosses a transfer, how much
+  further apart the simulation has them a little later than the measurement (adhesion keeps
+  touching fish together);
+- **drive residuals**: logged belt speed minus the drive model's, against the belt load.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from plant.line import Line
+from plant.measured import Run
+
+EDGE_M = 0.05
+"""A fish counts as lying on a belt when its ends are this far inside the belt's ends."""
+
+
+def track_errors(measured: pd.DataFrame, simulated: pd.DataFrame, max_gap_s: float = 0.2) -> pd.DataFrame:
+    """Simulated mid-point and heading interpolated at each measured sample, minus the measured ones.
+
+    Samples where the simulation has no track within ``max_gap_s`` (before its drop, after it left)
+    are left out.
+    """
+    rows = []
+    for fid, m in measured.groupby("fish_id", sort=False):
+        s = simulated[simulated["fish_id"] == fid]
+        if len(s) < 2:
+            continue
+        ts, tm = s["t_s"].to_numpy(float), m["t_s"].to_numpy(float)
+        idx = np.clip(np.searchsorted(ts, tm), 1, len(ts) - 1)
+        near = np.minimum(np.abs(ts[idx] - tm), np.abs(ts[idx - 1] - tm)) <= max_gap_s
+        ok = near & (tm >= ts[0]) & (tm <= ts[-1])
+        if not np.any(ok):
+            continue
+        yaw_s = np.unwrap(s["yaw_rad"].to_numpy(float))
+        sx = np.interp(tm[ok], ts, s["x_m"].to_numpy(float))
+        sy = np.interp(tm[ok], ts, s["y_m"].to_numpy(float))
+        syaw = np.interp(tm[ok], ts, yaw_s)
+        mm = m[ok]
+        eyaw = np.angle(np.exp(1j * (syaw - mm["yaw_rad"].to_numpy(float))))
+        rows.append(pd.DataFrame({"fish_id": fid, "t_s": tm[ok], "x_m": mm["x_m"].to_numpy(float),
+                                  "y_m": mm["y_m"].to_numpy(float), "yaw_rad": mm["yaw_rad"].to_numpy(float),
+                                  "ex_m": sx - mm["x_m"].to_numpy(float), "ey_m": sy - mm["y_m"].to_numpy(float),
+                                  "eyaw_rad": eyaw}))
+    cols = ["fish_id", "t_s", "x_m", "y_m", "yaw_rad", "ex_m", "ey_m", "eyaw_rad"]
+    return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols)
+
+
+def _crowding(tracks: pd.DataFrame, fid: str, t0: float, t1: float, radius_m: float) -> bool:
+    """Was another fish's mid-point within radius_m of this one's at some sample in [t0, t1]?"""
+    window = tracks[(tracks["t_s"] >= t0 - 0.05) & (tracks["t_s"] <= t1 + 0.05)]
+    me = window[window["fish_id"] == fid]
+    others = window[window["fish_id"] != fid]
+    if me.empty or others.empty:
+        return False
+    t_me, x_me, y_me = me["t_s"].to_numpy(), me["x_m"].to_numpy(), me["y_m"].to_numpy()
+    t_o = others["t_s"].to_numpy()
+    j = np.clip(np.searchsorted(t_me, t_o), 0, len(t_me) - 1)
+    close_t = np.abs(t_me[j] - t_o) <= 0.05
+    d = np.hypot(others["x_m"].to_numpy() - x_me[j], others["y_m"].to_numpy() - y_me[j])
+    return bool(np.any(close_t & (d < radius_m)))
+
+
+def belt_residuals(run: Run, errors: pd.DataFrame, line: Line) -> pd.DataFrame:
+    """One row per fish and belt it lay wholly on: mean along-line error there, change since the last belt."""
+    fish = run.fish.set_index("fish_id")
+    rows = []
+    for fid, e in errors.groupby("fish_id", sort=False):
+        length = float(fish.loc[fid, "length_m"])
+        hours = fish.loc[fid, "hours_post_mortem"] if "hours_post_mortem" in fish.columns else np.nan
+        hours = float(hours) if pd.notna(hours) else float(run.hours_post_mortem or np.nan)
+        prev_offset, prev_t_end = 0.0, float(fish.loc[fid, "drop_t_s"])
+        for k, c in enumerate(line.conveyors):
+            on = e[(e["x_m"] - 0.5 * length > c.x_start_m + EDGE_M) & (e["x_m"] + 0.5 * length < c.x_end_m - EDGE_M)]
+            if len(on) < 5:
+                continue
+            offset = float(on["ex_m"].median())
+            t0, t1 = float(on["t_s"].iloc[0]), float(on["t_s"].iloc[-1])
+            crowded = _crowding(run.tracks, fid, prev_t_end, t1, length)
+            rows.append({"run_id": run.id, "fish_id": fid, "belt": k, "conveyor_id": c.id, "t_start_s": t0,
+                         "t_end_s": t1, "offset_m": offset, "lag_m": offset - prev_offset,
+                         "heading": float(np.median(np.cos(on["yaw_rad"].to_numpy()))),
+                         "hours_post_mortem": hours, "length_m": length, "crowded": crowded,
+                         "n_samples": len(on)})
+            prev_offset, prev_t_end = offset, t1
+    cols = ["run_id", "fish_id", "belt", "conveyor_id", "t_start_s", "t_end_s", "offset_m", "lag_m", "heading",
+            "hours_post_mortem", "length_m", "crowded", "n_samples"]
+    return pd.DataFrame(rows, columns=cols)
+
+
+def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float = 1.5) -> pd.DataFrame:
+    """Pairs of fish touching (side by side within their heights, overlapping along the line) when the
+    leading one's mid-point crosses a transfer: separation along the line ``after_s`` later, simulated
+    minus measured."""
+    from plant.fish_data import length_regressions
+    rows = []
+    tracks = run.tracks
+    fish = run.fish.set_index("fish_id")
+    height = fish["height_m"] if "height_m" in fish.columns else pd.Series(np.nan, index=fish.index)
+    height = height.fillna(pd.Series(length_regressions().height_m(fish["length_m"].to_numpy()), index=fish.index))
+    for c in line.conveyors[1:]:
+        for fid, m in tracks.groupby("fish_id", sort=False):
+            x, t = m["x_m"].to_numpy(), m["t_s"].to_numpy()
+            cross = np.flatnonzero((x[:-1] < c.x_start_m) & (x[1:] >= c.x_start_m))
+            if not len(cross):
+                continue
+            tc = float(t[cross[0] + 1])
+            at = tracks[np.abs(tracks["t_s"] - tc) <= 0.03]
+            me = at[at["fish_id"] == fid]
+            if me.empty:
+                continue
+            for _, o in at[at["fish_id"] != fid].drop_duplicates("fish_id").iterrows():
+                dx = float(me["x_m"].iloc[0] - o["x_m"])
+                dy = abs(float(me["y_m"].iloc[0] - o["y_m"]))
+                la, lb = float(fish.loc[fid, "length_m"]), float(fish.loc[o["fish_id"], "length_m"])
+                reach = 0.5 * (la + lb) - 0.25 * min(la, lb)  # overlapping along at least a quarter of a fish
+                side = 0.5 * float(height[fid] + height[o["fish_id"]]) + 0.02
+                if not (0.0 < dx < reach and dy < side):
+                    continue
+                sep_m = _separation(tracks, fid, o["fish_id"], tc + after_s)
+                sep_s = _separation(simulated, fid, o["fish_id"], tc + after_s)
+                if sep_m is not None and sep_s is not None:
+                    rows.append({"run_id": run.id, "leader": fid, "follower": o["fish_id"], "conveyor_id": c.id,
+                                 "t_s": tc, "separation_m": sep_m, "dsep_m": sep_s - sep_m})
+    return pd.DataFrame(rows, columns=["run_id", "leader", "follower", "conveyor_id", "t_s", "separation_m", "dsep_m"])
+
+
+def _separation(tracks: pd.DataFrame, a: str, b: str, t: float) -> float | None:
+    xs = []
+    for fid in (a, b):
+        m = tracks[tracks["fish_id"] == fid]
+        if m.empty or t < m["t_s"].iloc[0] or t > m["t_s"].iloc[-1]:
+            return None
+        xs.append(float(np.interp(t, m["t_s"], m["x_m"])))
+    return xs[0] - xs[1]
+
+
+def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5) -> pd.DataFrame:
+    """Logged belt speed minus the drive model's, away from setpoint changes (ramps are not droop)."""
+    if check.empty:
+        return check.assign(residual_mps=[])
+    sp = check["setpoint_mps"].to_numpy()
+    t = check["t_s"].to_numpy()
+    change_t = t[np.flatnonzero(np.abs(np.diff(sp)) > 1e-6) + 1]
+    last_change = np.array([change_t[change_t <= x].max() if np.any(change_t <= x) else -np.inf for x in t])
+    steady = (t - last_change >= settle_s) & (np.abs(sp) > 0.05)
+    out = check[steady].copy()
+    out["residual_mps"] = out["measured_mps"] - out["model_mps"]
+    return out

@@ -1,0 +1,142 @@
+"""Re-simulating measured runs: the same line, fish, drops and belt speeds as measured.
+
+A measured run (contracts/measured-data.md) says which fish were dropped where and when and how
+fast each belt ran; :func:`resimulate` runs the plant with exactly that (belt surfaces follow the
+logged ``speed_mps``), so that what differs between the simulated and the measured run is the
+fish physics.  The side a fish lands on is not measured: it is drawn from a seed made of the run
+id, so every re-simulation of a run (with any model variant) uses the same draw.
+
+:func:`drive_check` runs the conveyor-drive FMU alone on the logged setpoints and the belt loads
+of the re-simulation, to compare the drive model with the logged belt speeds.
+
+Runs are independent: :func:`resimulate_many` spreads them over worker processes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from plant.line import Line
+from plant.measured import Run
+from plant.params import PlantParams
+from plant.population import fish_from_frame
+from plant.simulate import SimulatedRun, simulate_plant
+
+
+@dataclass
+class Resim:
+    """One re-simulated run: the simulated tables (measured-data format) and the belt loads."""
+
+    run_id: str
+    sim: SimulatedRun
+    loads: pd.DataFrame
+    """t_s, conveyor_id, load_force_n, load_mass_kg at every communication step."""
+    error: str | None = None
+
+
+def run_seed(run_id: str, seed: int = 0) -> int:
+    return int.from_bytes(hashlib.sha256(f"{run_id}:{seed}".encode()).digest()[:4], "little")
+
+
+def belt_speed_function(belts: pd.DataFrame, conveyor_ids: list[str]):
+    """Belt speeds at time t, linearly interpolated from the drive log (held before/after it)."""
+    tables = {}
+    for cid in conveyor_ids:
+        b = belts[belts["conveyor_id"] == cid]
+        tables[cid] = (b["t_s"].to_numpy(float), b["speed_mps"].to_numpy(float)) if len(b) else (np.array([0.0]),
+                                                                                                 np.array([0.0]))
+
+    def speeds(t: float) -> dict[str, float]:
+        return {cid: float(np.interp(t, ts, vs)) for cid, (ts, vs) in tables.items()}
+
+    return speeds
+
+
+def run_duration_s(run: Run) -> float:
+    """Long enough for everything the run measured, plus a little."""
+    ends = [float(run.fish["drop_t_s"].max())]
+    if len(run.tracks):
+        ends.append(float(run.tracks["t_s"].max()))
+    if len(run.photoeyes):
+        ends.append(float(run.photoeyes["t_off_s"].max()))
+    return max(ends) + 1.0
+
+
+def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: int = 0,
+               duration_s: float | None = None) -> Resim:
+    """The plant with the run's fish, drops and logged belt speeds."""
+    params = params or PlantParams()
+    rng = np.random.default_rng(run_seed(run.id, seed))
+    fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
+    speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
+    loads: list[tuple] = []
+
+    def log_loads(plant) -> None:
+        out = plant.last_outputs
+        for cid in plant.conveyor_ids:
+            loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
+
+    sim = simulate_plant(line, fish, speed_fn, duration_s or run_duration_s(run), params=params,
+                         stop_when_clear=True, on_step=log_loads)
+    return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
+
+
+def _task(args: tuple) -> Resim:
+    line, run, params, seed = args
+    from plant.errors import SimulationError
+    try:
+        return resimulate(line, run, params, seed)
+    except SimulationError as exc:
+        empty = SimulatedRun(run.fish, run.tracks.iloc[0:0], run.photoeyes.iloc[0:0], run.belts.iloc[0:0], 0.0, 0.0)
+        return Resim(run.id, empty, pd.DataFrame(columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]),
+                     str(exc))
+
+
+def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
+                    seed: int = 0) -> list[Resim]:
+    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order."""
+    workers = max(1, min(workers or os.cpu_count() or 1, len(runs)))
+    tasks = [(line, r, p, seed) for r, p in zip(runs, params_per_run)]
+    if workers == 1 or len(tasks) == 1:
+        return [_task(t) for t in tasks]
+    import multiprocessing
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return list(pool.map(_task, tasks))
+
+
+def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:
+    """The built-in drive FMU on this belt's logged setpoints and simulated loads.
+
+    Returns t_s, setpoint_mps, measured_mps, model_mps, load_force_n at the drive-log times.
+    """
+    from fishfmu.fmu_build import builtin_fmu
+    from fishfmu.fmu_files import open_fmu
+    from fishfmu.fmu_instance import FmuInstance
+    b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
+    if len(b) < 2:
+        return pd.DataFrame(columns=["t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n"])
+    t = b["t_s"].to_numpy(float)
+    sp = b["setpoint_mps"].to_numpy(float)
+    measured = b["speed_mps"].to_numpy(float)
+    ld = loads[loads["conveyor_id"] == conveyor_id]
+    force = np.interp(t, ld["t_s"].to_numpy(float), ld["load_force_n"].to_numpy(float)) if len(ld) else np.zeros_like(t)
+    params = {"initial_belt_speed": float(np.clip(measured[0], -2.0, 2.0)), **(drive_parameters or {})}
+    model = np.empty_like(t)
+    with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
+        drive = FmuInstance(f"drive_{conveyor_id}", fmu, params, start_time_s=float(t[0]))
+        try:
+            model[0] = drive.get(["belt_speed"])["belt_speed"]
+            for i in range(1, len(t)):
+                drive.set({"speed_setpoint": float(np.clip(sp[i - 1], -2.0, 2.0)), "load_force": float(force[i - 1])})
+                drive.do_step(float(t[i - 1]), float(t[i] - t[i - 1]))
+                model[i] = drive.get(["belt_speed"])["belt_speed"]
+        finally:
+            drive.terminate()
+    return pd.DataFrame({"t_s": t, "setpoint_mps": sp, "measured_mps": measured, "model_mps": model,
+                         "load_force_n": force})

@@ -1,0 +1,147 @@
+"""Making "measured" datasets with the simulator, with an effect switched on and measurement noise.
+
+Used to test ``fishfmu diagnose``: a dataset is simulated with one hidden effect (a plant
+extension, or drive droop through the drive FMU's ``belt_slip``), then degraded the way a line's
+instruments degrade it (tracking noise, lost frames, photo-eye jitter, drive-log noise), and the
+analysis is not told what was switched on.
+
+Each run is a co-simulation (drive FMUs under a fixed speed profile) so that the logged belt
+speeds carry whatever the drives did under load, as on a real line.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from plant.line import KpiSettings, Line
+from plant.measured import Dataset, Run, write_dataset
+from plant.params import PlantParams
+from plant.population import FishSpec, fish_size
+
+EFFECTS = ("none", "direction_friction", "rigor_mortis", "mucus_friction", "adhesion", "drive_droop")
+
+
+@dataclass(frozen=True)
+class Noise:
+    """How a line's instruments degrade what happened."""
+
+    track_position_m: float = 0.003
+    track_yaw_rad: float = math.radians(2.0)
+    lost_frames: float = 0.1
+    photoeye_jitter_s: float = 0.01
+    belt_speed_mps: float = 0.003
+
+
+def hidden_effect(effect: str, strength: float = 1.0) -> tuple[PlantParams, dict[str, float]]:
+    """Plant parameters and drive parameters with one effect switched on (strength 1: clearly visible)."""
+    params = PlantParams()
+    drive: dict[str, float] = {}
+    ext = params.extensions
+    if effect == "direction_friction":
+        ext.direction_friction.head = 1.0 - 0.45 * strength
+        ext.direction_friction.tail = 1.0 + 0.3 * strength
+    elif effect == "rigor_mortis":
+        ext.rigor_mortis.stiffness_gain = 15.0 * strength
+        ext.rigor_mortis.limit_loss = min(0.8, 0.7 * strength)
+    elif effect == "mucus_friction":
+        ext.mucus_friction.gain = -0.5 * strength
+    elif effect == "adhesion":
+        ext.adhesion.force_n = 6.0 * strength
+    elif effect == "drive_droop":
+        drive["belt_slip"] = 4e-4 * strength
+    elif effect != "none":
+        raise ValueError(f"unknown effect '{effect}' (known: {', '.join(EFFECTS)})")
+    return params, drive
+
+
+def run_fish(n_fish: int, hours: float, pattern: str, rng: np.random.Generator, line: Line,
+             interval_s: float = 3.0) -> list[FishSpec]:
+    """Fish for one run: ``sparse`` (one at a time, headings both ways) or ``pairs`` (two side by side,
+    touching, the second half a length behind the first)."""
+    c1 = line.conveyors[0]
+    out = []
+    for i in range(n_fish):
+        length = float(np.clip(rng.normal(0.6, 0.05), 0.45, 0.72))
+        h, w, m = fish_size(length, rng)
+        yaw = (0.0 if i % 2 == 0 else math.pi) + rng.uniform(-0.3, 0.3)
+        if pattern == "pairs":
+            # two fish side by side, touching along half their length (the second half a length behind)
+            t = 0.5 + (i // 2) * interval_s
+            y = (1.0 if i % 2 == 0 else -1.0) * (0.5 * h - 0.002)  # in contact
+            x = c1.x_start_m + 0.5 * length + 0.1 + (0.0 if i % 2 else 0.5 * length)
+        else:
+            t = 0.5 + i * interval_s
+            y = rng.uniform(-0.05, 0.05)
+            x = c1.x_start_m + 0.5 * length + 0.1
+        out.append(FishSpec(f"f{i + 1:02d}", length, h, w, m, hours, t, x, y, yaw, 0.01,
+                            1 if rng.random() < 0.5 else -1))
+    return out
+
+
+def simulate_run(run_id: str, line: Line, kpi: KpiSettings, fish: list[FishSpec], speeds: list[float],
+                 params: PlantParams, drive: dict[str, float], duration_s: float) -> Run:
+    """Co-simulate one run (drive FMUs on a fixed speed profile) and return it in the measured format."""
+    from fishfmu.runner import run_scenario
+    from fishfmu.scenario import Scenario
+    n = len(line.conveyors)
+    fmus = [{"name": "controller", "builtin": "singulation_controller",
+             "parameters": {"n_belts": n, "mode": 0, "startup_delay": 0.0, "jam_stop": False,
+                            **{f"speed_{i + 1}": s for i, s in enumerate(speeds)}}}]
+    connections = []
+    for i, c in enumerate(line.conveyors):
+        fmus.append({"name": f"drive_{c.id}", "builtin": "conveyor_drive", "parameters": dict(drive)})
+        connections += [f"controller.setpoint_{i + 1} -> drive_{c.id}.speed_setpoint",
+                        f"drive_{c.id}.belt_speed -> plant.{c.id}.speed",
+                        f"plant.{c.id}.load_force -> drive_{c.id}.load_force"]
+    sc = Scenario.model_validate({
+        "run": {"name": run_id, "duration_s": duration_s, "stop_when_clear": True},
+        "line": line.model_dump(), "plant": params.model_dump(), "fmu": fmus,
+        "wiring": {"connections": connections}, "kpi": kpi.model_dump(exclude_none=True)})
+    result = run_scenario(sc, fish=fish)
+    if result.status != "ok":
+        raise RuntimeError(f"simulating run {run_id} failed: {result.error}")
+    return replace(result.run, id=run_id, hours_post_mortem=fish[0].hours_post_mortem if fish else None, notes="")
+
+
+def degrade(run: Run, noise: Noise, rng: np.random.Generator) -> Run:
+    """What the instruments would have logged: noisy, gappy tracks, jittery eyes, noisy drive log."""
+    tr = run.tracks.copy()
+    keep = rng.random(len(tr)) >= noise.lost_frames
+    tr = tr[keep].copy()
+    tr["x_m"] += rng.normal(0.0, noise.track_position_m, len(tr))
+    tr["y_m"] += rng.normal(0.0, noise.track_position_m, len(tr))
+    tr["yaw_rad"] = np.angle(np.exp(1j * (tr["yaw_rad"] + rng.normal(0.0, noise.track_yaw_rad, len(tr)))))
+    pe = run.photoeyes.copy()
+    if len(pe):
+        pe["t_on_s"] += rng.uniform(-noise.photoeye_jitter_s, noise.photoeye_jitter_s, len(pe))
+        pe["t_off_s"] += rng.uniform(-noise.photoeye_jitter_s, noise.photoeye_jitter_s, len(pe))
+        pe["t_off_s"] = np.maximum(pe["t_off_s"], pe["t_on_s"] + 1e-3)
+        pe[["t_on_s", "t_off_s"]] = pe[["t_on_s", "t_off_s"]].clip(lower=0.0)
+    belts = run.belts.copy()
+    belts["speed_mps"] += rng.normal(0.0, noise.belt_speed_mps, len(belts))
+    fish = run.fish.copy()
+    fish["height_m"] = np.nan  # like a plant's weighing station: length and weight only
+    fish["width_m"] = np.nan
+    return replace(run, tracks=tr.reset_index(drop=True), photoeyes=pe.reset_index(drop=True), belts=belts, fish=fish,
+                   filled={})
+
+
+def make_dataset(path: str | Path, effect: str, line: Line, kpi: KpiSettings, runs: list[tuple[float, str, int]],
+                 speeds: list[float], seed: int = 0, strength: float = 1.0, noise: Noise = Noise(),
+                 duration_s: float = 60.0) -> Path:
+    """Simulate runs (hours post mortem, pattern, number of fish) with ``effect`` on and write a dataset."""
+    params, drive = hidden_effect(effect, strength)
+    rng = np.random.default_rng(seed)
+    out = []
+    for i, (hours, pattern, n_fish) in enumerate(runs):
+        fish = run_fish(n_fish, hours, pattern, rng, line)
+        run = simulate_run(f"r{i + 1:02d}", line, kpi, fish, speeds, params, drive, duration_s)
+        out.append(replace(degrade(run, noise, rng), hours_post_mortem=hours, notes=f"{pattern}, {n_fish} fish"))
+    ds = Dataset(name=f"synthetic-{effect}", description="simulated with a hidden effect (see fishfmu.synthetic)",
+                 line=line, kpi=kpi, runs=out)
+    write_dataset(ds, path)
+    return Path(path)
