@@ -80,6 +80,8 @@ class Variable:
     start: float | int | bool | None = None
     min: float | int | None = None
     max: float | int | None = None
+    depends_on: tuple[str, ...] = ()
+    """Outputs only: inputs this output depends on directly (declared direct feedthrough)."""
 
 
 @dataclass(frozen=True)
@@ -98,11 +100,20 @@ def _default_variability(type_: str, causality: str) -> str:
     return "continuous" if type_ == "Real" else "discrete"
 
 
-def load_spec(name: str) -> FmuSpec:
-    """Read ``fmus/<name>/variables.toml``, expanding ``count = n`` rows into ``name_1 .. name_n``."""
+def model_folder(name: str, model_dir: Path | None = None) -> Path:
+    """The folder of a model's sources: ``fmus/<name>/`` for a built-in FMU, else ``model_dir``
+    (any folder laid out the same way, e.g. the faulty FMUs of the tests)."""
+    if model_dir is not None:
+        return Path(model_dir)
     if name not in BUILTIN_FMUS:
         raise InputError(f"unknown built-in FMU '{name}' (known: {', '.join(BUILTIN_FMUS)})")
-    path = FMUS_DIR / name / "variables.toml"
+    return FMUS_DIR / name
+
+
+def load_spec(name: str, model_dir: Path | None = None) -> FmuSpec:
+    """Read ``fmus/<name>/variables.toml`` (or ``model_dir/variables.toml``), expanding ``count = n``
+    rows into ``name_1 .. name_n``."""
+    path = model_folder(name, model_dir) / "variables.toml"
     data = tomllib.loads(path.read_text())
     variables: list[Variable] = []
     for row in data["variable"]:
@@ -118,7 +129,8 @@ def load_spec(name: str) -> FmuSpec:
                 unit=row.get("unit"),
                 start=start[i - 1] if isinstance(start, list) else start,
                 min=row.get("min"),
-                max=row.get("max")))
+                max=row.get("max"),
+                depends_on=tuple(row.get("depends_on", ()))))
     fmu = data["fmu"]
     if fmu["model_identifier"] != name:
         raise InputError(f"model_identifier '{fmu['model_identifier']}' must be the folder name", file=path)
@@ -135,17 +147,17 @@ def fmi2_headers() -> list[Path]:
     return [c_code / n for n in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")]
 
 
-def _source_files(name: str) -> list[Path]:
+def _source_files(name: str, model_dir: Path | None = None) -> list[Path]:
     """Every file that goes into the FMU (the shared glue, the model's own files, the FMI headers)."""
-    return [p for d in (COMMON_DIR, FMUS_DIR / name) for p in sorted(d.rglob("*"))
+    return [p for d in (COMMON_DIR, model_folder(name, model_dir)) for p in sorted(d.rglob("*"))
             if p.is_file() and "__pycache__" not in p.parts] + fmi2_headers()
 
 
-def source_digest(name: str) -> str:
+def source_digest(name: str, model_dir: Path | None = None) -> str:
     """Hash of everything the FMU is made from, this generator and the platform included."""
     h = hashlib.sha256(f"{name}\0{fmpy.platform}\0".encode())
     h.update(Path(__file__).read_bytes() + b"\0")
-    for path in _source_files(name):
+    for path in _source_files(name, model_dir):
         h.update(path.name.encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
     return h.hexdigest()[:20]
@@ -205,10 +217,13 @@ def model_description_xml(spec: FmuSpec, guid: str) -> str:
     structure = ET.SubElement(root, "ModelStructure")
     outputs = ET.SubElement(structure, "Outputs")
     initial = ET.SubElement(structure, "InitialUnknowns")
+    index_of = {var.name: index for index, var in enumerate(spec.variables, start=1)}
     for index, var in enumerate(spec.variables, start=1):
         if var.causality == "output":
-            # outputs are functions of the internal state only: no direct feedthrough from inputs
-            ET.SubElement(outputs, "Unknown", {"index": str(index), "dependencies": ""})
+            # outputs are functions of the internal state only (no direct feedthrough from inputs)
+            # unless the table says otherwise (depends_on)
+            deps = " ".join(str(index_of[d]) for d in var.depends_on)
+            ET.SubElement(outputs, "Unknown", {"index": str(index), "dependencies": deps})
         if var.causality in ("output", "calculatedParameter"):
             ET.SubElement(initial, "Unknown", {"index": str(index)})
     ET.indent(root)
@@ -255,20 +270,20 @@ def c_files(spec: FmuSpec) -> list[str]:
     return ["fmu_glue.c", *spec.sources, GENERATED_TABLE]
 
 
-def write_fmu_tree(spec: FmuSpec, guid: str, root: Path) -> None:
+def write_fmu_tree(spec: FmuSpec, guid: str, root: Path, model_dir: Path | None = None) -> None:
     """Lay out an unzipped source FMU: modelDescription.xml, sources/, documentation/."""
-    name = spec.model_identifier
+    folder = model_folder(spec.model_identifier, model_dir)
     sources = root / "sources"
     docs = root / "documentation"
     sources.mkdir(parents=True)
     (docs / "licenses").mkdir(parents=True)
     (root / "modelDescription.xml").write_text(model_description_xml(spec, guid))
     for path in [*fmi2_headers(), COMMON_DIR / "fmu_glue.h", COMMON_DIR / "fmu_glue.c",
-                 *(FMUS_DIR / name / s for s in spec.sources)]:
+                 *(folder / s for s in spec.sources)]:
         shutil.copy2(path, sources / path.name)
     (sources / GENERATED_HEADER).write_text(c_header(spec, guid))
     (sources / GENERATED_TABLE).write_text(c_table(spec))
-    shutil.copy2(FMUS_DIR / name / "README.md", docs / "README.md")
+    shutil.copy2(folder / "README.md", docs / "README.md")
     shutil.copy2(COMMON_DIR / "FMI2-HEADERS-LICENSE.txt", docs / "licenses" / "fmi2-headers.txt")
 
 
@@ -318,13 +333,15 @@ def with_defaults(spec: FmuSpec, defaults: dict[str, float | int | bool]) -> Fmu
     return dataclasses.replace(spec, variables=variables)
 
 
-def build_fmu(name: str, out_dir: Path, defaults: dict[str, float | int | bool] | None = None) -> Path:
+def build_fmu(name: str, out_dir: Path, defaults: dict[str, float | int | bool] | None = None,
+              model_dir: Path | None = None) -> Path:
     """Build ``<out_dir>/<name>.fmu``: modelDescription, Linux binary and the sources to rebuild it.
 
     ``defaults``: parameter start values to bake in (an FMU as a vendor would ship it for one line).
+    ``model_dir``: build a model from this folder instead of the built-in ``fmus/<name>/``.
     """
-    spec = with_defaults(load_spec(name), defaults or {})
-    digest = source_digest(name) + ("" if not defaults else "-" + hashlib.sha256(
+    spec = with_defaults(load_spec(name, model_dir), defaults or {})
+    digest = source_digest(name, model_dir) + ("" if not defaults else "-" + hashlib.sha256(
         repr(sorted(defaults.items())).encode()).hexdigest()[:8])
     guid = fmu_guid(name, digest)
     out_dir = Path(out_dir)
@@ -332,7 +349,7 @@ def build_fmu(name: str, out_dir: Path, defaults: dict[str, float | int | bool] 
     fmu_path = out_dir / f"{name}.fmu"
     with tempfile.TemporaryDirectory(prefix=f"fishfmu-build-{name}-") as tmp:
         unzipped = Path(tmp) / "fmu"
-        write_fmu_tree(spec, guid, unzipped)
+        write_fmu_tree(spec, guid, unzipped, model_dir)
         compile_binary(unzipped, Path(tmp) / "build")
         partial = Path(tmp) / f"{name}.fmu"
         _zip_tree(unzipped, partial)

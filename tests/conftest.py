@@ -21,3 +21,30 @@ def unzipped_fmus(builtin_fmus: dict[str, Path], tmp_path_factory: pytest.TempPa
     root = tmp_path_factory.mktemp("unzipped_fmus")
     return {name: Path(extract(str(path), str(root / name))) for name, path in builtin_fmus.items()}
 
+
+
+FAULTY_FMU_SOURCES = Path(__file__).parent / "faulty_fmus" / "faulty_drive"
+
+
+@pytest.fixture(scope="session")
+def faulty_fmu() -> Path:
+    """The test FMU that fails on purpose (tests/faulty_fmus/faulty_drive), built once into the FMU
+    cache under the hash of its sources, as the built-in ones are."""
+    import shutil
+    import tempfile
+
+    from fishfmu.fmu_build import build_fmu, cache_dir, source_digest
+    final = cache_dir() / ("test-" + source_digest("faulty_drive", FAULTY_FMU_SOURCES)) / "faulty_drive.fmu"
+    if not final.is_file():
+        final.parent.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=".faulty-", dir=final.parent.parent))
+        try:
+            build_fmu("faulty_drive", staging, model_dir=FAULTY_FMU_SOURCES)
+            try:
+                staging.rename(final.parent)
+            except OSError:
+                if not final.is_file():
+                    raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+    return final
