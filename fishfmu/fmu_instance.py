@@ -4,10 +4,14 @@ The master talks to every FMU through the same four calls (``set``, ``do_step``,
 ``terminate``), so an FMU running in a worker process (:mod:`fishfmu.fmu_worker`) can stand in
 for this one.  Every failure of the FMU (a status of error, fatal or discard from any call) is
 raised as :class:`plant.errors.SimulationError` naming the FMU, the call, the status and the time.
+A binary that cannot be loaded (wrong platform, missing libraries) is bad input
+(:class:`plant.errors.InputError` naming the file).  After a status of fatal, no further call
+is made to the FMU (FMI 2.0: its state is undefined), not even terminate or freeInstance.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -53,8 +57,17 @@ class FmuInstance:
         self._ref_cache: dict[tuple[str, ...], dict[str, list[tuple[str, int]]]] = {}
         md = fmu.model_description
         self._time = start_time_s
-        self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
-                                modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        self._fatal = False
+        cwd = os.getcwd()
+        try:
+            self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
+                                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+        except Exception as exc:  # fmpy: "Failed to load shared library ..." (dlopen's reason) or a missing function
+            reason = str(exc).replace(str(fmu.unzip_dir) + os.sep, "")
+            raise InputError(f"FMU '{name}': its binary cannot be loaded on this machine: {reason}",
+                             file=fmu.path) from None
+        finally:
+            os.chdir(cwd)  # fmpy changes into the binary's folder to load it and stays there if that fails
         self._call("instantiate", self._slave.instantiate, loggingOn=False)
         self._instantiated = True
         self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
@@ -67,6 +80,8 @@ class FmuInstance:
             return fn(*args, **kwargs)
         except Exception as exc:  # fmpy raises FMICallException (with .status) or OSError from the library
             status = getattr(exc, "status", None)
+            if status == 4:
+                self._fatal = True
             text = FMI2_STATUS.get(status, str(status)) if status is not None else type(exc).__name__
             raise SimulationError(f"FMU '{self.name}': {what} returned {text}"
                                   + ("" if status is not None else f" ({exc})"), self._time) from None
@@ -117,6 +132,8 @@ class FmuInstance:
         if not getattr(self, "_instantiated", False):
             return
         self._instantiated = False
+        if self._fatal:
+            return  # FMI 2.0: after fmi2Fatal no function of the FMU may be called
         try:
             self._slave.terminate()
         except Exception:
