@@ -5,7 +5,8 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 1. apply the scenario's events due at t (override, bias or reset a variable);
 2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
    its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
-3. set the belt speeds from their sources and step the plant;
+3. set the belt speeds from their sources and step the plant; check that the fish gained no
+   energy without a source (:mod:`plant.health`: a blow-up stops the run within this step);
 4. record every connected signal at t + dt (and the run in the measured-data format).
 
 An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
@@ -23,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import SimulationError
+from plant.health import EnergyWatch
 from plant.plant import Plant
 from plant.recorder import RunRecorder
 
@@ -74,6 +76,7 @@ class CoSimulation:
         self.signal_names = names
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
+        self.energy_watch = EnergyWatch(self.plant)
         self._constants_of = {name: [(key, key.partition(".")[2], v) for key, v in self.wiring.constants.items()
                                      if key.partition(".")[0] == name] for name in self.fmus}
         # initial values: FMU outputs after initialisation, the plant at rest
@@ -107,6 +110,7 @@ class CoSimulation:
         for c in self.plant.conveyor_ids:
             speeds[c] = float(self._input_value(f"{PLANT}.{c}.speed", held))
         out = self.plant.step(speeds)
+        self.energy_watch.check(out.belt_speed_mps, out.belt_load_force_n, dt)
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1

@@ -1,0 +1,147 @@
+"""Energy watch: a blow-up shows as fish gaining energy that nothing supplied.
+
+The plant already stops on a non-finite state, a fish faster than 25 m/s, a fish outside the
+guides or below a belt (:meth:`plant.plant.Plant._check_health`).  A numerical instability starts
+well below those limits; what gives it away early is energy.  The only sources of energy of the
+fish are
+
+- the belts: a belt surface moving at v pushes the fish with the force ``load_force`` it measures
+  (the belt body's momentum change over the step), so it does the work ``load_force * v * dt``;
+- gravity, as potential energy (counted in the fish's energy, so a falling fish gains nothing);
+- a fish entering the line brings its energy at release (its drop height); a fish leaving takes
+  its energy with it;
+- with the ``adhesion`` extension on, the attraction between touching fish: counted as at most
+  ``|F . v| dt`` per body.
+
+Guides and the end plate are fixed and do no work; contact and joint dampers and friction slip
+only take energy out.  Contact and joint springs store some for a moment (a landing fish) and give
+it back, so the check allows the fish that much: :func:`spring_reserve_j`.
+
+So, with E the kinetic (translation and rotation) plus potential energy of the fish on the line,
+the watch keeps a bound B on E: B grows by the belts' work and the energy of entering fish, falls
+by that of leaving fish, and is lowered to E whenever E is below it (what was dissipated cannot
+come back).  ``E - B`` above the spring reserve is energy from nowhere: a blow-up, reported within
+the communication step in which it happens, naming the fish that gained the most.
+
+Calibration (``calibrate`` in the tests and README): over the shipped scenarios and several seeds,
+the largest ``E - B`` of a normal run is far below the reserve; an injected instability crosses it
+in one step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant.errors import SimulationError
+
+RESERVE_MIN_J = 8.0
+RESERVE_J_PER_KG = 0.5
+"""Spring reserve: what contact and joint springs may hold and give back, 8 J plus 0.5 J per kg of
+fish on the line.  A fish draped over another bends its soft joints (they sag half their range
+under the fish's own weight) and gives that energy back as it straightens: in the shipped
+scenarios, seeds 1-8 and a 50-fish drop, the largest rise without a source was 1.6 J (0.42 J per kg
+of fish on the line, with two fish on it), at least 6 times below this reserve.  A blow-up grows
+by orders of magnitude within a few steps and crosses it at once."""
+
+
+def spring_reserve_j(mass_on_line_kg: float) -> float:
+    """Energy [J] the fish may gain beyond what the belts supply before it is called a blow-up."""
+    return RESERVE_MIN_J + RESERVE_J_PER_KG * mass_on_line_kg
+
+
+@dataclass
+class EnergyWatch:
+    """Checks after every communication step that the fish gained no energy without a source."""
+
+    plant: object  # plant.plant.Plant (not imported: plant.plant imports nothing from here)
+    worst_excess_j: float = 0.0
+    """Largest ``E - B`` seen so far [J] (for calibration)."""
+    worst_ratio: float = 0.0
+    """Largest ``(E - B) / reserve`` seen so far."""
+    last_excess_j: float = 0.0
+    """``E - B`` after the last step [J]."""
+    worst_j_per_kg: float = 0.0
+    """Largest ``(E - B) / mass of the fish on the line`` seen so far [J/kg]."""
+    _members: object = None
+    _mass_b: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    _inertia_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    _energy: dict[int, float] = field(default_factory=dict)
+    _lowest: dict[int, float] = field(default_factory=dict)
+    _bound_j: float = 0.0
+    _mass_kg: np.ndarray | None = None
+
+    def _body_properties(self) -> None:
+        p = self.plant
+        if self._members is p._member:
+            return
+        masses, inertias = [], []
+        for k in p._member:
+            prep = p.prepared[k]
+            masses += [b.mass_kg for b in prep.geometry.bodies]
+            inertias += [np.asarray(i, dtype=float) for i in prep.inertias]
+        self._mass_b = np.array(masses, dtype=float)
+        self._inertia_b = np.array(inertias, dtype=float).reshape(-1, 3)
+        self._members = p._member
+        if self._mass_kg is None:
+            self._mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in p.prepared])
+
+    def fish_energy(self) -> dict[int, float]:
+        """Kinetic plus potential energy [J] of every fish on the line, by fish index."""
+        from plant.plant import ON_LINE
+        p = self.plant
+        self._body_properties()
+        on = p.status[p._fish_of_body] == ON_LINE
+        if not np.any(on):
+            return {}
+        m, inertia = self._mass_b[on], self._inertia_b[on]
+        e = (0.5 * m * np.einsum("ij,ij->i", p._vel[on], p._vel[on])
+             + 0.5 * np.einsum("ij,ij->i", inertia, p._omega_local[on] ** 2)
+             - m * (p._pos[on] @ p._gravity))
+        fish = p._fish_of_body[on]
+        total = np.bincount(fish, weights=e, minlength=len(p.fish_specs))
+        return {int(k): float(total[k]) for k in np.unique(fish)}
+
+    def _adhesion_power_bound(self) -> float:
+        force = getattr(self.plant, "_adhesion_force", None)
+        vel = self.plant._vel
+        if force is None or force.shape != vel.shape or not np.any(force):
+            return 0.0
+        return float(np.abs(np.einsum("ij,ij->i", force, vel)).sum())
+
+    def check(self, belt_speed_mps: dict[str, float], belt_load_force_n: dict[str, float], dt_s: float) -> None:
+        """Call after each plant step with that step's belt speeds and loads; raises SimulationError on
+        energy from nowhere."""
+        now = self.fish_energy()
+        before = self._energy
+        work = dt_s * sum(belt_load_force_n[c] * belt_speed_mps[c] for c in belt_speed_mps)
+        work += dt_s * self._adhesion_power_bound()
+        entered = sum(e for k, e in now.items() if k not in before)
+        left = sum(e for k, e in before.items() if k not in now)
+        bound = self._bound_j + work + entered - left
+        total = sum(now.values())
+        for k, e in now.items():
+            self._lowest[k] = min(self._lowest.get(k, e), e)
+        self._energy = now
+        if not now:
+            self._bound_j = 0.0
+            return
+        mass = float(sum(self._mass_kg[k] for k in now)) if self._mass_kg is not None else 0.0
+        reserve = spring_reserve_j(mass)
+        excess = total - bound
+        if not np.isfinite(total):
+            excess = np.inf
+        self.last_excess_j = excess
+        self.worst_excess_j = max(self.worst_excess_j, excess)
+        self.worst_ratio = max(self.worst_ratio, excess / reserve)
+        self.worst_j_per_kg = max(self.worst_j_per_kg, excess / mass if mass > 0 else 0.0)
+        if excess > reserve:
+            gains = {k: now[k] - self._lowest[k] for k in now}
+            k = max(gains, key=lambda i: (gains[i] if np.isfinite(gains[i]) else np.inf))
+            fish_id = self.plant.fish_specs[k].fish_id
+            raise SimulationError(
+                f"numerical blow-up: the fish gained {excess:.1f} J more energy than the belts supplied "
+                f"(allowed {reserve:.1f} J for the springs), most of it fish '{fish_id}' "
+                f"(+{gains[k]:.1f} J since its lowest)", self.plant.t_s)
+        self._bound_j = min(bound, total)
