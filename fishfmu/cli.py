@@ -1,6 +1,7 @@
 """The ``fishfmu`` command: parses arguments and calls functions that a script can call too.
 
-Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or an FMU failed.
+Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or an FMU failed,
+4 an internal error (a bug), 130/143 a run stopped by SIGINT/SIGTERM (partial results written).
 """
 
 from __future__ import annotations
@@ -11,8 +12,10 @@ from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
-from plant.errors import EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_SIMULATION_FAILED, InputError, SimulationError
+from plant.errors import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED, InputError,
+                          SimulationError)
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Co-simulate salmon singulation lines: plant in Exudyn, drives and controller as FMUs.")
@@ -86,8 +89,9 @@ def run(
     scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
-    from fishfmu.outputs import prepare_out_dir, write_junit, write_outputs
-    from fishfmu.runner import run_scenario
+    from fishfmu.interrupt import stop_on_signals
+    from fishfmu.outputs import discard_if_unused, mark_running, prepare_out_dir, write_junit, write_outputs
+    from fishfmu.runner import check_scenario, run_scenario
     from fishfmu.scenario import load_scenario, parse_value
 
     overrides = {}
@@ -107,18 +111,26 @@ def run(
         raise typer.Exit(run_seeds_command(scenario, overrides, seeds, out_dir, junit, scheduler, workers,
                                            _show_progress()))
     sc = load_scenario(scenario, overrides)
+    check_scenario(sc, scenario)  # FMU files, parameters, wiring: bad input before anything is written
     out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
+    mark_running(out_dir, scenario)
     console = Console()
-    if _show_progress():
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[t]:.1f} s simulated"),
-                      TimeElapsedColumn(), console=Console(stderr=True), transient=True) as bar:
-            task = bar.add_task(sc.run.name, total=sc.run.duration_s, t=0.0)
-            result = run_scenario(sc, scenario, record_poses=replay,
-                                  on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
-    else:
-        result = run_scenario(sc, scenario, record_poses=replay)
-    write_outputs(result, out_dir, report=report)
+    with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
+        try:
+            if _show_progress():
+                from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+                with Progress(TextColumn("{task.description}"), BarColumn(),
+                              TextColumn("{task.fields[t]:.1f} s simulated"), TimeElapsedColumn(),
+                              console=Console(stderr=True), transient=True) as bar:
+                    task = bar.add_task(sc.run.name, total=sc.run.duration_s, t=0.0)
+                    result = run_scenario(sc, scenario, record_poses=replay, stop=stop,
+                                          on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
+            else:
+                result = run_scenario(sc, scenario, record_poses=replay, stop=stop)
+        except InputError:
+            discard_if_unused(out_dir)
+            raise
+        write_outputs(result, out_dir, report=report)
     if replay:
         from fishfmu.replay import write_replay
         console.print(f"replay: {write_replay(out_dir)}", highlight=False)
@@ -126,6 +138,11 @@ def run(
         write_junit(result, junit, str(scenario))
     print_kpis(result, console)
     console.print(f"outputs: {out_dir}", highlight=False)
+    if result.status == "partial":
+        err_console.print(f"[bold yellow]stopped:[/] {escape(str(result.error))}; partial results written to "
+                          f"{escape(str(out_dir))}",
+                          highlight=False, soft_wrap=True)
+        raise typer.Exit(stop.exit_code)
     if result.status != "ok":
         raise SimulationError(f"{result.error} (results so far written to {out_dir})")
     if not result.expect_ok:
@@ -298,11 +315,20 @@ def main() -> None:
     try:
         app(standalone_mode=True)
     except InputError as exc:
-        err_console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(EXIT_BAD_INPUT)
     except SimulationError as exc:
-        err_console.print(f"[bold red]simulation failed:[/] {exc}", highlight=False)
+        err_console.print(f"[bold red]simulation failed:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         sys.exit(EXIT_SIMULATION_FAILED)
+    except Exception as exc:  # a bug: say so in one line, with where it happened (traceback on request)
+        if os.environ.get("FISHFMU_DEBUG"):
+            raise
+        import traceback
+        frame = traceback.extract_tb(exc.__traceback__)[-1]
+        err_console.print(f"[bold red]internal error[/] (a bug in fishfmu; please report it, FISHFMU_DEBUG=1 shows "
+                          f"the traceback): {escape(f'{type(exc).__name__}: {exc} [{Path(frame.filename).name}:{frame.lineno}]')}",
+                          highlight=False, soft_wrap=True)
+        sys.exit(EXIT_INTERNAL_ERROR)
 
 
 if __name__ == "__main__":

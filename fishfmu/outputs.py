@@ -2,7 +2,12 @@
 
 Files are written to a temporary name and renamed into place, so a crash or an interrupt never
 leaves a half-written file under its final name.  ``run_info.json`` says whether the run
-completed (``status``) and is written last.  An output folder that holds anything not written by
+completed (``status``): it is written as ``running`` before the run starts (:func:`mark_running`)
+and again, last, when the outputs are complete; a folder whose ``run_info.json`` still says
+``running`` holds a run that was killed before it could write its results.  ``kpis.json`` carries
+the same ``status`` (``ok``, ``failed``: stopped by an error, ``partial``: stopped on request) and
+the simulated time reached, and nothing that depends on the machine or the wall clock, so that the
+same scenario and seed give the same bytes (wall times are in ``run_info.json``).  An output folder that holds anything not written by
 fishfmu is never touched; one from an earlier run is replaced only when asked (``overwrite``).
 """
 
@@ -56,13 +61,46 @@ def write_text_atomic(path: Path, text: str) -> None:
         raise
 
 
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def mark_running(out: Path, scenario_file: str | Path | None = None) -> None:
+    """Mark ``out`` as fishfmu's before the run starts (``run_info.json`` with status ``running``)."""
+    write_json_atomic(out / MARKER, {"status": "running", "scenario": None if scenario_file is None
+                                     else str(scenario_file)})
+
+
+def discard_if_unused(out: Path) -> None:
+    """Remove ``out`` again if it holds nothing but the ``running`` marker (bad input found late)."""
+    try:
+        if [p.name for p in out.iterdir()] == [MARKER]:
+            (out / MARKER).unlink()
+            out.rmdir()
+    except OSError:
+        pass
+
+
 def write_json_atomic(path: Path, data: Any) -> None:
     write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
 
 
-def kpis_document(result: RunResult) -> dict[str, Any]:
-    """kpis.json: the KPIs as plain numbers, and the expect bounds with their outcome."""
+def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
+    """kpis.json: the KPIs as plain numbers, the expect bounds with their outcome, the run's status
+    and the simulated time it reached (nothing from the wall clock: the same run, the same bytes)."""
     doc = dict(result.kpis)
+    doc["status"] = "partial" if partial else result.status
+    doc["t_end_s"] = round(result.t_end_s, 6)
     doc["expect"] = {e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok} for e in result.expect}
     return _clean(doc)
 
@@ -96,7 +134,8 @@ def write_outputs(result: RunResult, out: Path, partial: bool = False, report: b
         "info": out / MARKER,
     }
     write_text_atomic(paths["scenario"], resolved_toml(result.scenario))
-    write_json_atomic(paths["kpis"], kpis_document(result))
+    partial = partial or result.status == "partial"
+    write_json_atomic(paths["kpis"], kpis_document(result, partial))
     write_text_atomic(paths["signals"], result.signals.to_csv(index=False, float_format="%.10g"))
     tmp_run = out / ".run.part"
     if tmp_run.exists():

@@ -79,12 +79,12 @@ def gap_figure(result: RunResult):
 
 
 def write_report(result: RunResult, out: Path) -> Path:
-    from fishfmu.outputs import write_text_atomic
+    from fishfmu.outputs import write_bytes_atomic, write_text_atomic
     figures = {"belts.png": belt_figure(result), "fish_x.png": fish_figure(result), "outfeed_gaps.png": gap_figure(result)}
     blobs = {}
     for name, fig in figures.items():
         data = _png(fig)
-        (out / name).write_bytes(data)
+        write_bytes_atomic(out / name, data)
         blobs[name] = base64.b64encode(data).decode()
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td></tr>"
                    for k, v in result.kpis.items() if not isinstance(v, dict))

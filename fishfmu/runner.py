@@ -28,6 +28,7 @@ from plant.population import FishSpec, fish_to_frame, sample_fish
 from plant.recorder import RunRecorder
 
 from fishfmu.fmu_files import open_fmu
+from fishfmu.interrupt import StopRequest
 from fishfmu.master import CoSimulation, setpoint_sources
 from fishfmu.scenario import Scenario
 from fishfmu.wiring import resolve_wiring
@@ -59,7 +60,8 @@ class ExpectResult:
 
 @dataclass
 class RunResult:
-    """Everything a run produced; ``status`` is ``ok`` or ``failed`` (then ``error`` says why)."""
+    """Everything a run produced; ``status`` is ``ok``, ``failed`` (then ``error`` says why) or
+    ``partial`` (stopped on request, e.g. by Ctrl-C: ``error`` says when and why)."""
 
     scenario: Scenario
     fish: list[FishSpec]
@@ -129,11 +131,28 @@ def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | 
     return poses
 
 
+def check_scenario(scenario: Scenario, scenario_file: str | Path | None = None) -> None:
+    """Everything a run checks before it starts, without running: each FMU file opens and is valid,
+    its parameters exist and fit, and the wiring resolves (raises InputError naming what is wrong)."""
+    from fishfmu.fmu_instance import check_parameters
+    from fishfmu.wiring import direct_feedthrough
+    sfile = str(scenario_file) if scenario_file else None
+    with contextlib.ExitStack() as stack:
+        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
+        for f in scenario.fmu:
+            check_parameters(f.name, opened[f.name], f.parameters)
+        resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
+                       {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
+
+
 def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
                  on_progress: Callable[[float, float], None] | None = None,
-                 fish: list[FishSpec] | None = None, record_poses: bool = False) -> RunResult:
+                 fish: list[FishSpec] | None = None, record_poses: bool = False,
+                 stop: StopRequest | None = None) -> RunResult:
     """Run one scenario; a failure inside the run is returned as ``status = "failed"`` with what was
-    recorded until then (bad input is raised as InputError before anything runs)."""
+    recorded until then (bad input is raised as InputError before anything runs).  When ``stop`` is
+    requested (a signal, see :mod:`fishfmu.interrupt`) the run ends after the current step with
+    ``status = "partial"``."""
     fish = scenario_fish(scenario) if fish is None else fish
     sfile = str(scenario_file) if scenario_file else None
     timings = {"setup": 0.0}
@@ -155,9 +174,11 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         status, error = "ok", None
         t_run = time.perf_counter()
         try:
-            _loop(cosim, scenario, on_progress)
+            _loop(cosim, scenario, on_progress, stop)
         except SimulationError as exc:
             status, error = "failed", str(exc)
+        except _Stopped as exc:
+            status, error = "partial", str(exc)
         wall = time.perf_counter() - t_run
         tables = recorder.tables()
         run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
@@ -182,14 +203,23 @@ def _instantiate(scenario: Scenario, opened, stack: contextlib.ExitStack) -> dic
             fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
         else:
             fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
+        stack.callback(fmus[f.name].terminate)  # also when a later one fails to start
     return fmus
 
 
-def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float, float], None] | None) -> None:
+class _Stopped(Exception):
+    """The run was asked to stop (a signal)."""
+
+
+def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float, float], None] | None,
+          stop: StopRequest | None = None) -> None:
     n = int(round(scenario.run.duration_s / scenario.run.comm_step_s))
     clear_since: float | None = None
     plant = cosim.plant
     for k in range(n):
+        if stop is not None and stop.requested:
+            raise _Stopped(f"interrupted by {stop.signal_name} at t = {cosim.t_s:.3f} s, before the end "
+                           f"({scenario.run.duration_s:g} s)")
         cosim.step()
         if on_progress is not None and k % 50 == 0:
             on_progress(cosim.t_s, scenario.run.duration_s)

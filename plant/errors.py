@@ -2,7 +2,7 @@
 
 `InputError` is anything wrong with what the user gave (a file, a key, a row, a column):
 exit code 2.  `SimulationError` is a run that could not go on (a blow-up, an FMU that failed):
-exit code 3.  Both carry a message meant to be read by a person, naming where the problem is.
+exit code 3.  Anything else is a bug (exit code 4).  Both carry a message meant to be read by a person, naming where the problem is.
 """
 
 from __future__ import annotations
@@ -14,6 +14,11 @@ EXIT_OK = 0
 EXIT_EXPECT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_SIMULATION_FAILED = 3
+EXIT_INTERNAL_ERROR = 4
+"""Anything else: a bug in fishfmu, reported in one line (``FISHFMU_DEBUG=1`` shows the traceback)."""
+EXIT_INTERRUPTED_SIGINT = 130
+EXIT_INTERRUPTED_SIGTERM = 143
+"""A run stopped by Ctrl-C / SIGTERM (128 + signal number), its partial results written."""
 
 
 @dataclass
