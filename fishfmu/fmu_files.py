@@ -14,6 +14,7 @@ Every problem is an :class:`~plant.errors.InputError` naming the file and the me
 from __future__ import annotations
 
 import difflib
+import platform
 import re
 import shutil
 import stat
@@ -145,7 +146,50 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
         found = sorted(p.name for p in (unzip_dir / "binaries").iterdir()) if (unzip_dir / "binaries").is_dir() else []
         raise InputError(f"no Linux binary {LINUX_BINARY_DIR}/{binary.name} in the archive (binaries for: "
                          f"{', '.join(found) or 'none'}); rebuild or re-export the FMU for linux64", file=path)
+    problem = binary_problem(binary)
+    if problem:
+        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{binary.name}' {problem}; rebuild or re-export the FMU "
+                         f"for Linux on {platform.machine()}", file=path)
     return md
+
+
+ELF_MACHINES = {3: "x86 (32-bit)", 40: "ARM (32-bit)", 62: "x86_64", 183: "aarch64", 243: "RISC-V", 21: "PowerPC64"}
+THIS_MACHINE = {"x86_64": 62, "amd64": 62, "aarch64": 183, "arm64": 183, "riscv64": 243, "ppc64le": 21}
+
+
+def binary_problem(binary: Path) -> str | None:
+    """Why this file cannot be a shared library for this machine (from its header), or None."""
+    with open(binary, "rb") as fh:
+        return header_problem(fh.read(20))
+
+
+def header_problem(head: bytes) -> str | None:
+    """Why a file starting with ``head`` (20 bytes) cannot be a shared library for this machine.
+
+    >>> header_problem(b"MZ" + bytes(18))
+    'is a Windows binary (PE), not a Linux shared library'
+    >>> header_problem(b"\\x7fELF\\x01\\x01" + bytes(14))
+    'is a 32-bit ELF file; a 64-bit one is needed'
+    """
+    if head[:2] == b"MZ":
+        return "is a Windows binary (PE), not a Linux shared library"
+    if head[:4] in (b"\xfe\xed\xfa\xcf", b"\xcf\xfa\xed\xfe", b"\xca\xfe\xba\xbe"):
+        return "is a macOS binary (Mach-O), not a Linux shared library"
+    if len(head) < 20 or head[:4] != b"\x7fELF":
+        return "is not a shared library (no ELF header)"
+    if head[4] != 2:
+        return "is a 32-bit ELF file; a 64-bit one is needed"
+    if head[5] != 1:
+        return "is a big-endian ELF file; this machine is little-endian"
+    e_type = int.from_bytes(head[16:18], "little")
+    if e_type != 3:  # ET_DYN
+        return f"is an ELF file of type {e_type}, not a shared library"
+    machine = int.from_bytes(head[18:20], "little")
+    expected = THIS_MACHINE.get(platform.machine().lower())
+    if expected is not None and machine != expected:
+        return (f"is built for {ELF_MACHINES.get(machine, f'ELF machine {machine}')}; this machine is "
+                f"{platform.machine()}")
+    return None
 
 
 @contextmanager

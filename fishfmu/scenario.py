@@ -164,6 +164,10 @@ class Scenario(Strict):
         if self.line.conveyors[0].length_m < longest:
             raise ValueError(f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
                              f"is shorter than the longest fish (fish.length_max_m = {longest} m)")
+        for i, c in enumerate(self.line.conveyors):
+            if c.length_m < longest:
+                raise ValueError(f"line.conveyors[{i}] ('{c.id}', length_m = {c.length_m} m) is shorter than the "
+                                 f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
         return self
 
     def connection_pairs(self) -> list[tuple[str, str, str, str]]:
