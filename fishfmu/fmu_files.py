@@ -135,7 +135,8 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
     try:
         md = read_model_description(str(unzip_dir), validate=True)
     except Exception as exc:  # fmpy raises ValidationError, lxml errors, ValueError...
-        raise InputError(f"invalid modelDescription.xml: {exc}", file=path) from exc
+        reason = "; ".join(line.strip(" -\t") for line in str(exc).splitlines() if line.strip(" -\t"))
+        raise InputError(f"invalid modelDescription.xml: {reason}", file=path) from exc
     if md.fmiVersion != "2.0":
         raise InputError(f"modelDescription.xml is FMI {md.fmiVersion}; only FMI 2.0 is supported", file=path)
     if md.coSimulation is None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Mapping
+from pathlib import Path
 from typing import Any
 
 from fmpy.fmi2 import FMU2Slave
@@ -25,15 +26,31 @@ FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "
 SETTABLE_BEFORE_INIT = ("parameter", "input")
 
 
-def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any]) -> None:
-    """Every parameter a scenario sets must exist, be a parameter (or input start value) and fit its type."""
+def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any],
+                     scenario_file: str | Path | None = None, where: str | None = None) -> None:
+    """Every parameter a scenario sets must exist, be a parameter (or input start value) and fit its type.
+
+    The error names ``scenario_file`` and the key ``<where>.<parameter>`` (e.g. ``fmu[0].parameters``)
+    when given, else the FMU file and ``fmu.<name>.parameters``.
+    """
+    try:
+        _check_parameters(name, fmu, parameters)
+    except InputError as exc:
+        if scenario_file is None:
+            raise
+        key = (exc.where or "").rpartition(".parameters")[2]
+        raise InputError(exc.message, file=scenario_file, where=f"{where or 'fmu'}.parameters{key}") from None
+
+
+def _check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any]) -> None:
     import difflib
     for key, value in parameters.items():
         var = fmu.variables.get(key)
         if var is None:
             close = difflib.get_close_matches(key, list(fmu.variables), n=1)
             hint = f"; did you mean '{close[0]}'?" if close else ""
-            raise InputError(f"FMU '{name}' has no variable '{key}'{hint}", file=fmu.path, where=f"fmu.{name}.parameters")
+            raise InputError(f"FMU '{name}' has no variable '{key}'{hint}", file=fmu.path,
+                             where=f"fmu.{name}.parameters.{key}")
         if var.causality not in SETTABLE_BEFORE_INIT:
             raise InputError(f"'{key}' of FMU '{name}' is an {var.causality}, not a parameter: it cannot be set",
                              file=fmu.path, where=f"fmu.{name}.parameters.{key}")

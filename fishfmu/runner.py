@@ -139,8 +139,8 @@ def check_scenario(scenario: Scenario, scenario_file: str | Path | None = None) 
     sfile = str(scenario_file) if scenario_file else None
     with contextlib.ExitStack() as stack:
         opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
-        for f in scenario.fmu:
-            check_parameters(f.name, opened[f.name], f.parameters)
+        for i, f in enumerate(scenario.fmu):
+            check_parameters(f.name, opened[f.name], f.parameters, scenario_file, f"fmu[{i}]")
         resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
                        {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
 
@@ -162,6 +162,9 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         from fishfmu.wiring import direct_feedthrough
         wiring = resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
                                 {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
+        from fishfmu.fmu_instance import check_parameters
+        for i, f in enumerate(scenario.fmu):
+            check_parameters(f.name, opened[f.name], f.parameters, sfile, f"fmu[{i}]")
         plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
         fmus = _instantiate(scenario, opened, stack)
         recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,

@@ -3,7 +3,8 @@
 Every table a user writes (a scenario file, a dataset's ``dataset.toml``) is described by a
 pydantic model.  :func:`validate` runs it and turns pydantic's errors into one
 :class:`~plant.errors.InputError` naming the file, the dotted key and what is wrong, with a
-"did you mean" suggestion for misspelled keys.
+"did you mean" suggestion for misspelled keys: one line, the most useful problem first (an
+unknown key), the others after it in parentheses.
 """
 
 from __future__ import annotations
@@ -89,10 +90,14 @@ def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: 
     try:
         return model.model_validate(data)
     except pydantic.ValidationError as exc:
-        problems = [describe_error(model, e, prefix) for e in exc.errors(include_url=False)]
+        errors = exc.errors(include_url=False)
+        # an unknown key first: a misspelt key also makes the right one "missing", and the
+        # spelling is what the user has to fix
+        errors.sort(key=lambda e: e.get("type") != "extra_forbidden")
+        problems = [describe_error(model, e, prefix) for e in errors]
         first_key, first_msg = problems[0]
-        more = "".join(f"\n  {k}: {m}" for k, m in problems[1:])
-        raise InputError(first_msg + more, file=file, where=first_key or None) from None
+        more = "; ".join(f"{k}: {m}" for k, m in problems[1:])
+        raise InputError(first_msg + (f" (also {more})" if more else ""), file=file, where=first_key or None) from None
 
 
 def read_toml(path: str | Path) -> dict[str, Any]:

@@ -1,0 +1,342 @@
+"""A corpus of bad input through the command line: bad scenario files, bad FMUs, bad datasets.
+
+Each case must give exit code 2 and one line on stderr, ``error: <file>: <key, row or member>:
+<what is wrong>``, no traceback, and write nothing: no output folder, nothing in the working
+folder, nothing left in the temporary folder.  The command runs in this process (``main()``, as
+the ``fishfmu`` script calls it) so that the corpus stays fast; a few cases run as a real
+subprocess too.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import tomllib
+import zipfile
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import tomli_w
+
+from fishfmu.scenario import set_dotted
+from tests.test_measured import BAD_INPUTS as BAD_DATASETS
+from tests.test_measured import _edit_toml, small_dataset  # noqa: F401 (a fixture, used by name)
+
+ROOT = Path(__file__).parents[1]
+PAPER = ROOT / "scenarios" / "paper_test.toml"
+USER_FMU = ROOT / "scenarios" / "user_fmu.toml"
+
+
+def listing(root: Path) -> set[str]:
+    return {p.relative_to(root).as_posix() for p in root.rglob("*")}
+
+
+@pytest.fixture()
+def sandbox(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """The working folder of the command, with the process's temporary folder inside it (``tmp/``)."""
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def run_main(sandbox: Path, capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch,
+             *args: str) -> tuple[int, str]:
+    """``fishfmu ARGS`` in this process: (exit code, stderr); checks that nothing was written."""
+    from fishfmu.cli import main
+    before = listing(sandbox)
+    monkeypatch.setattr(sys, "argv", ["fishfmu", *args])
+    with pytest.raises(SystemExit) as done:
+        main()
+    err = capsys.readouterr().err
+    assert listing(sandbox) == before, f"something was written: {listing(sandbox) - before}"
+    return done.value.code, err
+
+
+def assert_one_clear_line(code: int, err: str, *expected: str) -> str:
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    for part in expected:
+        assert part in lines[0], f"{part!r} not in {lines[0]!r}"
+    return lines[0]
+
+
+# ---------------------------------------------------------------- scenario files
+
+def _replace(*pairs: tuple[str, str]) -> Callable[[str], str]:
+    def edit(text: str) -> str:
+        for old, new in pairs:
+            assert old in text, old
+            text = text.replace(old, new, 1)
+        return text
+    return edit
+
+
+LAST_BELT = "x_start_m = 5.03\nlength_m = 1.5"
+SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
+    "TOML syntax error": (_replace(("[run]", "[run\n")), ("TOML syntax error",)),
+    "not UTF-8": (lambda text: text.replace("[run]", "[run] \udcff"), ("not UTF-8",)),
+    "unknown key": (_replace(("duration_s = 90.0", "duration_s = 90.0\nspeed = 3")),
+                    ("run.speed", "unknown key 'speed'")),
+    "misspelt key": (_replace(("count = 18", "cuont = 18")), ("fish.cuont", "did you mean 'count'?")),
+    "misspelt table": (_replace(("[fish]", "[fsh]")), ("fsh", "did you mean 'fish'?")),
+    "wrong type": (_replace(("count = 18", 'count = "many"')), ("fish.count", "valid integer", "'many'")),
+    "wrong type for a table": (_replace(("[kpi]\n", "[kpi]\nmin_gap_m = [1, 2]\n"),
+                                        ("min_gap_m = 0.05", "")), ("kpi.min_gap_m", "valid number")),
+    "negative step": (_replace(("comm_step_s = 0.01", "comm_step_s = -1.0")), ("run.comm_step_s", "-1.0")),
+    "absurd duration": (_replace(("duration_s = 90.0", "duration_s = 1e9")), ("run.duration_s", "less than")),
+    "NaN duration": (_replace(("duration_s = 90.0", "duration_s = nan")), ("run.duration_s",)),
+    "absurd fish count": (_replace(("count = 18", "count = 1000000")), ("fish.count", "2000")),
+    "negative belt width": (_replace(("width_m = 0.5\nz_top_m = 0.0", "width_m = -0.5\nz_top_m = 0.0")),
+                            ("line.conveyors[0].width_m", "greater than 0.05")),
+    "fish longer than a belt": (_replace((LAST_BELT, "x_start_m = 5.03\nlength_m = 0.7"),
+                                         ("x_m = 6.43", "x_m = 5.6")),
+                                ("line.conveyors[3] ('c4', length_m = 0.7 m)", "longest fish", "0.75 m")),
+    "overlapping conveyors": (_replace(("x_start_m = 2.01", "x_start_m = 1.5")),
+                              ("line", "conveyors[1] ('c2') starts at x = 1.5 m", "overlap")),
+    "photo-eye outside the line": (_replace(("x_m = 6.43", "x_m = 7.5")),
+                                   ("line", "photoeyes[3] ('pe_c4') at x_m = 7.5", "outside the line")),
+    "photo-eye below the belt": (_replace(("z_m = 0.015", "z_m = -0.2")), ("photoeyes[0] ('pe_c1')", "above the belt")),
+    "unknown built-in FMU": (_replace(('builtin = "conveyor_drive"', 'builtin = "conveyor_drives"')),
+                             ("fmu[1].builtin", "conveyor_drive")),
+    "unknown FMU variable": (_replace(("drive_c1.belt_speed -> plant.c1.speed", "drive_c1.belt_sped -> plant.c1.speed")),
+                             ("wiring.connections[4]", "FMU 'drive_c1' has no variable 'belt_sped'",
+                              "did you mean 'drive_c1.belt_speed'?")),
+    "unknown FMU parameter": (_replace(("speed_1 = 0.25", "sped_1 = 0.25")),
+                              ("fmu[0].parameters.sped_1", "FMU 'controller' has no variable 'sped_1'",
+                               "did you mean 'speed_1'?")),
+    "FMU parameter of the wrong type": (_replace(("n_belts = 4", 'n_belts = "four"')),
+                                        ("fmu[0].parameters.n_belts", "is Integer; got 'four'")),
+    "unknown plant port": (_replace(("-> plant.c1.speed", "-> plant.c5.speed")),
+                           ("wiring.connections[4]", "no port 'c5.speed'")),
+    "connection of the wrong causality": (_replace(("drive_c1.belt_speed -> plant.c1.speed",
+                                                    "drive_c1.speed_setpoint -> plant.c1.speed")),
+                                          ("wiring.connections[4]", "'drive_c1.speed_setpoint' is an input")),
+    "connection of the wrong type": (_replace(("plant.pe_c1.blocked -> controller.pe_1",
+                                               "plant.pe_c1.blocked -> controller.belt_speed_1")),
+                                     ("wiring.connections", "'plant.pe_c1.blocked' is Boolean but "
+                                                            "'controller.belt_speed_1' is Real")),
+    "input connected twice": (_replace(("drive_c2.belt_speed -> controller.belt_speed_2",
+                                        "drive_c1.belt_speed -> controller.belt_speed_1")),
+                              ("'controller.belt_speed_1' is connected twice",)),
+    "malformed connection": (_replace(("drive_c1.belt_speed -> plant.c1.speed", "drive_c1.belt_speed => plant.c1.speed")),
+                             ("wiring.connections", "is not of the form")),
+    "belt left unconnected": (_replace(('    "drive_c3.belt_speed -> plant.c3.speed",\n', "")),
+                              ("wiring.connections", "plant.c3.speed")),
+    "event on an unknown variable": (_replace(("[kpi]", '[[event]]\nt_s = 5.0\ntarget = "drive_c2.speed_setpont"\n'
+                                                         'action = "override"\nvalue = 0.0\n\n[kpi]')),
+                                     ("event[0].target", "did you mean 'drive_c2.speed_setpoint'?")),
+    "unknown KPI in expect": (_replace(("lost = { max = 0 }", "singulaton_rate = { min = 0.1 }")),
+                              ("expect", "did you mean 'singulation_rate'?")),
+    "FMU file missing": (_replace(('builtin = "conveyor_drive"', 'path = "drives/missing.fmu"')),
+                         ("drives/missing.fmu", "FMU file not found")),
+}
+
+
+@pytest.mark.parametrize("case", list(SCENARIOS))
+def test_bad_scenario_gives_exit_2_and_one_line_naming_file_and_key(case: str, sandbox: Path, capsys, monkeypatch):
+    edit, expected = SCENARIOS[case]
+    path = sandbox / "bad.toml"
+    text = edit(PAPER.read_text())
+    path.write_bytes(text.encode("utf-8", "surrogateescape"))
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(path), "--out", str(sandbox / "out"))
+    assert_one_clear_line(code, err, str(path) if case != "FMU file missing" else "", *expected)
+
+
+def test_missing_scenario_file_and_a_folder_instead_of_one(sandbox: Path, capsys, monkeypatch):
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", "nowhere.toml", "--out", "out")
+    assert_one_clear_line(code, err, "nowhere.toml", "file not found")
+    (sandbox / "folder.toml").mkdir()
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", "folder.toml", "--out", "out")
+    assert_one_clear_line(code, err, "folder.toml", "is a folder")
+
+
+@pytest.mark.parametrize("override, expected", [
+    ("fish.count", ("--set 'fish.count'", "expected KEY=VALUE")),
+    ("run.seed.x=1", ("override 'run.seed.x'", "'x' is not inside a table")),
+    ("fish.count=-3", ("fish.count", "greater than or equal to 1")),
+    ("fmu[9].path=x.fmu", ("override 'fmu[9].path'", "no element 9")),
+])
+def test_bad_override_names_it(override: str, expected, sandbox: Path, capsys, monkeypatch):
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(PAPER), "--out", "out", "--set", override)
+    assert_one_clear_line(code, err, *expected)
+
+
+def test_algebraic_loop_cannot_be_ordered(faulty_fmu: Path, sandbox: Path, capsys, monkeypatch):
+    # two drives whose belt speed follows their setpoint directly (declared direct feedthrough), each
+    # setting the other's setpoint: no order of the two can give both their inputs of this step
+    data = tomllib.loads(PAPER.read_text())
+    for key, value in {
+        "fmu": [{"name": "loop_a", "path": str(faulty_fmu)}, {"name": "loop_b", "path": str(faulty_fmu)}],
+        "wiring.connections": ["loop_a.belt_speed -> loop_b.speed_setpoint", "loop_b.belt_speed -> loop_a.speed_setpoint",
+                               "loop_a.belt_speed -> plant.c1.speed"],
+        "wiring.inputs": {"plant.c2.speed": 0.5, "plant.c3.speed": 0.8, "plant.c4.speed": 1.25},
+    }.items():
+        set_dotted(data, key, value)
+    path = sandbox / "loop.toml"
+    path.write_text(tomli_w.dumps(data))
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(path), "--out", "out")
+    assert_one_clear_line(code, err, str(path), "wiring.connections", "algebraic loop: loop_a -> loop_b -> loop_a",
+                          'run.coupling = "jacobi"')
+
+
+# ---------------------------------------------------------------- FMU files
+
+def fmu_members(fmu: Path) -> dict[str, bytes]:
+    with zipfile.ZipFile(fmu) as zf:
+        return {name: zf.read(name) for name in zf.namelist()}
+
+
+def write_zip(path: Path, members: dict[str, bytes]) -> Path:
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        for name, data in members.items():
+            zf.writestr(zipfile.ZipInfo(name), data)
+    return path
+
+
+SO = "binaries/linux64/conveyor_drive.so"
+
+
+def _with(members: dict[str, bytes], **changes: bytes | None) -> dict[str, bytes]:
+    out = dict(members)
+    for name, data in changes.items():
+        name = {"so": SO, "md": "modelDescription.xml"}.get(name, name)
+        if data is None:
+            out.pop(name)
+        else:
+            out[name] = data
+    return out
+
+
+def _elf_for(machine: int, so: bytes) -> bytes:
+    return so[:18] + machine.to_bytes(2, "little") + so[20:]
+
+
+def _model_exchange_only(xml: bytes) -> bytes:
+    start, end = xml.index(b"<CoSimulation"), xml.index(b"</CoSimulation>") + len(b"</CoSimulation>")
+    return xml[:start] + b'<ModelExchange modelIdentifier="conveyor_drive"/>' + xml[end:]
+
+
+def _crc_broken(path: Path, members: dict[str, bytes]) -> Path:
+    """Stored (not compressed), then one byte of modelDescription.xml flipped: its CRC no longer matches."""
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    data = bytearray(path.read_bytes())
+    xml = members["modelDescription.xml"]
+    at = data.index(xml) + len(xml) // 2
+    data[at] ^= 0x01
+    path.write_bytes(bytes(data))
+    return path
+
+
+BAD_FMUS: dict[str, tuple[Callable[[Path, dict[str, bytes]], Path], tuple[str, ...]]] = {
+    "not a zip": (lambda p, m: (p.write_text("not an archive\n" * 50), p)[1], ("not a zip archive",)),
+    "corrupt member": (_crc_broken, ("corrupt or unreadable zip archive", "CRC")),
+    "zip slip": (lambda p, m: write_zip(p, {**m, "../evil.txt": b"evil"}),
+                 ("archive member '../evil.txt'", "climbs out of the archive")),
+    "absolute member": (lambda p, m: write_zip(p, {**m, "/tmp/fishfmu-evil.txt": b"evil"}),
+                        ("'/tmp/fishfmu-evil.txt'", "absolute path")),
+    "no modelDescription": (lambda p, m: write_zip(p, _with(m, md=None)), ("no modelDescription.xml",)),
+    "invalid modelDescription": (lambda p, m: write_zip(p, _with(m, md=m["modelDescription.xml"][:-40])),
+                                 ("invalid modelDescription.xml",)),
+    "missing binary": (lambda p, m: write_zip(p, _with(m, so=None)),
+                       ("no Linux binary binaries/linux64/conveyor_drive.so",)),
+    "Windows binary only": (lambda p, m: write_zip(p, {**_with(m, so=None), "binaries/win64/conveyor_drive.dll": b"MZ"}),
+                            ("no Linux binary", "binaries for: win64")),
+    "Windows binary in linux64": (lambda p, m: write_zip(p, _with(m, so=b"MZ" + bytes(500))),
+                                  (f"archive member '{SO}'", "Windows binary (PE)")),
+    "ARM binary": (lambda p, m: write_zip(p, _with(m, so=_elf_for(183, m[SO]))), (f"'{SO}'", "built for aarch64")),
+    "32-bit binary": (lambda p, m: write_zip(p, _with(m, so=m[SO][:4] + b"\x01" + m[SO][5:])), ("32-bit ELF",)),
+    "model exchange only": (lambda p, m: write_zip(p, _with(m, md=_model_exchange_only(m["modelDescription.xml"]))),
+                            ("no co-simulation interface",)),
+}
+
+
+@pytest.fixture(scope="session")
+def drive_members(builtin_fmus: dict[str, Path]) -> dict[str, bytes]:
+    return fmu_members(builtin_fmus["conveyor_drive"])
+
+
+def user_fmu_scenario(sandbox: Path, fmu: Path) -> Path:
+    text = USER_FMU.read_text().replace('path = "../out/fmus/conveyor_drive.fmu"', f'path = "{fmu.name}"')
+    path = sandbox / "user.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("case", list(BAD_FMUS))
+def test_bad_fmu_gives_exit_2_naming_the_file_and_member(case: str, drive_members, sandbox: Path, capsys, monkeypatch):
+    make, expected = BAD_FMUS[case]
+    fmu = make(sandbox / "drive.fmu", drive_members)
+    scenario = user_fmu_scenario(sandbox, fmu)
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(scenario), "--out", str(sandbox / "out"))
+    assert_one_clear_line(code, err, str(fmu), *expected)
+    assert os.listdir(sandbox / "tmp") == []
+    assert not Path("/tmp/fishfmu-evil.txt").exists() and not (sandbox.parent / "evil.txt").exists()
+
+
+def test_zip_bomb_is_refused_before_unpacking(drive_members, sandbox: Path, capsys, monkeypatch):
+    fmu = sandbox / "bomb.fmu"
+    with zipfile.ZipFile(fmu, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for name, data in drive_members.items():
+            zf.writestr(name, data)
+        with zf.open("resources/zeros.bin", "w", force_zip64=True) as fh:
+            chunk = bytes(64 << 20)
+            for _ in range(17):  # 1.06 GiB of zeros, 5 MB in the archive
+                fh.write(chunk)
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(user_fmu_scenario(sandbox, fmu)), "--out", "out")
+    assert_one_clear_line(code, err, str(fmu), "more than the limit of 1073741824", "zip bomb")
+    assert os.listdir(sandbox / "tmp") == []
+
+
+def test_binary_that_does_not_load_is_bad_input_found_before_the_run(drive_members, sandbox: Path, capsys,
+                                                                     monkeypatch):
+    # a 64-bit ELF header for this machine, then nothing: passes the header check, fails to load;
+    # found when the FMU is instantiated, after the output folder was made: that folder is removed again
+    fmu = write_zip(sandbox / "drive.fmu", _with(drive_members, so=drive_members[SO][:64]))
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(user_fmu_scenario(sandbox, fmu)),
+                         "--out", str(sandbox / "out"), "--set", "run.duration_s=0.05")
+    assert_one_clear_line(code, err, str(fmu), "FMU 'drive_c1': its binary cannot be loaded on this machine")
+    assert os.getcwd() == str(sandbox)  # fmpy changed into the binary's folder to load it: changed back
+
+
+# ---------------------------------------------------------------- datasets
+
+@pytest.mark.parametrize("case", list(BAD_DATASETS) + ["no runs"])
+def test_bad_dataset_gives_exit_2_naming_file_and_row(case: str, small_dataset: Path, sandbox: Path,  # noqa: F811
+                                                      capsys, monkeypatch):
+    if case == "no runs":
+        text = (small_dataset / "dataset.toml").read_text()
+        (small_dataset / "dataset.toml").write_text(text[:text.index("[[runs]]")])
+        expected = ["dataset.toml", "runs", "required key is missing"]
+    else:
+        mutate, expected = BAD_DATASETS[case]
+        mutate(small_dataset)
+    assert small_dataset.parent == sandbox
+    code, err = run_main(sandbox, capsys, monkeypatch, "compare", str(small_dataset), "--out", str(sandbox / "out"))
+    assert_one_clear_line(code, err.replace("\\", "/"), *expected)
+
+
+# ---------------------------------------------------------------- as a real process
+
+@pytest.mark.parametrize("args, expected", [
+    (lambda d: ["run", str(d / "bad.toml"), "--out", str(d / "out")], "TOML syntax error"),
+    (lambda d: ["run", str(d / "user.toml"), "--out", str(d / "out")], "archive member '../evil.txt'"),
+])
+def test_the_fishfmu_process_prints_one_line_and_no_traceback(args, expected: str, drive_members, tmp_path: Path):
+    (tmp_path / "bad.toml").write_text(PAPER.read_text().replace("[run]", "[run\n"))
+    write_zip(tmp_path / "drive.fmu", {**drive_members, "../evil.txt": b"evil"})
+    user_fmu_scenario(tmp_path, tmp_path / "drive.fmu")
+    before = listing(tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "fishfmu.cli", *args(tmp_path)], capture_output=True, text=True,
+                          cwd=tmp_path, env=dict(os.environ, CI="true", COLUMNS="40"), timeout=300)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and expected in lines[0], proc.stderr  # not wrapped at 40
+    assert "Traceback" not in proc.stderr
+    assert listing(tmp_path) == before
