@@ -69,8 +69,10 @@ def run_duration_s(run: Run) -> float:
 
 
 def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: int = 0,
-               duration_s: float | None = None) -> Resim:
-    """The plant with the run's fish, drops and logged belt speeds."""
+               duration_s: float | None = None, record_poses: bool = False) -> Resim:
+    """The plant with the run's fish, drops and logged belt speeds.  ``record_poses``: also keep every
+    body's pose at 25 Hz in ``sim.poses`` (for a 3D replay of the comparison; off by default, since
+    diagnose re-simulates each run many times)."""
     params = params or PlantParams()
     rng = np.random.default_rng(run_seed(run.id, seed))
     fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
@@ -83,15 +85,15 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
             loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
 
     sim = simulate_plant(line, fish, speed_fn, duration_s or run_duration_s(run), params=params,
-                         stop_when_clear=True, on_step=log_loads)
+                         stop_when_clear=True, on_step=log_loads, record_poses=record_poses)
     return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
 
 
 def _task(args: tuple) -> Resim:
-    line, run, params, seed = args
+    line, run, params, seed, record_poses = args
     from plant.errors import SimulationError
     try:
-        return resimulate(line, run, params, seed)
+        return resimulate(line, run, params, seed, record_poses=record_poses)
     except SimulationError as exc:
         empty = SimulatedRun(run.fish, run.tracks.iloc[0:0], run.photoeyes.iloc[0:0], run.belts.iloc[0:0], 0.0, 0.0)
         return Resim(run.id, empty, pd.DataFrame(columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]),
@@ -99,10 +101,11 @@ def _task(args: tuple) -> Resim:
 
 
 def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
-                    seed: int = 0) -> list[Resim]:
-    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order."""
+                    seed: int = 0, record_poses: bool = False) -> list[Resim]:
+    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order.
+    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
     workers = max(1, min(workers or os.cpu_count() or 1, len(runs)))
-    tasks = [(line, r, p, seed) for r, p in zip(runs, params_per_run)]
+    tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
     if workers == 1 or len(tasks) == 1:
         return [_task(t) for t in tasks]
     import multiprocessing

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from plant.measured import BELTS, PHOTOEYES, TRACKS
-from plant.plant import ON_LINE, FishState
+from plant.plant import ON_LINE, FishState, Plant
 from plant.rotations import matrix_to_quaternion
 
 TRACK_PERIOD_S = 0.04
@@ -100,3 +100,34 @@ class RunRecorder:
             "photoeyes": pd.DataFrame(intervals, columns=list(PHOTOEYES.columns)),
             "belts": pd.DataFrame(self._belts, columns=list(BELTS.columns)),
         }
+
+
+def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | None:
+    """The recorder's body poses plus what is needed to draw the bodies (the arrays of a run folder's
+    poses.npz, see fishfmu.replay); None unless the recorder keeps poses.
+
+    ``body_fish`` (B,) fish index of each body, ``fish_id`` (N,), ``section_body``/``section_x``/
+    ``section_half_height``/``section_half_width`` (S,): each body's outline as cross-sections along
+    its local x axis (local y towards the back, local z the thickness).  Plain numpy arrays: they
+    pickle, so re-simulations in worker processes can return them.
+    """
+    poses = recorder.poses()
+    if poses is None:
+        return None
+    body, x, half_h, half_w = [], [], [], []
+    for k, prep in enumerate(plant.prepared):
+        for i, b in enumerate(prep.geometry.bodies):
+            for (sx, hh, hw) in b.outline:
+                body.append(5 * k + i)
+                x.append(sx)
+                half_h.append(hh)
+                half_w.append(hw)
+    poses.update({
+        "fish_id": np.array([f.fish_id for f in plant.fish_specs]),
+        "body_fish": np.repeat(np.arange(len(plant.fish_specs)), 5).astype(np.int32),
+        "section_body": np.array(body, dtype=np.int32),
+        "section_x": np.array(x, dtype=np.float32),
+        "section_half_height": np.array(half_h, dtype=np.float32),
+        "section_half_width": np.array(half_w, dtype=np.float32),
+    })
+    return poses
