@@ -4,8 +4,9 @@ The page (``fishfmu/web/``: a template, a style sheet, our own small WebGL2 rend
 ``render.js`` and the player ``replay.js``; no third-party code) gets everything it draws inlined:
 the line from ``run/dataset.toml``, each fish's five bodies from ``poses.npz`` (recorded by
 ``fishfmu run --replay`` at 25 Hz), belt travel integrated from ``belts.csv``, the photo-eyes'
-blocked intervals, and optionally a measured run's tracks drawn over the simulated fish as flat
-outlines.
+blocked intervals, and optionally a measured run drawn with the simulated one: each tracked fish as
+a translucent "ghost" of its size at its tracked mid-point and heading, and the measured photo-eye
+states (:func:`write_compare_replay`, one page per run of ``fishfmu compare``).
 
 Packing. Every number is quantised to an integer (positions in mm, quaternion parts in 1/4096,
 times in ms), delta-coded along time, zig-zag coded (small negative -> small positive) and split
@@ -35,7 +36,9 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.measured import read_dataset
+from plant.fish_data import length_regressions
+from plant.line import Line
+from plant.measured import Run, read_dataset
 
 POS_UNIT_M = 0.001
 """Position quantum: 1 mm, below what a screen shows of a 6 m line (and the tracking noise)."""
@@ -166,37 +169,69 @@ def _photoeye_intervals(photoeyes: pd.DataFrame, ids: list[str]) -> dict[str, li
             for p in ids}
 
 
-def _add_measured(packer: Packer, fish: pd.DataFrame, tracks: pd.DataFrame) -> dict[str, Any]:
-    """Pack a measured run's tracks (sorted by fish, then time) and describe its fish."""
+Measured = Run | tuple[pd.DataFrame, pd.DataFrame] | tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]
+"""A measured run to draw with the simulated one: a :class:`plant.measured.Run`, or its ``(fish, tracks)``
+or ``(fish, tracks, photoeyes)`` tables in the measured-data format."""
+
+
+def _fish_size(sizes: pd.DataFrame, fid: Any) -> tuple[float, float, float]:
+    """(length, height, width) of a measured fish; fish.csv may leave height and width empty (then
+    the length regressions of Table I, as the reader fills them)."""
+    length_m = float(sizes.at[fid, "length_m"]) if fid in sizes.index else 0.6
+    reg = length_regressions()
+    out = [length_m]
+    for col, fit, ratio in (("height_m", reg.height_m, 0.22), ("width_m", reg.width_m, 0.11)):
+        v = sizes.at[fid, col] if fid in sizes.index and col in sizes.columns else float("nan")
+        v = float(v) if pd.notna(v) and float(v) > 0 else float(fit(length_m))
+        out.append(v if math.isfinite(v) and v > 0.02 * length_m else ratio * length_m)
+    return out[0], out[1], out[2]
+
+
+def _add_measured(packer: Packer, measured: Measured, photoeye_ids: list[str]) -> dict[str, Any]:
+    """Pack a measured run's tracks (sorted by fish, then time) and describe its fish and photo-eyes."""
+    if isinstance(measured, Run):
+        fish, tracks, photoeyes = measured.fish, measured.tracks, measured.photoeyes
+    else:
+        fish, tracks, photoeyes = (*measured, None) if len(measured) == 2 else measured
     sizes = fish.set_index("fish_id")
     ordered = tracks.sort_values(["fish_id", "t_s"], kind="stable")
     entries, start = [], 0
     for fid, rows in ordered.groupby("fish_id", sort=False):
-        length_m = float(sizes.at[fid, "length_m"]) if fid in sizes.index else 0.6
-        height_m = sizes.at[fid, "height_m"] if fid in sizes.index else float("nan")
-        height_m = float(height_m) if pd.notna(height_m) else 0.22 * length_m  # Table I's height/length
+        length_m, height_m, width_m = _fish_size(sizes, fid)
         entries.append({"id": str(fid), "length_m": round(length_m, 4), "height_m": round(height_m, 4),
-                        "start": start, "count": len(rows)})
+                        "width_m": round(width_m, 4), "start": start, "count": len(rows)})
         start += len(rows)
     yaw = ordered["yaw_rad"].to_numpy(float)
     packer.add("m_t", ordered["t_s"].to_numpy(float), TIME_UNIT_S)
     packer.add("m_xy", ordered[["x_m", "y_m"]].to_numpy(float).T, POS_UNIT_M)
     packer.add("m_yaw", np.unwrap(yaw) if len(yaw) else yaw, ANGLE_UNIT_RAD)
-    t_end = float(ordered["t_s"].max()) if len(ordered) else 0.0
-    return {"fish": entries, "t_end_s": t_end}
+    ends = [float(ordered["t_s"].max())] if len(ordered) else [0.0]
+    if photoeyes is not None and len(photoeyes):
+        ends.append(float(photoeyes["t_off_s"].max()))
+    return {"fish": entries, "t_end_s": max(ends),
+            "photoeyes": None if photoeyes is None else _photoeye_intervals(photoeyes, photoeye_ids)}
 
 
-def scene(run_dir: Path, measured: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> tuple[dict[str, Any], str]:
-    """The page's header (line, fish, photo-eyes, array index) and its packed arrays (base64)."""
+def scene(run_dir: Path, measured: Measured | None = None) -> tuple[dict[str, Any], str]:
+    """The page's header (line, fish, photo-eyes, array index) and its packed arrays (base64), for a
+    ``fishfmu run --replay`` folder."""
     poses_file = run_dir / "poses.npz"
     if not poses_file.exists():
         raise InputError("no poses.npz: run the scenario with --replay to record the bodies' poses", file=run_dir)
     data = read_dataset(run_dir / "run")
-    line, run = data.line, data.runs[0]
     with np.load(poses_file) as npz:
         p = {k: npz[k] for k in npz.files}
     if len(p["t_s"]) == 0:
         raise InputError("poses.npz holds no frames: the run stopped before its first pose sample", file=poses_file)
+    return build_scene(data.line, data.name, data.runs[0], p, measured)
+
+
+def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measured: Measured | None = None,
+                run_id: str | None = None) -> tuple[dict[str, Any], str]:
+    """The page's header and packed arrays from a simulated ``run`` (its belts and photo-eyes tables)
+    and its body poses ``p`` (the arrays of poses.npz: :func:`plant.recorder.pose_record`)."""
+    if len(p["t_s"]) == 0:
+        raise InputError(f"run {run.id}: no pose frames recorded")
     stride = frame_stride(p["t_s"])
     t_s, pos, quat, status = p["t_s"][::stride], p["pos"][::stride], p["quat"][::stride], p["status"][::stride]
     n_fish, n_bodies = status.shape[1], pos.shape[1]
@@ -223,8 +258,8 @@ def scene(run_dir: Path, measured: tuple[pd.DataFrame, pd.DataFrame] | None = No
 
     header: dict[str, Any] = {
         "version": 1,
-        "name": data.name,
-        "run_id": run.id,
+        "name": name,
+        "run_id": run_id or run.id,
         "duration_s": float(t_s[-1]) if len(t_s) else 0.0,
         "line": line.model_dump(),
         "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(n_fish),
@@ -233,7 +268,7 @@ def scene(run_dir: Path, measured: tuple[pd.DataFrame, pd.DataFrame] | None = No
         "measured": None,
     }
     if measured is not None:
-        header["measured"] = _add_measured(packer, *measured)
+        header["measured"] = _add_measured(packer, measured, [pe.id for pe in line.photoeyes])
         header["duration_s"] = max(header["duration_s"], header["measured"]["t_end_s"])
     header["arrays"] = packer.index
     return header, packer.blob()
@@ -259,27 +294,40 @@ def render_html(header: dict[str, Any], blob: str) -> str:
     return re.sub("|".join(map(re.escape, parts)), lambda m: parts[m.group(0)], template)
 
 
-def write_replay(run_dir: str | Path, out_file: str | Path | None = None,
-                 measured: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> Path:
-    """Write the run in ``run_dir`` (a ``fishfmu run --replay`` folder) as one HTML page that replays it
-    in 3D; returns its path (``run_dir/replay.html`` unless ``out_file``).
-
-    ``measured``: optional ``(fish, tracks)`` frames of a measured run in the measured-data format
-    (``Run.fish``, ``Run.tracks`` of :func:`plant.measured.read_dataset`): each tracked fish is drawn
-    as a flat, translucent outline of its ``length_m`` x ``height_m`` (seen from above, a salmon lies
-    on its side) at its tracked mid-point and heading, a few mm above the belt, over the simulated
-    fish; it is hidden in gaps of the tracking longer than 0.5 s.  Times are those of each run's own
-    start, so a simulation of the measured batch lines up with it.
-    """
-    run_dir = Path(run_dir)
-    out = Path(out_file) if out_file is not None else run_dir / "replay.html"
-    header, blob = scene(run_dir, measured)
+def write_page(header: dict[str, Any], blob: str, out: Path) -> Path:
+    """The page, written atomically (a reader never sees half a page)."""
     html = render_html(header, blob)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.part")
     tmp.write_text(html, encoding="utf-8", newline="\n")
     tmp.replace(out)
     return out
+
+
+def write_replay(run_dir: str | Path, out_file: str | Path | None = None, measured: Measured | None = None) -> Path:
+    """Write the run in ``run_dir`` (a ``fishfmu run --replay`` folder) as one HTML page that replays it
+    in 3D; returns its path (``run_dir/replay.html`` unless ``out_file``).
+
+    ``measured``: optionally a measured run (a :class:`plant.measured.Run`, or its ``(fish, tracks)``
+    or ``(fish, tracks, photoeyes)`` tables) drawn with the simulated fish: each tracked fish as a
+    translucent ghost, its outline ``length_m`` x ``height_m`` seen from above (a salmon lies on its
+    side) and ``width_m`` thick, at its tracked mid-point and heading; hidden before its first and
+    after its last track sample and in gaps of the tracking longer than 0.5 s.  Times are those of
+    each run's own start, so a simulation of the measured batch lines up with it.
+    """
+    run_dir = Path(run_dir)
+    out = Path(out_file) if out_file is not None else run_dir / "replay.html"
+    header, blob = scene(run_dir, measured)
+    return write_page(header, blob, out)
+
+
+def write_compare_replay(line: Line, name: str, measured: Run, simulated: Run, poses: dict[str, np.ndarray],
+                         out_file: str | Path) -> Path:
+    """One page of ``fishfmu compare``: the re-simulation of a measured run (its tables ``simulated`` and
+    the body poses it recorded, ``SimulatedRun.poses``) with the measured run drawn over it as
+    ghosts, and the measured photo-eye states; the page can show either or both."""
+    header, blob = build_scene(line, name, simulated, poses, measured, run_id=measured.id)
+    return write_page(header, blob, Path(out_file))
 
 
 def read_header(html_file: str | Path) -> tuple[dict[str, Any], str]:

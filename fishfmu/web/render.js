@@ -162,7 +162,7 @@ function sceneObject(program, boxes, color, options = {}) {
   for (const b of boxes) { const t = boxTriangles(...b); pos.push(...t.pos); normal.push(...t.normal); }
   const { vao } = vertexArray(program, { aPos: [new Float32Array(pos), 3], aNormal: [new Float32Array(normal), 3] });
   return { vao, count: pos.length / 3, color, pattern: options.pattern || 0, conveyor: options.conveyor,
-           photoeye: options.photoeye, transparent: color[3] < 1 };
+           photoeye: options.photoeye, measuredEye: options.measuredEye, transparent: color[3] < 1 };
 }
 
 function lineExtent(line) {
@@ -183,12 +183,18 @@ function buildLine(program) {
     for (const x of [x0 + 0.05, x1 - 0.09]) for (const y of [-w - 0.03, w - 0.01]) frame.push([x, x + 0.04, y, y + 0.04, floorZ, z - 0.12]);
     objects.push(sceneObject(program, frame, [0.55, 0.58, 0.62, 1]));
   });
+  const measuredEyes = header.measured && header.measured.photoeyes;
   line.photoeyes.forEach((pe) => {
     const reach = g + 0.06;
     objects.push(sceneObject(program, [[pe.x_m - 0.003, pe.x_m + 0.003, -reach, reach, pe.z_m - 0.003, pe.z_m + 0.003],
                                         [pe.x_m - 0.02, pe.x_m + 0.02, -reach - 0.03, -reach, pe.z_m - 0.05, pe.z_m + 0.05],
                                         [pe.x_m - 0.02, pe.x_m + 0.02, reach, reach + 0.03, pe.z_m - 0.05, pe.z_m + 0.05]],
                              [0.2, 0.7, 0.3, 1], { photoeye: pe.id }));
+    if (measuredEyes) {   // a lamp on each head: the measured beam (the heads show the simulated one)
+      const lamp = (y0, y1) => [pe.x_m - 0.014, pe.x_m + 0.014, y0, y1, pe.z_m + 0.055, pe.z_m + 0.09];
+      objects.push(sceneObject(program, [lamp(-reach - 0.03, -reach), lamp(reach, reach + 0.03)],
+                               MEASURED_EYE_CLEAR, { measuredEye: pe.id }));
+    }
   });
   const top = ext.zTop + 0.15;
   objects.push(sceneObject(program, [[ext.x0, ext.x1, -g - 0.004, -g, ext.zLow - 0.01, top],
@@ -252,6 +258,10 @@ function buildFish(program) {
 // A measured fish seen from above: a salmon's side profile (it lies on its side), snout (u = 0) to tail fin.
 const OUTLINE_U = [0, 0.04, 0.12, 0.3, 0.55, 0.78, 0.86, 0.9, 0.97, 1];
 const OUTLINE_H = [0, 0.45, 0.8, 1, 0.85, 0.4, 0.28, 0.38, 0.7, 0.72];
+// The measured run's look: a ghost (pale, translucent, unlit) of its fish's colour, its edges dark
+// and drawn through everything; photo-eye lamps orange while the measured beam was blocked.
+const GHOST_FILL_WHITE = 0.55, GHOST_FILL_ALPHA = 0.42, GHOST_EDGE_DARK = 0.45;
+const MEASURED_EYE_BLOCKED = [1.0, 0.55, 0.05, 1], MEASURED_EYE_CLEAR = [0.92, 0.92, 0.86, 1];
 
 function conveyorTopAt(x) {
   const cs = header.line.conveyors;
@@ -259,25 +269,37 @@ function conveyorTopAt(x) {
   return cs[cs.length - 1].z_top_m;
 }
 
-function measuredOutlines(fish) {   // -> fill triangles and edge line segments, world coordinates
+// Each measured fish as a slab: its outline seen from above (length x height), extruded from just
+// above the belt by its thickness (width).  -> fill triangles (top and sides) and edge segments
+// (top and bottom rings), world coordinates, with the colour of the simulated fish of the same id.
+function measuredOutlines(fish) {
   const fill = [], edge = [], fillColor = [], edgeColor = [];
   const colourOf = (id) => {
     const i = header.fish.ids.indexOf(id);
     return i >= 0 ? header.fish.colours[i] : [0.95, 0.5, 0.1];
   };
   for (const f of fish) {
-    const dx = Math.cos(f.yaw), dy = Math.sin(f.yaw), z = conveyorTopAt(f.x) + 0.004, rgb = colourOf(f.id);
+    const dx = Math.cos(f.yaw), dy = Math.sin(f.yaw), rgb = colourOf(f.id);
+    const z0 = conveyorTopAt(f.x) + 0.002, z1 = z0 + Math.max(f.width_m || 0.22 * f.height_m, 0.01);
+    const pale = rgb.map((c) => c * (1 - GHOST_FILL_WHITE) + GHOST_FILL_WHITE), side = pale.map((c) => 0.85 * c);
+    const dark = rgb.map((c) => c * GHOST_EDGE_DARK);
     const left = [], right = [];
     OUTLINE_U.forEach((u, i) => {
       const along = (0.5 - u) * f.length_m, half = OUTLINE_H[i] * f.height_m / 2;
-      left.push([f.x + along * dx - half * dy, f.y + along * dy + half * dx, z]);
-      right.push([f.x + along * dx + half * dy, f.y + along * dy - half * dx, z]);
+      left.push([f.x + along * dx - half * dy, f.y + along * dy + half * dx]);
+      right.push([f.x + along * dx + half * dy, f.y + along * dy - half * dx]);
     });
+    const at = (p, z) => [p[0], p[1], z];
+    const tri = (corners, colour) => { for (const c of corners) { fill.push(...c); fillColor.push(...colour); } };
     for (let i = 0; i + 1 < left.length; i++) {
-      for (const p of [left[i], right[i], left[i + 1], right[i], right[i + 1], left[i + 1]]) { fill.push(...p); fillColor.push(...rgb); }
+      tri([at(left[i], z1), at(right[i], z1), at(left[i + 1], z1), at(right[i], z1), at(right[i + 1], z1), at(left[i + 1], z1)], pale);
     }
     const ring = left.concat(right.slice().reverse());
-    for (let i = 0; i < ring.length; i++) { edge.push(...ring[i], ...ring[(i + 1) % ring.length]); edgeColor.push(...rgb, ...rgb); }
+    for (let i = 0; i < ring.length; i++) {
+      const a = ring[i], b = ring[(i + 1) % ring.length];
+      tri([at(a, z0), at(b, z0), at(b, z1), at(a, z0), at(b, z1), at(a, z1)], side);
+      for (const z of [z0, z1]) { edge.push(...at(a, z), ...at(b, z)); edgeColor.push(...dark, ...dark); }
+    }
   }
   return { fill, edge, fillColor, edgeColor };
 }
@@ -303,7 +325,9 @@ function resize() {
   if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
 }
 
-function drawSceneObjects(vp, belts, blocked, transparent) {
+// `blocked`: the simulated beams (the heads' colour); `measuredBlocked`: the measured ones (the
+// lamps' colour; null: no lamps).
+function drawSceneObjects(vp, belts, blocked, measuredBlocked, transparent) {
   const p = scene.sceneProgram;
   gl.useProgram(p.program);
   gl.uniformMatrix4fv(p.uniforms.uViewProj, false, vp);
@@ -312,6 +336,10 @@ function drawSceneObjects(vp, belts, blocked, transparent) {
     if (o.transparent !== transparent) continue;
     let color = o.color;
     if (o.photoeye !== undefined) color = blocked[o.photoeye] ? [0.95, 0.1, 0.08, 1] : [0.2, 0.62, 0.3, 1];
+    if (o.measuredEye !== undefined) {
+      if (!measuredBlocked) continue;
+      color = measuredBlocked[o.measuredEye] ? MEASURED_EYE_BLOCKED : MEASURED_EYE_CLEAR;
+    }
     gl.uniform4fv(p.uniforms.uColor, color);
     gl.uniform1i(p.uniforms.uPattern, o.pattern);
     gl.uniform1f(p.uniforms.uOffset, o.conveyor !== undefined ? belts.travel[o.conveyor] % STRIPE_SPACING_M : 0);
@@ -350,9 +378,9 @@ function drawMeasured(vp, fish) {
     gl.uniform1f(p.uniforms.uAlpha, alpha);
     gl.drawArrays(mode, 0, positions.length / 3);
   };
-  pass(o.fill, o.fillColor, gl.TRIANGLES, 0.4);
-  gl.disable(gl.DEPTH_TEST);          // the outline's edge shows through simulated fish lying on it
-  pass(o.edge, o.edgeColor.map((c) => c * 0.6), gl.LINES, 0.95);
+  pass(o.fill, o.fillColor, gl.TRIANGLES, GHOST_FILL_ALPHA);
+  gl.disable(gl.DEPTH_TEST);          // the ghost's edges show through the simulated fish inside it
+  pass(o.edge, o.edgeColor, gl.LINES, 0.95);
   gl.enable(gl.DEPTH_TEST);
 }
 
@@ -364,13 +392,13 @@ function draw(frame) {
   gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
   gl.enable(gl.DEPTH_TEST);
   gl.disable(gl.BLEND);
-  drawSceneObjects(frame.vp, frame.belts, frame.blocked, false);
+  drawSceneObjects(frame.vp, frame.belts, frame.blocked, frame.measuredBlocked, false);
   drawFish(frame.vp, frame.poses, frame.showSim);
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
   gl.depthMask(false);
   drawMeasured(frame.vp, frame.measured);
-  drawSceneObjects(frame.vp, frame.belts, frame.blocked, true);
+  drawSceneObjects(frame.vp, frame.belts, frame.blocked, frame.measuredBlocked, true);
   gl.depthMask(true);
 }
 

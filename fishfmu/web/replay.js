@@ -11,7 +11,7 @@ const ui = {
   clock: document.getElementById("clock"), speed: document.getElementById("speed"),
   status: document.getElementById("status"), title: document.getElementById("title"),
   legend: document.getElementById("legend"), sim: document.getElementById("toggle-sim"),
-  measured: document.getElementById("toggle-measured"),
+  layers: document.getElementById("layers"),
 };
 const state = { time: 0, playing: false, speed: 1, lastNow: null, dirty: true, showSim: true, showMeasured: true,
                sliderHeld: false };
@@ -101,12 +101,18 @@ function beltAt(t) {
   return { travel, speed };
 }
 
-function photoeyesBlocked(t) {
+function photoeyesBlocked(t, eyes = header.photoeyes) {
   const out = {};
-  for (const [id, intervals] of Object.entries(header.photoeyes)) {
+  for (const [id, intervals] of Object.entries(eyes)) {
     out[id] = intervals.some(([on, off]) => t >= on && t < off);
   }
   return out;
+}
+
+// The measured beams at t, or null when the page has none.
+function measuredPhotoeyesBlocked(t) {
+  const eyes = header.measured && header.measured.photoeyes;
+  return eyes ? photoeyesBlocked(t, eyes) : null;
 }
 
 const MAX_TRACK_GAP_S = 0.5;   // a measured fish is hidden in tracking gaps longer than this
@@ -125,7 +131,7 @@ function measuredAt(t) {
     const a = hi === lo ? 0 : Math.min(1, Math.max(0, (t - m.t[lo]) / (m.t[hi] - m.t[lo])));
     const n = m.t.length, lerp = (arr, off) => arr[off + lo] * (1 - a) + arr[off + hi] * a;
     out.push({ id: f.id, x: lerp(m.xy, 0), y: lerp(m.xy, n), yaw: lerp(m.yaw, 0),
-               length_m: f.length_m, height_m: f.height_m });
+               length_m: f.length_m, height_m: f.height_m, width_m: f.width_m });
   }
   return out;
 }
@@ -141,8 +147,10 @@ function project(p, vp = viewProjection()) {
 
 function draw() {
   const t = state.time, belts = beltAt(t);
+  const showMeasured = state.showMeasured && data.measured !== null;
   renderer.draw({ vp: viewProjection(), belts, blocked: photoeyesBlocked(t), poses: bodyPoses(t),
-                  showSim: state.showSim, measured: state.showMeasured ? measuredAt(t) : [] });
+                  showSim: state.showSim, measured: showMeasured ? measuredAt(t) : [],
+                  measuredBlocked: showMeasured ? measuredPhotoeyesBlocked(t) : null });
   updateText(belts);
   state.dirty = false;
 }
@@ -152,13 +160,30 @@ function updateText(belts) {
   let onLine = 0;
   for (let n = 0; n < header.fish.ids.length; n++) if (data.status[n * F + k] === 1) onLine++;
   const speeds = header.line.conveyors.map((c, i) => `${c.id} ${belts.speed[i].toFixed(2)}`).join(", ");
-  ui.status.textContent = `${onLine} of ${header.fish.ids.length} fish on the line · belts (m/s): ${speeds}`;
+  const tracked = header.measured ? ` (simulated), ${measuredAt(t).length} tracked (measured)` : "";
+  ui.status.textContent = `${onLine} of ${header.fish.ids.length} fish on the line${tracked} · belts (m/s): ${speeds}`;
   ui.clock.textContent = `${t.toFixed(2)} s / ${header.duration_s.toFixed(2)} s`;
   if (!state.sliderHeld) ui.time.value = t;
   ui.play.innerHTML = state.playing ? "&#10074;&#10074;" : "&#9654;";
 }
 
 // ---------------------------------------------------------------------------- time and camera
+// Which runs are drawn: "sim", "measured" or "both" (a page without a measured run has only "sim").
+function setShow(mode) {
+  state.showSim = mode !== "measured";
+  state.showMeasured = mode !== "sim";
+  syncLayerControls();
+  state.dirty = true;
+}
+
+function showMode() {
+  return state.showSim && state.showMeasured ? "both" : state.showMeasured ? "measured" : state.showSim ? "sim" : "none";
+}
+
+function syncLayerControls() {   // the buttons of a page with a measured run (others have the checkbox only)
+  for (const b of ui.layers.querySelectorAll("button")) b.setAttribute("aria-pressed", String(b.dataset.show === showMode()));
+}
+
 function setTime(t) { state.time = Math.min(Math.max(t, 0), header.duration_s); state.dirty = true; }
 function play() { if (state.time >= header.duration_s) setTime(0); state.playing = true; state.lastNow = null; state.dirty = true; }
 function pause() { state.playing = false; state.dirty = true; }
@@ -227,7 +252,7 @@ function setupInput() {
   ui.speed.addEventListener("change", () => { state.speed = parseFloat(ui.speed.value); });
   for (const name of ["3d", "top", "side"]) document.getElementById(`view-${name}`).addEventListener("click", () => setView(name));
   ui.sim.addEventListener("change", () => { state.showSim = ui.sim.checked; state.dirty = true; });
-  ui.measured.addEventListener("change", () => { state.showMeasured = ui.measured.checked; state.dirty = true; });
+  for (const b of ui.layers.querySelectorAll("button")) b.addEventListener("click", () => setShow(b.dataset.show));
   window.addEventListener("resize", () => { state.dirty = true; });
   window.addEventListener("keydown", (e) => {
     if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
@@ -235,6 +260,7 @@ function setupInput() {
     if (e.key === "ArrowRight") setTime(state.time + 0.04);
     if (e.key === "ArrowLeft") setTime(state.time - 0.04);
     if (e.key === "Home") setTime(0);
+    if ((e.key === "m" || e.key === "M") && header.measured) setShow({ both: "sim", sim: "measured" }[showMode()] || "both");
   });
 }
 
@@ -247,14 +273,18 @@ function panCamera(dx, dy) {
 
 // --------------------------------------------------------------------- the page and its API
 function describe() {
-  ui.title.textContent = `${header.name} · run ${header.run_id} · ${header.fish.ids.length} fish`;
+  const m = header.measured;
+  ui.title.textContent = `${header.name} · run ${header.run_id} · ${header.fish.ids.length} fish` +
+                         (m ? " · measured and simulated" : "");
   let legend = '<span class="swatch" style="background:#8a7"></span>simulated fish (a colour each)';
-  if (header.measured) legend += '<span class="swatch" style="background:rgba(240,130,30,.45);border:1px solid #a50"></span>measured (outline)';
-  legend += '<span class="swatch" style="background:#2a5"></span>photo-eye clear<span class="swatch" style="background:#e21"></span>blocked';
+  if (m) legend += '<span class="swatch ghost"></span>measured fish: pale ghost, same colour, dark edge';
+  legend += `<span class="swatch" style="background:#2a5"></span>photo-eye clear<span class="swatch" style="background:#e21"></span>blocked${m ? " (simulated)" : ""}`;
+  if (m && m.photoeyes) legend += '<span class="swatch lamp"></span>lamp on top: measured beam blocked';
   ui.legend.innerHTML = legend;
   ui.time.max = header.duration_s;
   ui.time.step = 0.01;
-  document.getElementById("toggle-measured-label").hidden = !header.measured;
+  ui.layers.hidden = !m;
+  document.getElementById("toggle-sim-label").hidden = !!m;
 }
 
 // For tests and scripts: the state, and where things are drawn (CSS pixels from the canvas' top-left).
@@ -267,7 +297,9 @@ const api = {
   playing: () => state.playing,
   speed: () => state.speed,
   render: () => draw(),
-  setLayer: (name, on) => { state[name === "measured" ? "showMeasured" : "showSim"] = on; draw(); },
+  setLayer: (name, on) => { state[name === "measured" ? "showMeasured" : "showSim"] = on; syncLayerControls(); draw(); },
+  show: (mode) => { setShow(mode); draw(); },
+  showing: () => showMode(),
   camera: () => JSON.parse(JSON.stringify(camera)),
   setCamera: (c) => { Object.assign(camera, c); draw(); },
   setView: (name) => { setView(name); draw(); },
@@ -291,6 +323,8 @@ const api = {
   photoeyesBlocked: () => photoeyesBlocked(state.time),
   beltTravel: () => beltAt(state.time).travel,
   measuredFish: () => measuredAt(state.time),
+  measuredDrawn: () => (state.showMeasured ? measuredAt(state.time) : []),
+  measuredPhotoeyesBlocked: () => measuredPhotoeyesBlocked(state.time),
 };
 window.replay = api;
 
