@@ -21,6 +21,19 @@ EXIT_INTERRUPTED_SIGTERM = 143
 """A run stopped by Ctrl-C / SIGTERM (128 + signal number), its partial results written."""
 
 
+_LINE_BREAKING = {c: repr(chr(c))[1:-1] for c in [*range(32), 127, 0x85, 0x2028, 0x2029]}
+
+
+def one_line(text: str) -> str:
+    """``text`` with line breaks and other control characters escaped (a key or value from a file
+    may hold them): a message stays one line.
+
+    >>> print(one_line("key" + chr(10) + "with a break"))
+    key\\nwith a break
+    """
+    return text.translate(_LINE_BREAKING)
+
+
 @dataclass
 class InputError(Exception):
     """Bad input: names the file (if any), the location inside it (key, row, column) and what is wrong."""
@@ -36,7 +49,7 @@ class InputError(Exception):
         if self.where:
             parts.append(self.where)
         prefix = ": ".join(parts)
-        return f"{prefix}: {self.message}" if prefix else self.message
+        return one_line(f"{prefix}: {self.message}" if prefix else self.message)
 
 
 @dataclass
@@ -48,5 +61,5 @@ class SimulationError(Exception):
 
     def __str__(self) -> str:
         if self.time_s is None:
-            return self.message
-        return f"at t = {self.time_s:.3f} s: {self.message}"
+            return one_line(self.message)
+        return one_line(f"at t = {self.time_s:.3f} s: {self.message}")
