@@ -6,10 +6,10 @@ the run down (``run.fmu_process = "worker"`` in a scenario).
 interpreter (``python -m fishfmu.fmu_worker FD``, not a fork: the FMU's library is loaded only
 there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled message per call.
 
-- ``set`` and ``do_step`` are sent without waiting; ``get`` (which the master calls after every
-  step of an FMU) waits for the answers of everything sent before it, so a step costs one round
-  trip per FMU.  Errors of ``set`` or ``do_step`` come back with the time and the call they belong
-  to, as in-process.
+- ``set`` and ``do_step`` are collected and sent together with the ``get`` that the master calls
+  after every step of an FMU: one message there and one back per FMU and step (one wake-up of the
+  worker).  Errors of ``set`` or ``do_step`` come back with the time and the call they belong to,
+  as in-process.
 - Each call has its time limit: ``timeout_s`` (``run.fmu_step_timeout_s``) for the calls of a
   step, :data:`SETUP_TIMEOUT_S` (or more) for starting the worker and instantiating.  A call that
   takes longer is a hang: the worker is killed and the run fails naming the FMU, the call and the
@@ -67,6 +67,8 @@ class WorkerFmu:
         self.timeout_s = float(timeout_s)
         self._time = start_time_s
         self._pending: deque[tuple[str, float, float]] = deque()  # (call, time, timeout) awaiting an answer
+        self._batch: list[tuple] = []  # set and do_step requests not sent yet
+        self._batch_call: tuple[str, float] | None = None  # the call a hang of the batch is blamed on
         self._closed = False
         self.round_trips = 0
         ours, theirs = socket.socketpair()
@@ -89,15 +91,20 @@ class WorkerFmu:
     # ---- the four calls of the master ---------------------------------------------------------
     def set(self, values: Mapping[str, Any]) -> None:
         if values:
-            self._send(("set", dict(values)), "set", self.timeout_s)
+            self._batch.append(("set", dict(values)))
+            self._batch_call = self._batch_call or ("set", self._time)
 
     def do_step(self, t_s: float, dt_s: float) -> None:
         self._time = t_s
-        self._send(("do_step", t_s, dt_s), "doStep", self.timeout_s)
+        self._batch.append(("do_step", t_s, dt_s))
+        self._batch_call = ("doStep", t_s)
         self._time = t_s + dt_s
 
     def get(self, names: Iterable[str]) -> dict[str, Any]:
-        self._send(("get", list(names)), "get", self.timeout_s)
+        self._batch.append(("get", list(names)))
+        call, t = self._batch_call or ("get", self._time)
+        batch, self._batch, self._batch_call = self._batch, [], None
+        self._send(("batch", batch), call, self.timeout_s, t)
         return self._collect()
 
     def terminate(self) -> None:
@@ -109,6 +116,7 @@ class WorkerFmu:
             if self._proc.poll() is None:
                 try:
                     self._pending.clear()
+                    self._batch.clear()
                     self._conn.send(("terminate",))
                     deadline = time.monotonic() + TERMINATE_TIMEOUT_S
                     while time.monotonic() < deadline and self._conn.poll(max(0.0, deadline - time.monotonic())):
@@ -130,14 +138,15 @@ class WorkerFmu:
             proc.kill()
 
     # ---- messages -----------------------------------------------------------------------------
-    def _send(self, message: tuple, call: str, timeout_s: float) -> None:
+    def _send(self, message: tuple, call: str, timeout_s: float, t: float | None = None) -> None:
+        t = self._time if t is None else t
         if self._closed:
-            raise SimulationError(f"FMU '{self.name}': {call} after its worker was stopped", self._time)
+            raise SimulationError(f"FMU '{self.name}': {call} after its worker was stopped", t)
         try:
             self._conn.send(message)
         except (OSError, EOFError):
-            self._died(call, self._time)
-        self._pending.append((call, self._time, timeout_s))
+            self._died(call, t)
+        self._pending.append((call, t, timeout_s))
 
     def _collect(self) -> Any:
         """Answers of everything pending, in order; the first error is raised after all are read."""
@@ -216,14 +225,11 @@ def serve(conn: Connection) -> None:
                 instance = FmuInstance(name, fmu, parameters, start_time_s)
             elif instance is None:
                 raise SimulationError(f"FMU '{name}': {op} before the instance was created")
-            elif op == "set":
-                instance.set(message[1])
-            elif op == "do_step":
-                instance.do_step(message[1], message[2])
-            elif op == "get":
-                result = instance.get(message[1])
+            elif op == "batch":
+                for request in message[1]:
+                    result = _call(instance, name, request)
             else:
-                raise SimulationError(f"FMU '{name}': unknown request {op!r} to its worker")
+                result = _call(instance, name, message)
             conn.send(("ok", result))
         except InputError as exc:
             failed = True
@@ -234,6 +240,17 @@ def serve(conn: Connection) -> None:
         except Exception as exc:  # anything else the FMU's wrapper raised: still this FMU's failure
             failed = True
             conn.send(("simulation_error", f"FMU '{name}': {op} failed: {type(exc).__name__}: {exc}", None))
+
+
+def _call(instance, name: str, request: tuple) -> Any:
+    op = request[0]
+    if op == "set":
+        return instance.set(request[1])
+    if op == "do_step":
+        return instance.do_step(request[1], request[2])
+    if op == "get":
+        return instance.get(request[1])
+    raise SimulationError(f"FMU '{name}': unknown request {op!r} to its worker")
 
 
 def main(argv: list[str]) -> None:
