@@ -41,7 +41,12 @@ def prepare_out_dir(out: str | Path, overwrite: bool) -> Path:
             raise InputError("output folder is not empty and was not written by fishfmu; choose another --out",
                              file=out)
         if not overwrite:
-            raise InputError("output folder holds an earlier run; pass --overwrite to replace it", file=out)
+            try:
+                unfinished = json.loads((out / MARKER).read_text()).get("status") == "running"
+            except (OSError, ValueError, AttributeError):
+                unfinished = False
+            what = "an earlier run that did not finish (killed?)" if unfinished else "an earlier run"
+            raise InputError(f"output folder holds {what}; pass --overwrite to replace it", file=out)
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     return out
@@ -164,6 +169,7 @@ def write_outputs(result: RunResult, out: Path, partial: bool = False, report: b
         "setup_s": round(result.timings_s.get("setup", 0.0), 3),
         "seed": result.scenario.run.seed,
         "drops_raised": [{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
+        "energy_watch": {k: round(v, 4) for k, v in result.energy_watch.items()},
         "versions": {"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
     }
     write_json_atomic(paths["info"], _clean(info))

@@ -77,6 +77,9 @@ class RunResult:
     drop_adjustments: list[Any] = field(default_factory=list)
     poses: dict[str, np.ndarray] | None = None
     """Body poses at 25 Hz and body outlines (see :func:`pose_record`), when asked for."""
+    energy_watch: dict[str, float] = field(default_factory=dict)
+    """The energy watch's largest rise without a source (:mod:`plant.health`): J, and as a fraction
+    of the allowed reserve (a blow-up is reported at 1)."""
 
     @property
     def expect_ok(self) -> bool:
@@ -189,8 +192,10 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
                   photoeyes=tables["photoeyes"], belts=tables["belts"])
         kpis = compute_kpis(run, scenario.line, scenario.kpi)
         expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
+        watch = cosim.energy_watch
         return RunResult(scenario, fish, run, kpis, cosim.signal_frame(), expect, status, error, cosim.t_s, wall,
-                         timings, list(plant.drop_adjustments), pose_record(recorder, plant))
+                         timings, list(plant.drop_adjustments), pose_record(recorder, plant),
+                         {"worst_excess_j": watch.worst_excess_j, "worst_fraction_of_reserve": watch.worst_ratio})
 
 
 def _number(value: Any) -> float | None:

@@ -190,3 +190,36 @@ def test_interrupted_run_writes_a_readable_partial_result(tmp_path: Path, signum
     again = _cli("run", str(PAPER), "--out", str(out), "--no-report", "--set", "fish.count=1",
                  "--set", "run.duration_s=0.05", "--set", "expect={}", "--overwrite", cwd=tmp_path)
     assert again.wait(timeout=300) == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["paper_test", "gap_control", "user_fmu"])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_energy_watch_stays_far_from_its_reserve_in_the_shipped_scenarios(name: str, seed: int, tmp_path: Path,
+                                                                          builtin_fmus) -> None:
+    overrides: dict = {"run.seed": seed}
+    if name == "user_fmu":
+        from fishfmu.fmu_build import build_fmu
+        overrides["fmu[1].path"] = str(build_fmu("conveyor_drive", tmp_path, {"rated_power": 370.0,
+                                                                             "gear_ratio": 10.0,
+                                                                             "ramp_acceleration": 0.5}))
+    result = run_scenario(load_scenario(ROOT / "scenarios" / f"{name}.toml", overrides))
+    assert result.status == "ok", result.error
+    assert result.energy_watch["worst_fraction_of_reserve"] < 0.3, result.energy_watch
+
+
+def test_a_killed_run_leaves_a_folder_marked_running_that_only_overwrite_replaces(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    proc = _cli("run", str(PAPER), "--out", str(out), "--no-report", "--set", "fish.count=1",
+                "--set", "run.duration_s=600", "--set", "run.stop_when_clear=false", cwd=tmp_path)
+    deadline = time.monotonic() + 120
+    while not (out / "run_info.json").exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    proc.kill()  # SIGKILL: no handler runs, nothing is finished
+    proc.communicate(timeout=60)
+    assert json.loads((out / "run_info.json").read_text())["status"] == "running"
+    assert sorted(p.name for p in out.iterdir()) == ["run_info.json"]  # no result that looks complete
+    again = _cli("run", str(PAPER), "--out", str(out), "--no-report", cwd=tmp_path)
+    _, stderr = again.communicate(timeout=300)
+    assert again.returncode == 2 and "holds an earlier run that did not finish (killed?); pass --overwrite" in stderr
