@@ -271,9 +271,10 @@ function conveyorTopAt(x) {
 
 // Each measured fish as a slab: its outline seen from above (length x height), extruded from just
 // above the belt by its thickness (width).  -> fill triangles (top and sides) and edge segments
-// (top and bottom rings), world coordinates, with the colour of the simulated fish of the same id.
+// (top ring: `edge`, bottom ring: `base`), world coordinates, in the colour of the simulated fish
+// of the same id.
 function measuredOutlines(fish) {
-  const fill = [], edge = [], fillColor = [], edgeColor = [];
+  const fill = [], edge = [], base = [], fillColor = [], edgeColor = [];
   const colourOf = (id) => {
     const i = header.fish.ids.indexOf(id);
     return i >= 0 ? header.fish.colours[i] : [0.95, 0.5, 0.1];
@@ -298,10 +299,12 @@ function measuredOutlines(fish) {
     for (let i = 0; i < ring.length; i++) {
       const a = ring[i], b = ring[(i + 1) % ring.length];
       tri([at(a, z0), at(b, z0), at(b, z1), at(a, z0), at(b, z1), at(a, z1)], side);
-      for (const z of [z0, z1]) { edge.push(...at(a, z), ...at(b, z)); edgeColor.push(...dark, ...dark); }
+      edge.push(...at(a, z1), ...at(b, z1));
+      base.push(...at(a, z0), ...at(b, z0));
+      edgeColor.push(...dark, ...dark);
     }
   }
-  return { fill, edge, fillColor, edgeColor };
+  return { fill, edge, base, fillColor, edgeColor };
 }
 
 // ------------------------------------------------------------------------------------- drawing
@@ -379,7 +382,8 @@ function drawMeasured(vp, fish) {
     gl.drawArrays(mode, 0, positions.length / 3);
   };
   pass(o.fill, o.fillColor, gl.TRIANGLES, GHOST_FILL_ALPHA);
-  gl.disable(gl.DEPTH_TEST);          // the ghost's edges show through the simulated fish inside it
+  pass(o.base, o.edgeColor, gl.LINES, 0.6);
+  gl.disable(gl.DEPTH_TEST);          // the ghost's top edge shows through the simulated fish inside it
   pass(o.edge, o.edgeColor, gl.LINES, 0.95);
   gl.enable(gl.DEPTH_TEST);
 }
