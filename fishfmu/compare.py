@@ -9,7 +9,9 @@ Every run of a dataset is re-simulated with the same fish, drops and measured be
 - belt speed errors: the drive FMU fed the logged setpoints (and the simulated belt loads) against
   the logged belt speeds.
 
-Error measures are given per run and as mean, sd, min and max across runs.
+Error measures are given per run and as mean, sd, min and max across runs.  The re-simulations
+record the fish bodies' poses, so that each run gets a 3D replay page with the measured fish drawn
+as ghosts over the simulated ones (``replay/<run_id>.html``, linked from the report).
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ def simulated_run(run: Run, resim: Resim) -> Run:
 def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers: int | None = None,
                     drive_parameters: dict | None = None) -> Comparison:
     params = params or PlantParams()
-    resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers)
+    resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers, record_poses=True)
     kpi_rows, arrival_rows, track_rows, belt_rows, measures = [], [], [], [], []
     for run, r in zip(dataset.runs, resims):
         if r.error:
@@ -111,8 +113,28 @@ def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers
                       pd.DataFrame(measures, columns=["run_id", "measure", "value", "note"]))
 
 
+def _json_number(value: float) -> float | None:
+    """NaN (an sd over one run, a measure no run has) is null in JSON."""
+    return float(value) if np.isfinite(value) else None
+
+
+def write_replays(c: Comparison, folder: Path) -> dict[str, Path]:
+    """One replay page per re-simulated run (run id -> page): the simulated fish and the measured ones
+    over them (:func:`fishfmu.replay.write_compare_replay`).  Runs whose re-simulation failed, or
+    that recorded no poses, get none."""
+    from fishfmu.replay import write_compare_replay
+    pages = {}
+    for run, r in zip(c.dataset.runs, c.resims):
+        if r.error or r.sim.poses is None or len(r.sim.poses["t_s"]) == 0:
+            continue
+        pages[run.id] = write_compare_replay(c.dataset.line, c.dataset.name, run, simulated_run(run, r), r.sim.poses,
+                                             folder / f"{run.id}.html")
+    return pages
+
+
 def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
-    """Tables (CSV), plots (PNG), a report (HTML) and the simulated runs (measured-data format)."""
+    """Tables (CSV), plots (PNG), a report (HTML), the simulated runs (measured-data format) and a
+    3D replay page per run (``replay/``)."""
     from plant.measured import write_dataset
 
     from fishfmu.compare_report import write_compare_report
@@ -130,7 +152,10 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     write_json_atomic(out / "compare.json", {
         "dataset": c.dataset.name, "runs": len(c.dataset.runs),
         "failed": {s.run_id: s.error for s in c.resims if s.error},
-        "error_summary": {row.measure: {"mean": row.mean, "sd": row.sd, "min": row.min, "max": row.max}
+        "error_summary": {row.measure: {k: _json_number(getattr(row, k)) for k in ("mean", "sd", "min", "max")}
                           for row in summary.itertuples()}})
-    paths["report"] = write_compare_report(c, out)
+    replays = write_replays(c, out / "replay")
+    if replays:
+        paths["replay"] = out / "replay"
+    paths["report"] = write_compare_report(c, out, replays)
     return paths

@@ -90,7 +90,30 @@ def belt_figure(c):
     return fig
 
 
-def write_compare_report(c, out: Path) -> Path:
+def replay_links(replays: dict[str, Path], out: Path) -> str:
+    """A list of the runs' replay pages, as links relative to the report (the folder can be moved)."""
+    if not replays:
+        return ""
+    items = []
+    for run_id, page in replays.items():
+        href = page.relative_to(out).as_posix() if page.is_relative_to(out) else page.as_uri()
+        size_mb = page.stat().st_size / 1e6 if page.exists() else float("nan")
+        items.append(f'<li><a href="{html.escape(href)}">run {html.escape(run_id)}</a> ({size_mb:.2f} MB)</li>')
+    return ("<h2>3D replays</h2><p>Each run in 3D in the browser (WebGL2, works offline): the simulated fish, "
+            "and the measured ones as pale ghosts of the same colour at their tracked positions; the buttons "
+            "<i>simulated / measured / both</i> (key <kbd>m</kbd>) choose what is drawn. A lamp on each "
+            f"photo-eye shows the measured beam.</p><ul class=\"replays\">{''.join(items)}</ul>")
+
+
+def _run_figure(run_id: str, blob: str, page: Path | None, out: Path) -> str:
+    img = f'<img src="data:image/png;base64,{blob}" alt="tracks of run {html.escape(run_id)}">'
+    if page is None or not page.is_relative_to(out):
+        return img
+    return f'<a href="{html.escape(page.relative_to(out).as_posix())}" title="3D replay of run {html.escape(run_id)}">{img}</a>'
+
+
+def write_compare_report(c, out: Path, replays: dict[str, Path] | None = None) -> Path:
+    """The report page; ``replays``: run id -> that run's 3D replay page, linked from the report."""
     from fishfmu.outputs import write_text_atomic
     figs = {"arrivals.png": arrivals_figure(c), "track_error.png": track_error_figure(c), "kpis.png": kpi_figure(c),
             "belt_speed_error.png": belt_figure(c)}
@@ -102,14 +125,16 @@ def write_compare_report(c, out: Path) -> Path:
     summary = c.summary().round(4).to_html(index=False)
     kpis = c.kpis.pivot_table(index="run_id", columns="kpi", values=["measured", "simulated"], aggfunc="first")
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>compare {html.escape(c.dataset.name)}</title>
-<style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}} img{{max-width:100%}} table{{font-size:12px}}</style>
+<style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}} img{{max-width:100%}} table{{font-size:12px}}
+ul.replays{{columns:4}}</style>
 </head><body><h1>{html.escape(c.dataset.name)}: measured and simulated</h1>
+{replay_links(replays or {}, out)}
 <h2>Error measures across runs</h2>{summary}
 <h2>KPIs per run</h2><img src="data:image/png;base64,{blobs['kpis.png']}">{kpis.round(3).to_html()}
 <h2>Arrivals at the photo-eyes</h2><img src="data:image/png;base64,{blobs['arrivals.png']}">
 <h2>Track error against time since the drop</h2><img src="data:image/png;base64,{blobs['track_error.png']}">
 <h2>Belt speeds: logged against the drive model</h2><img src="data:image/png;base64,{blobs['belt_speed_error.png']}">
-<h2>Runs</h2>{''.join(f'<img src="data:image/png;base64,{b}">' for _, b in run_blobs)}
+<h2>Runs</h2>{''.join(_run_figure(rid, b, (replays or {}).get(rid), out) for rid, b in run_blobs)}
 </body></html>
 """
     path = out / "report.html"
