@@ -106,7 +106,7 @@ def run(
         if replay:
             raise InputError("--replay shows one run; drop it or run without --seeds")
         from fishfmu.montecarlo import run_seeds_command
-        load_scenario(scenario, overrides)
+        check_scenario(load_scenario(scenario, overrides), scenario)
         out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
         raise typer.Exit(run_seeds_command(scenario, overrides, seeds, out_dir, junit, scheduler, workers,
                                            _show_progress()))

@@ -5,8 +5,8 @@ leaves a half-written file under its final name.  ``run_info.json`` says whether
 completed (``status``): it is written as ``running`` before the run starts (:func:`mark_running`)
 and again, last, when the outputs are complete; a folder whose ``run_info.json`` still says
 ``running`` holds a run that was killed before it could write its results.  ``kpis.json`` carries
-the same ``status`` (``ok``, ``failed``: stopped by an error, ``partial``: stopped on request) and
-the simulated time reached, and nothing that depends on the machine or the wall clock, so that the
+the same ``status`` (``ok``, ``failed``: stopped by an error, ``partial``: stopped on request), the
+``error`` message (null when ok) and the simulated time reached, and nothing that depends on the machine or the wall clock, so that the
 same scenario and seed give the same bytes (wall times are in ``run_info.json``).  An output folder that holds anything not written by
 fishfmu is never touched; one from an earlier run is replaced only when asked (``overwrite``).
 """
@@ -105,6 +105,7 @@ def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
     and the simulated time it reached (nothing from the wall clock: the same run, the same bytes)."""
     doc = dict(result.kpis)
     doc["status"] = "partial" if partial else result.status
+    doc["error"] = result.error
     doc["t_end_s"] = round(result.t_end_s, 6)
     doc["expect"] = {e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok} for e in result.expect}
     return _clean(doc)

@@ -119,7 +119,7 @@ def test_crashing_fmu_exits_3_and_writes_what_was_recorded(faulty_fmu: Path, tmp
     assert (f"simulation failed: at t = {FAULT_T:.3f} s: FMU 'drive_c1': its worker process died during doStep "
             "(killed by signal SIGSEGV)") in stderr
     kpis = json.loads((out / "kpis.json").read_text())
-    assert kpis["status"] == "failed" and kpis["t_end_s"] == pytest.approx(FAULT_T)
+    assert kpis["status"] == "failed" and kpis["t_end_s"] == pytest.approx(FAULT_T) and "SIGSEGV" in kpis["error"]
     info = json.loads((out / "run_info.json").read_text())
     assert info["status"] == "failed" and "SIGSEGV" in info["error"]
     assert pd.read_csv(out / "signals.csv").t_s.max() == pytest.approx(FAULT_T)
@@ -181,6 +181,7 @@ def test_interrupted_run_writes_a_readable_partial_result(tmp_path: Path, signum
     assert f"stopped: interrupted by {signal.Signals(signum).name} at t = " in stderr
     kpis = json.loads((out / "kpis.json").read_text())
     assert kpis["status"] == "partial" and 0.0 < kpis["t_end_s"] < 600.0
+    assert kpis["error"].startswith(f"interrupted by {signal.Signals(signum).name} at t = ")
     info = json.loads((out / "run_info.json").read_text())
     assert info["status"] == "partial" and signal.Signals(signum).name in info["error"]
     assert pd.read_csv(out / "signals.csv").t_s.max() == pytest.approx(kpis["t_end_s"])
