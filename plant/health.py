@@ -69,8 +69,10 @@ class EnergyWatch:
     _members: object = None
     _mass_b: np.ndarray = field(default_factory=lambda: np.zeros(0))
     _inertia_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    _energy: dict[int, float] = field(default_factory=dict)
-    _lowest: dict[int, float] = field(default_factory=dict)
+    _energy: np.ndarray | None = None
+    """Energy of each fish after the last step (NaN: not on the line)."""
+    _lowest: np.ndarray | None = None
+    """Lowest energy of each fish since it came onto the line."""
     _bound_j: float = 0.0
     _mass_kg: np.ndarray | None = None
 
@@ -89,21 +91,23 @@ class EnergyWatch:
         if self._mass_kg is None:
             self._mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in p.prepared])
 
-    def fish_energy(self) -> dict[int, float]:
-        """Kinetic plus potential energy [J] of every fish on the line, by fish index."""
+    def fish_energy(self) -> np.ndarray:
+        """Kinetic plus potential energy [J] of every fish (NaN for fish not on the line)."""
         from plant.plant import ON_LINE
         p = self.plant
         self._body_properties()
+        n = len(p.fish_specs)
         on = p.status[p._fish_of_body] == ON_LINE
         if not np.any(on):
-            return {}
+            return np.full(n, np.nan)
         m, inertia = self._mass_b[on], self._inertia_b[on]
         e = (0.5 * m * np.einsum("ij,ij->i", p._vel[on], p._vel[on])
              + 0.5 * np.einsum("ij,ij->i", inertia, p._omega_local[on] ** 2)
              - m * (p._pos[on] @ p._gravity))
         fish = p._fish_of_body[on]
-        total = np.bincount(fish, weights=e, minlength=len(p.fish_specs))
-        return {int(k): float(total[k]) for k in np.unique(fish)}
+        total = np.bincount(fish, weights=e, minlength=n)
+        total[np.bincount(fish, minlength=n) == 0] = np.nan
+        return total
 
     def _adhesion_power_bound(self) -> float:
         force = getattr(self.plant, "_adhesion_force", None)
@@ -116,31 +120,29 @@ class EnergyWatch:
         """Call after each plant step with that step's belt speeds and loads; raises SimulationError on
         energy from nowhere."""
         now = self.fish_energy()
-        before = self._energy
+        before = self._energy if self._energy is not None else np.full(len(now), np.nan)
+        on_now, on_before = ~np.isnan(now), ~np.isnan(before)
         work = dt_s * sum(belt_load_force_n[c] * belt_speed_mps[c] for c in belt_speed_mps)
         work += dt_s * self._adhesion_power_bound()
-        entered = sum(e for k, e in now.items() if k not in before)
-        left = sum(e for k, e in before.items() if k not in now)
+        entered = float(now[on_now & ~on_before].sum())
+        left = float(before[on_before & ~on_now].sum())
         bound = self._bound_j + work + entered - left
-        total = sum(now.values())
-        for k, e in now.items():
-            self._lowest[k] = min(self._lowest.get(k, e), e)
+        total = float(now[on_now].sum())
+        self._lowest = np.where(on_now, np.fmin(self._lowest, now) if self._lowest is not None else now, np.nan)
         self._energy = now
-        if not now:
+        if not np.any(on_now):
             self._bound_j = 0.0
             return
-        mass = float(sum(self._mass_kg[k] for k in now)) if self._mass_kg is not None else 0.0
+        mass = float(self._mass_kg[on_now].sum())
         reserve = spring_reserve_j(mass)
-        excess = total - bound
-        if not np.isfinite(total):
-            excess = np.inf
+        excess = total - bound if np.isfinite(total) else np.inf
         self.last_excess_j = excess
         self.worst_excess_j = max(self.worst_excess_j, excess)
         self.worst_ratio = max(self.worst_ratio, excess / reserve)
         self.worst_j_per_kg = max(self.worst_j_per_kg, excess / mass if mass > 0 else 0.0)
         if excess > reserve:
-            gains = {k: now[k] - self._lowest[k] for k in now}
-            k = max(gains, key=lambda i: (gains[i] if np.isfinite(gains[i]) else np.inf))
+            gains = np.where(on_now, now - self._lowest, -np.inf)
+            k = int(np.argmax(np.nan_to_num(gains, nan=np.inf)))
             fish_id = self.plant.fish_specs[k].fish_id
             raise SimulationError(
                 f"numerical blow-up: the fish gained {excess:.1f} J more energy than the belts supplied "

@@ -340,3 +340,21 @@ def test_the_fishfmu_process_prints_one_line_and_no_traceback(args, expected: st
     assert proc.returncode == 2 and len(lines) == 1 and expected in lines[0], proc.stderr  # not wrapped at 40
     assert "Traceback" not in proc.stderr
     assert listing(tmp_path) == before
+
+
+def test_a_bug_is_reported_in_one_line_with_exit_4(sandbox: Path, capsys, monkeypatch):
+    import fishfmu.scenario
+
+    def broken(*args, **kwargs):
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(fishfmu.scenario, "load_scenario", broken)
+    code, err = run_main(sandbox, capsys, monkeypatch, "run", str(PAPER), "--out", "out")
+    assert code == 4 and "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("internal error (a bug in fishfmu") and "ZeroDivisionError: a bug" in lines[0]
+    monkeypatch.setenv("FISHFMU_DEBUG", "1")  # and the traceback on request
+    monkeypatch.setattr(sys, "argv", ["fishfmu", "run", str(PAPER), "--out", "out"])
+    from fishfmu.cli import main
+    with pytest.raises(ZeroDivisionError):
+        main()
