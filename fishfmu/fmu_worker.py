@@ -15,8 +15,9 @@ there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled 
   takes longer is a hang: the worker is killed and the run fails naming the FMU, the call and the
   time.  A worker that dies (a segmentation fault, ``abort()``, ``exit()`` inside the FMU) is named
   with the signal or exit code.
-- The worker ignores SIGINT (Ctrl-C reaches the whole process group; the run stops where the
-  orchestrator decides) and ends when its socket closes, so it never outlives the orchestrator.
+- The worker runs in a session of its own and ignores SIGINT, so Ctrl-C in a terminal reaches only
+  the orchestrator (which stops the run where it decides and ends its workers); a worker ends when
+  its socket closes, so it never outlives the orchestrator, even one killed outright.
 
 What it costs per step is measured by ``python -m fishfmu.fmu_worker_bench`` (see README).
 """
@@ -78,7 +79,7 @@ class WorkerFmu:
         try:
             self._proc = subprocess.Popen([sys.executable, "-m", "fishfmu.fmu_worker", str(theirs.fileno())],
                                           pass_fds=[theirs.fileno()], stdin=subprocess.DEVNULL, env=env,
-                                          start_new_session=False)
+                                          start_new_session=True)
         except OSError as exc:
             ours.close()
             raise SimulationError(f"FMU '{name}': could not start its worker process: {exc}", start_time_s) from None
