@@ -9,7 +9,8 @@ The pipeline is built so that it fits in minutes on a 2-core machine:
    candidates acting through hours post mortem (or a constant) the best-shaped one; at most
    ``max_fit`` plant candidates.  Drive droop is fitted analytically, so it costs nothing.  With
    none, the answer is ``none``.
-3. **Fit.** Each chosen plant candidate is simulated at a few strengths (its grid) on every run;
+3. **Fit.** Each chosen plant candidate is simulated at a few strengths (its grid, extended once
+   beyond an end where the error is still falling) on every run;
    the error of a run is the mean square of its residuals (lag of fish alone on a belt, extra
    separation of close pairs).  Direction-dependent friction has two parameters but they act on
    different fish (tail-first fish slip head first at a transfer, and the other way round), so one
@@ -36,8 +37,8 @@ from plant.params import PlantParams
 
 from fishfmu.candidates import CANDIDATES, PARAMETER_NAMES, fragment
 from fishfmu.evidence import evidence_table, run_level_choice
-from fishfmu.residuals import belt_residuals, drive_residuals, pair_residuals, track_errors
-from fishfmu.resim import Resim, drive_check, resimulate_many
+from fishfmu.residuals import belt_residuals, drive_residuals_averaged, pair_residuals, track_errors
+from fishfmu.resim import Resim, drive_check, resim_pool, resimulate_many
 
 MIN_GAIN = 0.02
 """A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
@@ -98,7 +99,7 @@ def drive_table(dataset: Dataset, resims: list[Resim], belt_slip: float = 0.0) -
             continue
         for c in dataset.line.conveyors:
             check = drive_check(run, r.loads, c.id, {"belt_slip": belt_slip} if belt_slip else None)
-            frames.append(drive_residuals(check).assign(run_id=run.id, conveyor_id=c.id))
+            frames.append(drive_residuals_averaged(check).assign(run_id=run.id, conveyor_id=c.id))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
         columns=["run_id", "conveyor_id", "residual_mps", "load_force_n"])
 
@@ -162,7 +163,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
     cand = CANDIDATES[name]
     values = np.array([cand.off, *sorted(grid)])
     table = {cand.off: base, **grid}
-    groups = {"direction_friction": ("tail_first", "head_first"), "adhesion": ("pairs",)}.get(name, (None,))
+    groups = _groups(name)
     # score on the runs that carry the candidate's signal (adhesion: runs with touching pairs)
     runs = sorted(r for r in base if sum(base[r].squares(g)[1] for g in groups) > 0) or sorted(base)
     ss = {g: np.array([[table[v][r].squares(g)[0] for r in runs] for v in values]) for g in groups}
@@ -193,6 +194,30 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
                               "n": int(sum(nn[g][i, j] for g in groups))}
                              for i, v in enumerate(values) for j, r in enumerate(runs)])
     return fit
+
+
+def _groups(name: str) -> tuple[str | None, ...]:
+    return {"direction_friction": ("tail_first", "head_first"), "adhesion": ("pairs",)}.get(name, (None,))
+
+
+def beyond_the_ends(name: str, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]]) -> list[float]:
+    """Values to simulate beyond the grid where a group's error is lowest at its end (within the bounds):
+    a fit stuck at the edge of its grid would report the edge, not the strength."""
+    cand = CANDIDATES[name]
+    table = {cand.off: base, **grid}
+    values = sorted(table)
+    extra = []
+    for g in _groups(name):
+        err = []
+        for v in values:
+            sq = [table[v][r].squares(g) for r in base]
+            err.append(sum(a for a, _ in sq) / max(sum(n for _, n in sq), 1))
+        i = int(np.argmin(err))
+        if i == len(values) - 1 and values[-1] < cand.bounds[1]:
+            extra.append(min(values[-1] + 1.5 * (values[-1] - values[-2]), cand.bounds[1]))
+        elif i == 0 and values[0] > cand.bounds[0]:
+            extra.append(max(values[0] - 1.5 * (values[1] - values[0]), cand.bounds[0]))
+    return sorted({round(v, 6) for v in extra} - set(values))
 
 
 def fit_drive_droop(z: float, drive: pd.DataFrame, rng: np.random.Generator) -> CandidateFit:
@@ -249,15 +274,23 @@ class Diagnosis:
 def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, max_fit: int = 3,
              seed: int = 0, progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring)."""
+    pool = resim_pool(workers)  # kept for every re-simulation below: a new process pays for importing Exudyn
+    try:
+        return _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None))
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+
+
+def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int,
+              say: Callable[[str], None]) -> Diagnosis:
     from plant.kpis import compute_kpis
-    base = base or PlantParams()
-    say = progress or (lambda text: None)
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = dataset.runs
     say(f"baseline: re-simulating {len(runs)} runs")
-    base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), workers)
+    base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
     baseline = residuals_of(dataset, base_sims)
     drive = drive_table(dataset, base_sims)
     timing["baseline"] = time.perf_counter() - t0
@@ -278,18 +311,24 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
         t1 = time.perf_counter()
         cand = CANDIDATES[name]
         z = float(evidence.set_index("candidate").loc[name, "evidence"])
-        grid = {}
         # adhesion acts only where fish touch: simulate just the runs with touching pairs
         fit_runs = [r for r in runs if name != "adhesion" or len(base_by_run.get(r.id, baseline[0]).pairs)] or runs
         sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
-        for v in cand.grid:
-            say(f"fit {name}: {v:g} {cand.unit} on {len(fit_runs)} runs")
-            sims = resimulate_many(dataset.line, fit_runs, [cand.params(base, v)] * len(fit_runs), workers)
-            res = residuals_of(sub, sims)
-            grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
-            missing = set(base_by_run) - set(grid[v])
-            for rid in missing:  # a failed simulation counts as no better than the baseline
-                grid[v][rid] = base_by_run[rid]
+        grid: dict[float, dict[str, RunResiduals]] = {}
+        values = list(cand.grid)
+        for _ in range(2):  # the grid, then once more beyond an end where the error is still falling
+            say(f"fit {name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
+            # the whole grid at once, so that the workers stay busy to the end
+            sims = resimulate_many(dataset.line, fit_runs * len(values),
+                                   [cand.params(base, v) for v in values for _ in fit_runs], pool=pool, workers=1)
+            for k, v in enumerate(values):
+                res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
+                grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
+                for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the baseline
+                    grid[v][rid] = base_by_run[rid]
+            values = beyond_the_ends(name, base_by_run, grid)
+            if not values:
+                break
         fits.append(fit_plant_candidate(name, z, base_by_run, grid, rng))
         timing[f"fit_{name}"] = time.perf_counter() - t1
     droop_z = float(evidence.set_index("candidate").loc["drive_droop", "evidence"])
@@ -308,7 +347,7 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
         t1 = time.perf_counter()
         say(f"confirming {cause} with {winner.values}")
         p = CANDIDATES[cause].params(base, *[winner.values[k] for k in PARAMETER_NAMES[cause]])
-        sims = resimulate_many(dataset.line, runs, [p] * len(runs), workers)
+        sims = resimulate_many(dataset.line, runs, [p] * len(runs), pool=pool, workers=1)
         kpis_after = [compute_kpis(_sim_run(r, s), dataset.line, dataset.kpi) for r, s in zip(runs, sims)]
         after_rms = {b.run_id: b.track_rms_m for b in residuals_of(dataset, sims)}
         timing["confirm"] = time.perf_counter() - t1

@@ -123,7 +123,6 @@ def run_level_choice(table: pd.DataFrame) -> list[str]:
     if len(t) > 1 and t.iloc[1]["shape_rss"] <= 1.2 * best["shape_rss"]:
         out.append(t.iloc[1]["candidate"])
     return out
-    return pd.DataFrame(result.values())
 
 
 def pair_evidence(pairs: pd.DataFrame, rng: np.random.Generator) -> dict:

@@ -160,3 +160,21 @@ def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5) -> pd.DataFrame:
     out = check[steady].copy()
     out["residual_mps"] = out["measured_mps"] - out["model_mps"]
     return out
+
+
+def drive_residuals_averaged(check: pd.DataFrame, window_s: float = 0.5, settle_s: float = 0.5) -> pd.DataFrame:
+    """:func:`drive_residuals` averaged over windows of ``window_s`` (residual, load and time).
+
+    A drive log's sample-to-sample noise is no model error, but at 100 Hz it can be most of the
+    residual's variance and hide a droop of a few mm/s; droop follows the load, which changes over
+    tenths of a second, so averaging keeps it and removes most of the noise.  Windows with fewer
+    than half their samples (cut by a setpoint change) are left out."""
+    steady = drive_residuals(check, settle_s)
+    if steady.empty:
+        return steady
+    dt = float(np.median(np.diff(check["t_s"].to_numpy()))) if len(check) > 1 else window_s
+    need = max(1, int(0.5 * window_s / max(dt, 1e-9)))
+    binned = steady.assign(window=np.floor(steady["t_s"].to_numpy() / window_s).astype(int))
+    g = binned.groupby("window")
+    out = g[["t_s", "residual_mps", "load_force_n", "setpoint_mps", "measured_mps", "model_mps"]].mean()
+    return out[g.size() >= need].reset_index(drop=True)

@@ -100,17 +100,39 @@ def _task(args: tuple) -> Resim:
                      str(exc))
 
 
-def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
-                    seed: int = 0, record_poses: bool = False) -> list[Resim]:
-    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order.
-    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
-    workers = max(1, min(workers or os.cpu_count() or 1, len(runs)))
-    tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
-    if workers == 1 or len(tasks) == 1:
-        return [_task(t) for t in tasks]
+def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
+    """Worker processes to keep for several :func:`resimulate_many` calls (each new process pays for
+    importing Exudyn); None when one process is asked for.  Use it as a context manager."""
+    workers = max(1, workers or os.cpu_count() or 1)
+    if workers == 1:
+        return None
     import multiprocessing
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return list(pool.map(_task, tasks))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+
+
+def _cost(run: Run) -> float:
+    """Rough cost of re-simulating a run (fish x seconds), to start the longest first."""
+    return len(run.fish) * run_duration_s(run)
+
+
+def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
+                    seed: int = 0, pool: ProcessPoolExecutor | None = None,
+                    record_poses: bool = False) -> list[Resim]:
+    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order.
+
+    With ``pool`` (from :func:`resim_pool`) its processes are used; otherwise a pool of ``workers``
+    lives for this call.  The longest runs start first, so that workers finish together.
+    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
+    tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
+    if pool is None:
+        workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+        if workers == 1 or len(tasks) == 1:
+            return [_task(t) for t in tasks]
+        with resim_pool(workers) as own:
+            return resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses)
+    order = sorted(range(len(tasks)), key=lambda i: -_cost(tasks[i][1]))
+    futures = {i: pool.submit(_task, tasks[i]) for i in order}
+    return [futures[i].result() for i in range(len(tasks))]
 
 
 def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:

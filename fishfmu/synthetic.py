@@ -130,17 +130,32 @@ def degrade(run: Run, noise: Noise, rng: np.random.Generator) -> Run:
                    filled={})
 
 
+def _simulate_task(args: tuple) -> Run:
+    return simulate_run(*args)
+
+
 def make_dataset(path: str | Path, effect: str, line: Line, kpi: KpiSettings, runs: list[tuple[float, str, int]],
                  speeds: list[float], seed: int = 0, strength: float = 1.0, noise: Noise = Noise(),
-                 duration_s: float = 60.0) -> Path:
-    """Simulate runs (hours post mortem, pattern, number of fish) with ``effect`` on and write a dataset."""
+                 duration_s: float = 60.0, workers: int | None = None) -> Path:
+    """Simulate runs (hours post mortem, pattern, number of fish) with ``effect`` on and write a dataset.
+
+    Runs are simulated in ``workers`` processes (default: all cores); each run draws its fish and its
+    noise from its own stream of ``seed``, so the dataset does not depend on the number of workers."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
     params, drive = hidden_effect(effect, strength)
-    rng = np.random.default_rng(seed)
-    out = []
-    for i, (hours, pattern, n_fish) in enumerate(runs):
-        fish = run_fish(n_fish, hours, pattern, rng, line)
-        run = simulate_run(f"r{i + 1:02d}", line, kpi, fish, speeds, params, drive, duration_s)
-        out.append(replace(degrade(run, noise, rng), hours_post_mortem=hours, notes=f"{pattern}, {n_fish} fish"))
+    streams = [np.random.default_rng([seed, i]) for i in range(len(runs))]
+    tasks = [(f"r{i + 1:02d}", line, kpi, run_fish(n_fish, hours, pattern, rng, line), speeds, params, drive,
+              duration_s) for i, ((hours, pattern, n_fish), rng) in enumerate(zip(runs, streams))]
+    workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+    if workers == 1:
+        simulated = [_simulate_task(t) for t in tasks]
+    else:
+        import multiprocessing
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            simulated = list(pool.map(_simulate_task, tasks))
+    out = [replace(degrade(run, noise, rng), hours_post_mortem=hours, notes=f"{pattern}, {n_fish} fish")
+           for run, rng, (hours, pattern, n_fish) in zip(simulated, streams, runs)]
     ds = Dataset(name=f"synthetic-{effect}", description="simulated with a hidden effect (see fishfmu.synthetic)",
                  line=line, kpi=kpi, runs=out)
     write_dataset(ds, path)
