@@ -25,7 +25,7 @@ from plant.kpis import compute_kpis
 from plant.measured import Dataset, Run
 from plant.plant import LEFT, WAITING, Plant
 from plant.population import FishSpec, fish_to_frame, sample_fish
-from plant.recorder import RunRecorder
+from plant.recorder import RunRecorder, pose_record
 
 from fishfmu.fmu_files import open_fmu
 from fishfmu.interrupt import StopRequest
@@ -76,7 +76,7 @@ class RunResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     drop_adjustments: list[Any] = field(default_factory=list)
     poses: dict[str, np.ndarray] | None = None
-    """Body poses at 25 Hz and body outlines (see :func:`pose_record`), when asked for."""
+    """Body poses at 25 Hz and body outlines (see :func:`plant.recorder.pose_record`), when asked for."""
     energy_watch: dict[str, float] = field(default_factory=dict)
     """The energy watch's largest rise without a source (:mod:`plant.health`): J, and as a fraction
     of the allowed reserve (a blow-up is reported at 1)."""
@@ -103,35 +103,6 @@ def fmu_path(instance) -> Path:
         from fishfmu.fmu_build import builtin_fmu
         return builtin_fmu(instance.builtin)
     return Path(instance.path)
-
-
-def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | None:
-    """Recorded body poses plus what is needed to draw the bodies (poses.npz in a run folder).
-
-    ``body_fish`` (B,) fish index of each body, ``fish_id`` (N,), ``section_body``/``section_x``/
-    ``section_half_height``/``section_half_width`` (S,): each body's outline as cross-sections along
-    its local x axis (local y towards the back, local z the thickness).
-    """
-    poses = recorder.poses()
-    if poses is None:
-        return None
-    body, x, half_h, half_w = [], [], [], []
-    for k, prep in enumerate(plant.prepared):
-        for i, b in enumerate(prep.geometry.bodies):
-            for (sx, hh, hw) in b.outline:
-                body.append(5 * k + i)
-                x.append(sx)
-                half_h.append(hh)
-                half_w.append(hw)
-    poses.update({
-        "fish_id": np.array([f.fish_id for f in plant.fish_specs]),
-        "body_fish": np.repeat(np.arange(len(plant.fish_specs)), 5).astype(np.int32),
-        "section_body": np.array(body, dtype=np.int32),
-        "section_x": np.array(x, dtype=np.float32),
-        "section_half_height": np.array(half_h, dtype=np.float32),
-        "section_half_width": np.array(half_w, dtype=np.float32),
-    })
-    return poses
 
 
 def check_scenario(scenario: Scenario, scenario_file: str | Path | None = None) -> None:
