@@ -245,16 +245,7 @@ class Plant:
                     z_mid += need
                     self.drop_adjustments.append(DropAdjustment(spec.fish_id, need))
         mid[2] = z_mid
-        idx, values = pose_coordinates(self.model, slot, mid, rot)
-        sd = self.model.mbs.systemData
-        q = sd.GetODE2Coordinates()
-        v = sd.GetODE2Coordinates_t()
-        q[idx] = values
-        v[idx] = 0.0
-        sd.SetODE2Coordinates(q)
-        sd.SetODE2Coordinates_t(v)
-        for load in fm.gravity_loads:
-            self.model.mbs.SetLoadParameter(load, "loadVector", list(self._gravity))
+        self._place(slot, mid, rot, list(self._gravity))
         self.status[k] = ON_LINE
         self._read_state()
 
@@ -450,8 +441,12 @@ class Plant:
             self._read_state()
 
     def _park(self, slot: int, where: np.ndarray) -> None:
-        fm = self.model.fish[slot]
-        idx, values = pose_coordinates(self.model, slot, where, np.eye(3))
+        self._place(slot, where, np.eye(3), [0.0, 0.0, 0.0])
+
+    def _place(self, slot: int, mid: np.ndarray, rot: np.ndarray, gravity: list[float]) -> None:
+        """Put the fish of ``slot`` at rest at ``mid`` with orientation ``rot``, under ``gravity``
+        (none while parked)."""
+        idx, values = pose_coordinates(self.model, slot, mid, rot)
         sd = self.model.mbs.systemData
         q = sd.GetODE2Coordinates()
         v = sd.GetODE2Coordinates_t()
@@ -459,8 +454,8 @@ class Plant:
         v[idx] = 0.0
         sd.SetODE2Coordinates(q)
         sd.SetODE2Coordinates_t(v)
-        for load in fm.gravity_loads:
-            self.model.mbs.SetLoadParameter(load, "loadVector", [0.0, 0.0, 0.0])
+        for load in self.model.fish[slot].gravity_loads:
+            self.model.mbs.SetLoadParameter(load, "loadVector", gravity)
 
     def _check_health(self) -> None:
         body_on = self.status[self._fish_of_body] == ON_LINE
