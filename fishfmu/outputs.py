@@ -9,6 +9,8 @@ the same ``status`` (``ok``, ``failed``: stopped by an error, ``partial``: stopp
 ``error`` message (null when ok) and the simulated time reached, and nothing that depends on the machine or the wall clock, so that the
 same scenario and seed give the same bytes (wall times are in ``run_info.json``).  An output folder that holds anything not written by
 fishfmu is never touched; one from an earlier run is replaced only when asked (``overwrite``).
+What is fishfmu's is decided by the folder's manifest alone (:mod:`fishfmu.ownership`); every
+writer here records what it writes there before the file appears under its name.
 """
 
 from __future__ import annotations
@@ -19,37 +21,24 @@ import platform
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 from xml.etree import ElementTree as ET
 
 from plant.errors import InputError
 from plant.measured import write_dataset
 
+from fishfmu import ownership
 from fishfmu.runner import RunResult
 from fishfmu.scenario import resolved_toml
 
 MARKER = "run_info.json"
 
 
-def prepare_out_dir(out: str | Path, overwrite: bool) -> Path:
-    """Create ``out``; refuse a folder with foreign files, or an earlier run unless ``overwrite``."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder", file=out)
-    if out.exists() and any(out.iterdir()):
-        if not (out / MARKER).exists():
-            raise InputError("output folder is not empty and was not written by fishfmu; choose another --out",
-                             file=out)
-        if not overwrite:
-            try:
-                unfinished = json.loads((out / MARKER).read_text()).get("status") == "running"
-            except (OSError, ValueError, AttributeError):
-                unfinished = False
-            what = "an earlier run that did not finish (killed?)" if unfinished else "an earlier run"
-            raise InputError(f"output folder holds {what}; pass --overwrite to replace it", file=out)
-        shutil.rmtree(out)
-    out.mkdir(parents=True, exist_ok=True)
-    return out
+def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Path | None] = (),
+                    command: str | None = None) -> Path:
+    """Create ``out``; refuse a folder with foreign files, an input in it, or an earlier run unless
+    ``overwrite`` (see :func:`fishfmu.ownership.prepare_out_dir`)."""
+    return ownership.prepare_out_dir(out, overwrite, inputs, command)
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -57,16 +46,28 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    """Write under a temporary name, record it in the folder's manifest, rename into place.
+    An OS error (read-only, disk full, not a folder) is an :class:`~fishfmu.ownership.OutputError`."""
+    path = Path(path)
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    except OSError as exc:
+        raise ownership.os_error(exc, path) from None
+    try:
+        ownership.note_pending(tmp, path, data)
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as exc:
+        try:
+            Path(tmp).unlink(missing_ok=True)
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise ownership.os_error(exc, path) from None
         raise
 
 
@@ -79,8 +80,10 @@ def mark_running(out: Path, scenario_file: str | Path | None = None) -> None:
 def discard_if_unused(out: Path) -> None:
     """Remove ``out`` again if it holds nothing but the ``running`` marker (bad input found late)."""
     try:
-        if [p.name for p in out.iterdir()] == [MARKER]:
-            (out / MARKER).unlink()
+        if [p.name for p in out.iterdir() if not ownership.is_internal(p.name)] == [MARKER]:
+            ownership.forget(out)
+            for p in out.iterdir():
+                p.unlink()
             out.rmdir()
     except OSError:
         pass
@@ -120,7 +123,24 @@ def _clean(x: Any) -> Any:
 
 
 def write_outputs(result: RunResult, out: Path, partial: bool = False, report: bool = True) -> dict[str, Path]:
-    """Write every output of a run into ``out`` (already prepared); returns the paths written."""
+    """Write every output of a run into ``out`` (already prepared); returns the paths written.
+
+    A write that fails (disk full, read-only) raises an :class:`~fishfmu.ownership.OutputError`
+    saying so; ``run_info.json`` is then set to ``failed`` with that message when it still can be."""
+    try:
+        return _write_outputs(result, out, partial, report)
+    except (ownership.OutputError, OSError) as exc:
+        err = exc if isinstance(exc, ownership.OutputError) else ownership.os_error(exc, exc.filename or out)
+        try:
+            write_json_atomic(out / MARKER, {"status": "failed", "error": f"writing the outputs failed: {err}",
+                                             "t_end_s": round(result.t_end_s, 6)})
+            note = f"{MARKER} says failed"
+        except OSError:
+            note = f"{MARKER} could not be updated and still says running"
+        raise ownership.OutputError(f"{err.message}; the outputs are incomplete ({note})", file=err.file) from None
+
+
+def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) -> dict[str, Path]:
     paths = {
         "scenario": out / "scenario.resolved.toml",
         "kpis": out / "kpis.json",
@@ -136,16 +156,19 @@ def write_outputs(result: RunResult, out: Path, partial: bool = False, report: b
     tmp_run = out / ".run.part"
     if tmp_run.exists():
         shutil.rmtree(tmp_run)
+    ownership.note_temp(tmp_run)
     write_dataset(result.dataset(), tmp_run)
     if paths["run"].exists():
         shutil.rmtree(paths["run"])
+    ownership.record_tree_as(tmp_run, paths["run"])
     os.replace(tmp_run, paths["run"])
     if result.poses is not None:
         paths["poses"] = out / "poses.npz"
         tmp = out / ".poses.part.npz"
         import numpy as np
+        ownership.note_temp(tmp)
         np.savez_compressed(tmp, **result.poses)
-        os.replace(tmp, paths["poses"])
+        ownership.replace_into(tmp, paths["poses"])
     if report:
         from fishfmu.report import write_report
         write_report(result, out)
