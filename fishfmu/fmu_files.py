@@ -14,6 +14,7 @@ Every problem is an :class:`~plant.errors.InputError` naming the file and the me
 from __future__ import annotations
 
 import difflib
+import os
 import platform
 import re
 import shutil
@@ -142,6 +143,11 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
     if md.coSimulation is None:
         raise InputError("the FMU offers no co-simulation interface (model exchange only); "
                          "export it for co-simulation", file=path)
+    identifier_problem = model_identifier_problem(md.coSimulation.modelIdentifier)
+    if identifier_problem:
+        raise InputError(f"modelDescription.xml: CoSimulation modelIdentifier {md.coSimulation.modelIdentifier!r} "
+                         f"{identifier_problem}; it must be a plain file name (the library is "
+                         f"{LINUX_BINARY_DIR}/<modelIdentifier>.so inside the archive)", file=path)
     binary = unzip_dir / LINUX_BINARY_DIR / f"{md.coSimulation.modelIdentifier}.so"
     if not binary.is_file():
         found = sorted(p.name for p in (unzip_dir / "binaries").iterdir()) if (unzip_dir / "binaries").is_dir() else []
@@ -152,6 +158,64 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
         raise InputError(f"archive member '{LINUX_BINARY_DIR}/{binary.name}' {problem}; rebuild or re-export the FMU "
                          f"for Linux on {platform.machine()}", file=path)
     return md
+
+
+_IDENTIFIER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]*")
+MAX_IDENTIFIER_CHARS = 200
+
+
+def model_identifier_problem(identifier: Any) -> str | None:
+    """Why ``identifier`` cannot name the FMU's library safely, or None for a plain file name.
+
+    fmpy loads ``binaries/linux64/<modelIdentifier>.so`` joined to the unpack folder: an absolute
+    identifier, ``..`` or a path separator would load a library from anywhere on the machine.
+
+    >>> model_identifier_problem("conveyor_drive") is None
+    True
+    >>> model_identifier_problem("../../../tmp/evil")
+    "contains '..'"
+    >>> model_identifier_problem("/tmp/evil")
+    'is an absolute path'
+    """
+    if not isinstance(identifier, str) or identifier == "":
+        return "is empty"
+    if "\0" in identifier:
+        return "contains a NUL character"
+    if identifier.startswith(("/", "\\")) or _DRIVE_LETTER.match(identifier):
+        return "is an absolute path"
+    if ".." in identifier:
+        return "contains '..'"
+    for sep in ("/", "\\"):
+        if sep in identifier:
+            return f"contains a path separator {sep!r}"
+    if len(identifier) > MAX_IDENTIFIER_CHARS:
+        return f"is longer than {MAX_IDENTIFIER_CHARS} characters"
+    if not _IDENTIFIER.fullmatch(identifier):
+        return "contains characters other than letters, digits and _ . + - (or starts with one of . + -)"
+    return None
+
+
+def library_path(fmu: OpenedFmu) -> Path:
+    """The FMU's shared library inside its unpack folder, checked right before it is loaded.
+
+    The modelIdentifier is checked again (an ``OpenedFmu`` may have been built or pickled
+    elsewhere) and the resolved path of the library must lie inside the resolved unpack folder
+    (no symbolic link or identifier leads out of it); else an InputError naming the FMU file.
+    """
+    identifier = fmu.model_identifier
+    problem = model_identifier_problem(identifier)
+    if problem:
+        raise InputError(f"modelDescription.xml: CoSimulation modelIdentifier {identifier!r} {problem}; refusing to "
+                         "load a library from outside the archive", file=fmu.path)
+    root = Path(fmu.unzip_dir).resolve()
+    binary = (root / LINUX_BINARY_DIR / f"{identifier}.so").resolve()
+    if root not in binary.parents:
+        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{identifier}.so' resolves to {binary}, outside the "
+                         "unpacked archive; refusing to load it", file=fmu.path)
+    if not binary.is_file():
+        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{identifier}.so' is missing from the unpacked archive",
+                         file=fmu.path)
+    return binary
 
 
 ELF_MACHINES = {3: "x86 (32-bit)", 40: "ARM (32-bit)", 62: "x86_64", 183: "aarch64", 243: "RISC-V", 21: "PowerPC64"}
@@ -201,14 +265,60 @@ def open_fmu(path: str | Path, *, max_unpacked_bytes: int = MAX_UNPACKED_BYTES,
     The folder is removed when the ``with`` block ends or any check fails.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("FMU file not found", file=path)
-    if not zipfile.is_zipfile(path):
-        raise InputError("not a zip archive (an FMU is a zip file)", file=path)
+    with _open_regular_file(path) as fh:
+        if not zipfile.is_zipfile(fh):
+            raise InputError("not a zip archive (an FMU is a zip file)", file=path)
+        with _unpacked(path, fh, max_unpacked_bytes, max_members) as fmu:
+            yield fmu
+
+
+@contextmanager
+def _open_regular_file(path: Path) -> Iterator[Any]:
+    """``path`` opened for reading, if it is a regular file (following symbolic links); else an
+    InputError saying what it is.  A FIFO or device is never read: the file is opened without
+    blocking and checked with fstat on that very descriptor before a byte is read."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise InputError("FMU file not found", file=path) from None
+    except OSError as exc:
+        raise InputError(f"FMU file cannot be read: {exc.strerror}", file=path) from None
+    problem = _not_regular(st.st_mode)
+    if problem:
+        raise InputError(problem, file=path)
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except OSError as exc:
+        raise InputError(f"FMU file cannot be read: {exc.strerror}", file=path) from None
+    try:
+        problem = _not_regular(os.fstat(fd).st_mode)  # what was opened, should it have been swapped since
+        if problem:
+            raise InputError(problem, file=path)
+        os.set_blocking(fd, True)
+        fh = os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+    with fh:
+        yield fh
+
+
+def _not_regular(mode: int) -> str | None:
+    if stat.S_ISREG(mode):
+        return None
+    if stat.S_ISDIR(mode):
+        return "is a directory, not an .fmu file"
+    kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else
+            "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "of an unknown kind")
+    return f"is not a regular file ({kind}); an FMU is a .fmu file"
+
+
+@contextmanager
+def _unpacked(path: Path, fh: Any, max_unpacked_bytes: int, max_members: int) -> Iterator[OpenedFmu]:
     unzip_dir = Path(tempfile.mkdtemp(prefix="fishfmu-fmu-"))
     try:
         try:
-            with zipfile.ZipFile(path) as zf:
+            with zipfile.ZipFile(fh) as zf:
                 _check_members(path, zf, max_unpacked_bytes, max_members)
                 _unpack(path, zf, unzip_dir, max_unpacked_bytes)
         except (zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError, EOFError, OSError,

@@ -7,11 +7,27 @@ raised as :class:`plant.errors.SimulationError` naming the FMU, the call, the st
 A binary that cannot be loaded (wrong platform, missing libraries) is bad input
 (:class:`plant.errors.InputError` naming the file).  After a status of fatal, no further call
 is made to the FMU (FMI 2.0: its state is undefined), not even terminate or freeInstance.
+
+**The FMU's log.** Every instance gets a logger callback that keeps the last
+:data:`LOG_LINES` messages (nothing is printed); when a call fails, the last message of status
+warning, error or fatal that the FMU logged during that call is appended to the error, on one
+line and at most :data:`LOG_MESSAGE_CHARS` characters: ``FMU 'drive_c1': setReal returned error:
+"fmi2SetReal: 'speed_setpoint' = 9 is outside its range [-2, 2]"``.
+
+**Values.** ``get`` gives Real as float, Integer and Enumeration as int, Boolean as bool and
+String as str (fmpy gives C ints and UTF-8 bytes); ``set`` takes the same.
+
+**The library loaded** is ``binaries/linux64/<modelIdentifier>.so`` inside the unpacked archive,
+checked by :func:`fishfmu.fmu_files.library_path` right before loading and passed to fmpy by
+its full path.
 """
 
 from __future__ import annotations
 
+import itertools
 import os
+import re
+from collections import deque
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -20,10 +36,70 @@ from fmpy.fmi2 import FMU2Slave
 
 from plant.errors import InputError, SimulationError
 
-from fishfmu.fmu_files import OpenedFmu
+from fishfmu.fmu_files import OpenedFmu, library_path
 
 FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 SETTABLE_BEFORE_INIT = ("parameter", "input")
+LOG_LINES = 20
+"""Log messages kept per FMU instance (the newest)."""
+LOG_MESSAGE_CHARS = 300
+"""Longest FMU log message quoted in an error (longer ones are cut, ending in ...)."""
+_WHITESPACE = re.compile(r"\s+")
+
+
+def one_line(text: str, limit: int = LOG_MESSAGE_CHARS) -> str:
+    """``text`` with every run of whitespace (newlines included) as one space, cut to ``limit`` characters.
+
+    >>> one_line("setpoint 9 m/s\\n  out of range")
+    'setpoint 9 m/s out of range'
+    >>> one_line("x" * 10, limit=6)
+    'xxx...'
+    """
+    text = _WHITESPACE.sub(" ", text).strip()
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+_LOGS: dict[int, "FmuLog"] = {}
+"""The log of each live instance in this process, by the componentEnvironment its FMU passes back.
+
+fmpy's native logger proxy (which formats the FMU's printf-style messages) keeps one Python
+logger for the whole process, so every instance has the same logger, :func:`_dispatch_log_message`,
+and a componentEnvironment of its own that says whose message it is."""
+_LOG_KEYS = itertools.count(1)
+_LOGGER: Any = None
+
+
+def _dispatch_log_message(env: int | None, instance: bytes | None, status: int, category: bytes | None,
+                          message: bytes | None) -> None:
+    try:
+        log = _LOGS.get(env or 0)
+        if log is not None:
+            log.add(status, category, message)
+    except Exception:  # an exception must not cross into the FMU's C code
+        pass
+
+
+class FmuLog:
+    """The newest log messages of one FMU instance: (sequence number, status, category, message)."""
+
+    def __init__(self, max_lines: int = LOG_LINES) -> None:
+        self.lines: deque[tuple[int, int, str, str]] = deque(maxlen=max_lines)
+        self.count = 0
+
+    def add(self, status: int, category: bytes | str | None, message: bytes | str | None) -> None:
+        def text(b: bytes | str | None) -> str:
+            return b.decode("utf-8", "replace") if isinstance(b, bytes) else (b or "")
+        self.count += 1
+        self.lines.append((self.count, int(status), text(category), text(message)))
+
+    def last_problem(self, since: int = 0) -> str | None:
+        """The last message of status warning or worse logged after message number ``since``
+        (errors and fatal ones first), as one line; None if there is none."""
+        recent = [line for line in self.lines if line[0] > since and line[1] >= 1 and line[3].strip()]
+        if not recent:
+            return None
+        worst = [line for line in recent if line[1] >= 3] or recent
+        return one_line(worst[-1][3])
 
 
 def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any],
@@ -75,24 +151,66 @@ class FmuInstance:
         md = fmu.model_description
         self._time = start_time_s
         self._fatal = False
+        self.log = FmuLog()
+        binary = library_path(fmu)  # inside the unpacked archive, checked right before loading
         cwd = os.getcwd()
         try:
             self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
-                                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+                                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name,
+                                    libraryPath=str(binary))
         except Exception as exc:  # fmpy: "Failed to load shared library ..." (dlopen's reason) or a missing function
-            reason = str(exc).replace(str(fmu.unzip_dir) + os.sep, "")
+            reason = str(exc)
+            for root in {str(Path(fmu.unzip_dir).resolve()), str(fmu.unzip_dir)}:
+                reason = reason.replace(root + os.sep, "")
+            reason = one_line(reason, 2 * LOG_MESSAGE_CHARS)
             raise InputError(f"FMU '{name}': its binary cannot be loaded on this machine: {reason}",
                              file=fmu.path) from None
         finally:
             os.chdir(cwd)  # fmpy changes into the binary's folder to load it and stays there if that fails
-        self._call("instantiate", self._slave.instantiate, loggingOn=False)
+        self._callbacks = self._logging_callbacks()  # kept alive as long as the instance
+        try:
+            self._call("instantiate", self._slave.instantiate, loggingOn=False, callbacks=self._callbacks)
+        except BaseException:
+            _LOGS.pop(self._log_key, None)
+            raise
         self._instantiated = True
-        self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
-        self._call("enterInitializationMode", self._slave.enterInitializationMode)
-        self.set(parameters)
-        self._call("exitInitializationMode", self._slave.exitInitializationMode)
+        try:
+            self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
+            self._call("enterInitializationMode", self._slave.enterInitializationMode)
+            self.set(parameters)
+            self._call("exitInitializationMode", self._slave.exitInitializationMode)
+        except BaseException:
+            self.terminate()  # nobody else holds this instance yet
+            raise
+
+    def _logging_callbacks(self) -> Any:
+        """fmpy's callback functions whose logger keeps this instance's messages in ``self.log``."""
+        from ctypes import c_void_p
+
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackLoggerTYPE)
+        from fmpy.fmi2 import calloc, free
+        global _LOGGER
+        if _LOGGER is None:
+            _LOGGER = fmi2CallbackLoggerTYPE(_dispatch_log_message)
+        self._log_key = next(_LOG_KEYS)
+        _LOGS[self._log_key] = self.log
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = _LOGGER
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        callbacks.componentEnvironment = c_void_p(self._log_key)
+        try:  # fmpy's native proxy formats the FMU's printf-style message before it reaches Python
+            from ctypes import byref
+
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(callbacks))
+        except Exception:  # no proxy: messages with format arguments arrive unformatted
+            pass
+        return callbacks
 
     def _call(self, what: str, fn, *args: Any, **kwargs: Any) -> Any:
+        since = self.log.count
         try:
             return fn(*args, **kwargs)
         except Exception as exc:  # fmpy raises FMICallException (with .status) or OSError from the library
@@ -100,8 +218,11 @@ class FmuInstance:
             if status == 4:
                 self._fatal = True
             text = FMI2_STATUS.get(status, str(status)) if status is not None else type(exc).__name__
-            raise SimulationError(f"FMU '{self.name}': {what} returned {text}"
-                                  + ("" if status is not None else f" ({exc})"), self._time) from None
+            detail = "" if status is not None else f" ({one_line(str(exc))})"
+            said = self.log.last_problem(since)
+            if said:
+                detail += f': "{said}"'
+            raise SimulationError(f"FMU '{self.name}': {what} returned {text}{detail}", self._time) from None
 
     def _refs(self, names: Iterable[str]) -> dict[str, list[tuple[str, int]]]:
         key = tuple(names)
@@ -127,7 +248,8 @@ class FmuInstance:
             elif t == "Boolean":
                 self._call("setBoolean", self._slave.setBoolean, vrs, [bool(v) for v in vals])
             elif t == "String":
-                self._call("setString", self._slave.setString, vrs, [str(v) for v in vals])
+                self._call("setString", self._slave.setString, vrs,
+                           [v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in vals])
 
     def get(self, names: Iterable[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
@@ -136,6 +258,11 @@ class FmuInstance:
             getter = {"Real": self._slave.getReal, "Integer": self._slave.getInteger,
                       "Boolean": self._slave.getBoolean, "String": self._slave.getString}[t]
             vals = self._call(f"get{t}", getter, vrs)
+            if t == "Boolean":
+                vals = [bool(v) for v in vals]
+            elif t == "String":
+                vals = [v.decode("utf-8", "replace") if isinstance(v, bytes) else ("" if v is None else str(v))
+                        for v in vals]
             out.update({n: v for (n, _), v in zip(refs, vals)})
         return out
 
@@ -147,9 +274,11 @@ class FmuInstance:
     def terminate(self) -> None:
         """End and free the instance; safe to call twice and after a failure."""
         if not getattr(self, "_instantiated", False):
+            _LOGS.pop(getattr(self, "_log_key", 0), None)
             return
         self._instantiated = False
         if self._fatal:
+            _LOGS.pop(self._log_key, None)
             return  # FMI 2.0: after fmi2Fatal no function of the FMU may be called
         try:
             self._slave.terminate()
@@ -159,3 +288,4 @@ class FmuInstance:
             self._slave.freeInstance()
         except Exception:
             pass
+        _LOGS.pop(self._log_key, None)

@@ -15,6 +15,8 @@ there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled 
   takes longer is a hang: the worker is killed and the run fails naming the FMU, the call and the
   time.  A worker that dies (a segmentation fault, ``abort()``, ``exit()`` inside the FMU) is named
   with the signal or exit code.
+- Values and errors come back as in-process: Booleans as bool, Strings as str, and an FMU's
+  failure with the message it logged (built in the worker by ``FmuInstance``).
 - The worker runs in a session of its own and ignores SIGINT, so Ctrl-C in a terminal reaches only
   the orchestrator (which stops the run where it decides and ends its workers); a worker ends when
   its socket closes, so it never outlives the orchestrator, even one killed outright.
@@ -201,7 +203,7 @@ class WorkerFmu:
 
 def serve(conn: Connection) -> None:
     """The worker's loop: one FmuInstance, one answer per message, until terminate or end of input."""
-    from fishfmu.fmu_instance import FmuInstance
+    from fishfmu.fmu_instance import FmuInstance, one_line
     instance: FmuInstance | None = None
     name = "?"
     failed = False
@@ -240,7 +242,8 @@ def serve(conn: Connection) -> None:
             conn.send(("simulation_error", exc.message, exc.time_s))
         except Exception as exc:  # anything else the FMU's wrapper raised: still this FMU's failure
             failed = True
-            conn.send(("simulation_error", f"FMU '{name}': {op} failed: {type(exc).__name__}: {exc}", None))
+            conn.send(("simulation_error", f"FMU '{name}': {op} failed: {type(exc).__name__}: {one_line(str(exc))}",
+                       None))
 
 
 def _call(instance, name: str, request: tuple) -> Any:

@@ -12,6 +12,12 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
 one-step FMU under Gauss-Seidel, the others use its end-of-step outputs for the whole block, and
 they are held until its next step.
+
+**Values between components** keep the type of their variable: Real as float, Integer as int,
+Boolean as bool, String as str (decoded from UTF-8), in-process and with FMUs in worker
+processes alike.  ``signals.csv`` (:meth:`CoSimulation.signal_frame`, written by pandas) holds
+numbers as numbers, Booleans as ``True``/``False`` (pandas reads them back as bool) and strings as
+text.
 """
 
 from __future__ import annotations
@@ -67,13 +73,7 @@ class CoSimulation:
                                           if c.source.component == name}) for name in self.fmus}
         self._events = sorted(self.events, key=lambda e: e.t_s)
         self._next_event = 0
-        names = []
-        for c in self.wiring.connections:
-            for key in (c.source.key, c.target.key):
-                if key not in names:
-                    names.append(key)
-        names += [k for k in self.wiring.constants if k not in names]
-        self.signal_names = names
+        self.signal_names = signal_names(self.wiring)
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
         self.energy_watch = EnergyWatch(self.plant)
@@ -173,11 +173,29 @@ class CoSimulation:
                                  self.plant.body_poses)
 
     def signal_frame(self) -> pd.DataFrame:
-        return pd.DataFrame(self.signals, columns=["t_s", *self.signal_names])
+        """Every recorded signal per step (see the module's docstring for the types)."""
+        return signal_frame(self.signals, self.signal_names)
 
     def terminate(self) -> None:
         for fmu in self.fmus.values():
             fmu.terminate()
+
+
+def signal_names(wiring: Wiring) -> list[str]:
+    """The recorded signals: both ends of each connection in order, then the constant inputs."""
+    names: list[str] = []
+    for c in wiring.connections:
+        for key in (c.source.key, c.target.key):
+            if key not in names:
+                names.append(key)
+    names += [k for k in wiring.constants if k not in names]
+    return names
+
+
+def signal_frame(rows: list[tuple], names: list[str]) -> pd.DataFrame:
+    """``t_s`` and the signals ``names``; with no rows (a run that failed in its first step) an empty
+    table with those columns."""
+    return pd.DataFrame(rows, columns=["t_s", *names])
 
 
 def setpoint_sources(wiring: Wiring, conveyor_ids: list[str],

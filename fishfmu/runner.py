@@ -29,7 +29,7 @@ from plant.recorder import RunRecorder, pose_record
 
 from fishfmu.fmu_files import open_fmu
 from fishfmu.interrupt import StopRequest
-from fishfmu.master import CoSimulation, setpoint_sources
+from fishfmu.master import CoSimulation, setpoint_sources, signal_frame, signal_names
 from fishfmu.scenario import Scenario
 from fishfmu.wiring import resolve_wiring
 
@@ -140,33 +140,61 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         for i, f in enumerate(scenario.fmu):
             check_parameters(f.name, opened[f.name], f.parameters, sfile, f"fmu[{i}]")
         plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
-        fmus = _instantiate(scenario, opened, stack)
         recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,
                                scenario.run.comm_step_s, record_poses=record_poses)
-        cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in scenario.fmu}, wiring, scenario.event,
-                             scenario.run.comm_step_s, jacobi=scenario.run.coupling == "jacobi", recorder=recorder,
-                             setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
-        stack.callback(cosim.terminate)
-        timings["setup"] = time.perf_counter() - t0
         status, error = "ok", None
-        t_run = time.perf_counter()
-        try:
-            _loop(cosim, scenario, on_progress, stop)
+        cosim: CoSimulation | None = None
+        try:  # an FMU failing while it is instantiated and initialised fails the run, as in any step
+            fmus = _instantiate(scenario, opened, stack)
+            cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in scenario.fmu}, wiring,
+                                 scenario.event, scenario.run.comm_step_s, jacobi=scenario.run.coupling == "jacobi",
+                                 recorder=recorder, setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
         except SimulationError as exc:
             status, error = "failed", str(exc)
-        except _Stopped as exc:
-            status, error = "partial", str(exc)
+        else:
+            stack.callback(cosim.terminate)
+        timings["setup"] = time.perf_counter() - t0
+        t_run = time.perf_counter()
+        if cosim is not None:
+            try:
+                _loop(cosim, scenario, on_progress, stop)
+            except SimulationError as exc:
+                status, error = "failed", str(exc)
+            except _Stopped as exc:
+                status, error = "partial", str(exc)
         wall = time.perf_counter() - t_run
+        if cosim is None or cosim.steps == 0:
+            _record_start(recorder, plant, cosim)
         tables = recorder.tables()
         run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
                   notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
                   photoeyes=tables["photoeyes"], belts=tables["belts"])
         kpis = compute_kpis(run, scenario.line, scenario.kpi)
         expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
-        watch = cosim.energy_watch
-        return RunResult(scenario, fish, run, kpis, cosim.signal_frame(), expect, status, error, cosim.t_s, wall,
+        if cosim is None:
+            signals, t_end, worst = signal_frame([], signal_names(wiring)), 0.0, (0.0, 0.0)
+        else:
+            watch = cosim.energy_watch
+            signals, t_end, worst = cosim.signal_frame(), cosim.t_s, (watch.worst_excess_j, watch.worst_ratio)
+        return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall,
                          timings, list(plant.drop_adjustments), pose_record(recorder, plant),
-                         {"worst_excess_j": watch.worst_excess_j, "worst_fraction_of_reserve": watch.worst_ratio})
+                         {"worst_excess_j": worst[0], "worst_fraction_of_reserve": worst[1]})
+
+
+def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | None) -> None:
+    """Record the line as it was at t = 0 for a run that failed before completing a step (an FMU
+    failing while initialised or in its first step): belts at rest, each setpoint as the FMUs gave
+    it after initialisation (the belt speed where there is none), fish where they are, no beam
+    blocked.  The run then is a valid measured-data run of one sample, as any partial run."""
+    speeds = {c: 0.0 for c in plant.conveyor_ids}
+    values = cosim.values if cosim is not None else {}
+    sources = cosim.setpoint_sources if cosim is not None else {}
+    setpoints = {}
+    for c, v in speeds.items():
+        sp = values.get(sources.get(c, ""), v)
+        setpoints[c] = float(sp) if isinstance(sp, (int, float)) and np.isfinite(sp) else v
+    recorder.record(0.0, plant.fish_state, {p: False for p in plant.photoeye_ids}, setpoints, speeds,
+                    plant.body_poses)
 
 
 def _number(value: Any) -> float | None:

@@ -26,12 +26,13 @@ variables and plant ports are checked separately when the FMUs are opened
 from __future__ import annotations
 
 import copy
+import math
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import tomli_w
-from pydantic import Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from plant.errors import InputError
 from plant.line import KpiSettings, Line
@@ -40,6 +41,17 @@ from plant.population import PopulationSpec
 from plant.validation import Strict, read_toml, validate
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
+
+
+def _finite(value: Any) -> Any:
+    """A value handed to an FMU must not be NaN or infinite (TOML and ``--set`` allow ``nan``, ``inf``)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError("must be a finite number: NaN and infinity cannot be given to an FMU")
+    return value
+
+
+FmuValue = Annotated[float | int | bool | str, AfterValidator(_finite)]
+"""A parameter value for an FMU: finite numbers, booleans, strings."""
 KPI_KEYS = ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
             "gap_min_m", "gap_median_m", "gap_p10_m")
 CONNECTION_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*->\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*$")
@@ -69,7 +81,7 @@ class FmuInstance(Strict):
     builtin: Literal["conveyor_drive", "singulation_controller"] | None = None
     path: str | None = Field(None, description="relative to the scenario file")
     step_multiple: int = Field(1, ge=1, le=10000, description="the FMU steps every this many base steps")
-    parameters: dict[str, float | int | bool | str] = Field(default_factory=dict)
+    parameters: dict[str, FmuValue] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _one_source(self) -> "FmuInstance":
@@ -84,7 +96,7 @@ class Event(Strict):
     t_s: float = Field(ge=0.0)
     target: str = Field(description="'<fmu>.<variable>' or 'plant.<id>.<signal>'")
     action: Literal["override", "bias", "reset"]
-    value: float | bool | None = None
+    value: Annotated[float | bool | None, AfterValidator(_finite)] = None
 
     @model_validator(mode="after")
     def _value_needed(self) -> "Event":
@@ -99,7 +111,7 @@ class WiringSpec(Strict):
     """Connections between FMU variables and plant ports, and constants for unconnected inputs."""
 
     connections: list[str] = Field(default_factory=list, max_length=2000)
-    inputs: dict[str, float | bool] = Field(default_factory=dict)
+    inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict)
 
     @field_validator("connections")
     @classmethod

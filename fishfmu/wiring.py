@@ -8,7 +8,9 @@ Ports of the plant (component ``plant``), per conveyor ``c`` and photo-eye ``p``
   it), ``plant.<p>.blocked`` (Boolean).
 
 A connection ``A.x -> B.y`` must go from an output to an input of the same type; an input takes at
-most one connection; every plant input is connected or has a constant in ``[inputs]``.
+most one connection; every plant input is connected or has a constant in ``[inputs]``.  Values keep
+their type on the way (Real float, Integer int, Boolean bool, String str; see
+:mod:`fishfmu.master`); events override or bias numbers and override Booleans, not Strings.
 
 **Coupling.** Gauss-Seidel (default): FMUs are stepped in the order of their connections among
 themselves (a controller before the drives it commands), each seeing what its sources produced in
@@ -135,6 +137,10 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
         if port.key in taken:
             raise InputError(f"'{key}' is connected and also given a constant", file=scenario_file,
                              where=f"wiring.inputs.{key}")
+        if port.type == "String":
+            raise InputError(f"'{key}' is a String input; constants in wiring.inputs are numbers or booleans "
+                             "(give it as a parameter start value instead)", file=scenario_file,
+                             where=f"wiring.inputs.{key}")
         constants[port.key] = value
 
     missing = [f"plant.{c.id}.speed" for c in scenario.line.conveyors
@@ -148,12 +154,20 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
         if comp == PLANT:
             if var not in plant:
                 _lookup(scenario_file, comp, var, "output", fmu_variables, plant, f"event[{i}].target")
+            vtype = plant[var][0].type
         else:
             if comp not in fmu_variables or var not in fmu_variables[comp]:
                 _lookup(scenario_file, comp, var, "input", fmu_variables, plant, f"event[{i}].target")
             elif fmu_variables[comp][var].causality not in ("input", "output"):
                 raise InputError(f"event target '{ev.target}' is a {fmu_variables[comp][var].causality}; events act on "
                                  "inputs and outputs", file=scenario_file, where=f"event[{i}].target")
+            vtype = fmu_variables[comp][var].type
+        if vtype == "String" and ev.action != "reset":
+            raise InputError(f"event target '{ev.target}' is a String; events set numbers and booleans",
+                             file=scenario_file, where=f"event[{i}].target")
+        if vtype == "Boolean" and ev.action == "bias":
+            raise InputError(f"event target '{ev.target}' is a Boolean; it can be overridden or reset, not biased",
+                             file=scenario_file, where=f"event[{i}].action")
 
     names = [f.name for f in scenario.fmu]
     if scenario.run.coupling == "jacobi":

@@ -30,7 +30,8 @@ from fishfmu.scenario import load_scenario
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"
 FAULT_T = 0.5
-FAULTS = {1: "doStep returned error", 2: "doStep returned fatal",
+FAULTS = {1: 'doStep returned error: "faulty_drive: failing on purpose at t = 0.5 s"',
+          2: 'doStep returned fatal: "faulty_drive: fatal failure on purpose at t = 0.5 s"',
           3: "doStep did not return within 1 s (hung); its worker process was killed",
           4: "its worker process died during doStep (killed by signal SIGSEGV)",
           5: "output 'belt_speed' is nan"}

@@ -98,3 +98,29 @@ def test_jacobi_keeps_the_listed_order():
     sc.fmu = list(reversed(sc.fmu))
     w = resolve_wiring(sc, fmu_vars())
     assert w.order == ["drive_c4", "drive_c3", "drive_c2", "drive_c1", "controller"]
+
+
+@pytest.mark.parametrize("event, where, message", [
+    ({"target": "plant.pe_c1.blocked", "action": "bias", "value": 1.0}, "event[0].action",
+     "'plant.pe_c1.blocked' is a Boolean; it can be overridden or reset, not biased"),
+    ({"target": "controller.label", "action": "override", "value": 1.0}, "event[0].target",
+     "'controller.label' is a String; events set numbers and booleans"),
+])
+def test_events_that_do_not_fit_the_type_of_their_target_are_rejected(event, where, message):
+    fmus = fmu_vars()
+    fmus["controller"]["label"] = var("label", "input", "String")
+    sc = paper(event=[{"t_s": 1.0, **event}])
+    with pytest.raises(InputError) as failure:
+        resolve_wiring(sc, fmus, "paper_test.toml")
+    assert failure.value.where == where and message in str(failure.value)
+    sc = paper(event=[{"t_s": 1.0, "target": "plant.pe_c1.blocked", "action": "override", "value": True},
+                      {"t_s": 2.0, "target": "controller.label", "action": "reset"}])
+    resolve_wiring(sc, fmus)  # overriding a Boolean and resetting a String are fine
+
+
+def test_string_input_cannot_be_given_a_numeric_constant():
+    fmus = fmu_vars()
+    fmus["controller"]["label"] = var("label", "input", "String")
+    sc = paper(**{"wiring.inputs": {"controller.label": 1.0}})
+    with pytest.raises(InputError, match="wiring.inputs.controller.label.*is a String input"):
+        resolve_wiring(sc, fmus, "paper_test.toml")
