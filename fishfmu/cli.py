@@ -275,7 +275,9 @@ def compare(
     out_dir = prepare_out_dir(out, overwrite)
     c = compare_dataset(ds, params, workers, drive)
     paths = write_comparison(c, out_dir)
-    write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "compare", "dataset": str(dataset)})
+    failure = c.failure()  # a re-simulation that failed: exit 3 once the rest is written
+    write_json_atomic(out_dir / "run_info.json", {"status": "failed" if failure else "ok", "command": "compare",
+                                                  "dataset": str(dataset)} | ({"error": failure} if failure else {}))
     from rich.table import Table
     table = Table(title=f"{ds.name}: simulated - measured, over {len(ds.runs)} runs")
     for col in ("measure", "mean", "sd", "min", "max"):
@@ -284,6 +286,8 @@ def compare(
         table.add_row(row.measure, *[f"{getattr(row, k):.4g}" for k in ("mean", "sd", "min", "max")])
     Console().print(table)
     Console().print(f"report: {paths['report']}", highlight=False)
+    if failure:
+        raise SimulationError(f"{failure} (what the other runs gave is written to {out_dir})")
 
 
 @app.command("diagnose")
@@ -301,7 +305,12 @@ def diagnose_cmd(
     from fishfmu.outputs import prepare_out_dir, write_json_atomic
     ds, params, _ = _dataset_and_params(dataset, scenario)
     out_dir = prepare_out_dir(out, overwrite)
-    d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text, highlight=False))
+    try:
+        d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text, highlight=False))
+    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
+        write_json_atomic(out_dir / "run_info.json", {"status": "failed", "command": "diagnose",
+                                                      "dataset": str(dataset), "error": str(exc)})
+        raise
     paths = write_diagnosis(d, out_dir)
     write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "diagnose", "dataset": str(dataset)})
     Console().print(f"cause: [bold]{d.cause}[/]", highlight=False)

@@ -26,7 +26,7 @@ from plant.kpis import arrival_times, compute_kpis
 from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
-from fishfmu.residuals import drive_residuals, track_errors
+from fishfmu.residuals import concat_typed, drive_residuals, track_errors, typed_frame
 from fishfmu.resim import Resim, drive_check, resimulate_many
 
 KPI_KEYS = ("throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost", "gap_median_m")
@@ -52,6 +52,16 @@ class Comparison:
         g = self.measures.groupby("measure")["value"]
         return pd.DataFrame({"mean": g.mean(), "sd": g.std(ddof=1), "min": g.min(), "max": g.max(),
                              "runs": g.count()}).reset_index()
+
+    def failure(self) -> str | None:
+        """Which re-simulations failed and why, in one line (``run 'r03': at t = ... s: ...``); None if none did.
+        The command writes what was computed for the other runs, then exits 3 with this."""
+        failed = [(s.run_id, s.error) for s in self.resims if s.error]
+        if not failed:
+            return None
+        (run_id, error), more = failed[0], failed[1:]
+        also = f" (also failed: {', '.join(repr(r) for r, _ in more)}; see compare.json)" if more else ""
+        return f"run '{run_id}': {error}{also}"
 
 
 def simulated_run(run: Run, resim: Resim) -> Run:
@@ -105,12 +115,17 @@ def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers
             m, s = km.get(k), ks.get(k)
             if m is not None and s is not None:
                 measures.append({"run_id": run.id, "measure": f"{k} error", "value": float(s - m)})
-    cat = (lambda rows, cols: pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols))
-    return Comparison(dataset, resims, pd.DataFrame(kpi_rows, columns=["run_id", "kpi", "measured", "simulated", "error"]),
-                      cat(arrival_rows, ["run_id", "fish_id", "sensor_id", "measured_t_s", "simulated_t_s", "error_s"]),
-                      cat(track_rows, ["run_id", "fish_id", "t_s", "ex_m", "ey_m", "eyaw_rad", "since_drop_s"]),
-                      cat(belt_rows, ["run_id", "conveyor_id", "t_s", "setpoint_mps", "measured_mps", "model_mps"]),
-                      pd.DataFrame(measures, columns=["run_id", "measure", "value", "note"]))
+    f, o = float, object  # explicit dtypes: an empty table must not turn a concatenation's columns into object
+    return Comparison(
+        dataset, resims,
+        typed_frame(kpi_rows, {"run_id": o, "kpi": o, "measured": f, "simulated": f, "error": f}),
+        concat_typed(arrival_rows, {"run_id": o, "fish_id": o, "sensor_id": o, "measured_t_s": f, "simulated_t_s": f,
+                                    "error_s": f}),
+        concat_typed(track_rows, {"run_id": o, "fish_id": o, "t_s": f, "ex_m": f, "ey_m": f, "eyaw_rad": f,
+                                  "since_drop_s": f}),
+        concat_typed(belt_rows, {"run_id": o, "conveyor_id": o, "t_s": f, "setpoint_mps": f, "measured_mps": f,
+                                 "model_mps": f}),
+        typed_frame(measures, {"run_id": o, "measure": o, "value": f, "note": o}))
 
 
 def _json_number(value: float) -> float | None:

@@ -4,6 +4,8 @@ The pipeline is built so that it fits in minutes on a 2-core machine:
 
 1. **Baseline.** Every run re-simulated once with the model as it is (in parallel processes);
    residuals per fish and belt, per pair of fish at transfers, per drive (:mod:`fishfmu.residuals`).
+   A run whose baseline re-simulation fails stops the diagnosis (:class:`~plant.errors.SimulationError`
+   naming the run); a failed simulation during a fit counts as no better than the baseline.
 2. **Evidence.** Which candidates' conditions the residuals depend on (:mod:`fishfmu.evidence`).
    Only candidates with enough evidence are fitted: direction friction and adhesion, and of the
    candidates acting through hours post mortem (or a constant) the best-shaped one; at most
@@ -32,12 +34,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from plant.errors import SimulationError
 from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.candidates import CANDIDATES, PARAMETER_NAMES, fragment
 from fishfmu.evidence import evidence_table, run_level_choice
-from fishfmu.residuals import belt_residuals, drive_residuals_averaged, pair_residuals, track_errors
+from fishfmu.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone,
+                               belt_residuals, concat_typed, drive_residuals_averaged, pair_residuals, track_errors,
+                               typed_frame)
 from fishfmu.resim import Resim, drive_check, resim_pool, resimulate_many
 
 MIN_GAIN = 0.02
@@ -63,7 +68,7 @@ class RunResiduals:
         if group == "pairs":
             d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
             return float(np.sum(d**2)), len(d)
-        free = self.rows[~self.rows["crowded"]]
+        free = alone(self.rows)
         if group == "head_first":
             free = free[free["heading"] > HEADING_SPLIT]
         elif group == "tail_first":
@@ -83,7 +88,7 @@ def residuals_of(dataset: Dataset, resims: list[Resim]) -> list[RunResiduals]:
         if r.error:
             empty = track_errors(run.tracks.iloc[0:0], run.tracks.iloc[0:0])
             out.append(RunResiduals(run.id, belt_residuals(run, empty, dataset.line),
-                                    pd.DataFrame(columns=["run_id", "dsep_m"]), np.nan, r.error))
+                                    typed_frame([], PAIR_RESIDUAL_DTYPES), np.nan, r.error))
             continue
         errors = track_errors(run.tracks, r.sim.tracks)
         rms = float(np.sqrt(np.mean(errors["ex_m"] ** 2))) if len(errors) else np.nan
@@ -100,8 +105,7 @@ def drive_table(dataset: Dataset, resims: list[Resim], belt_slip: float = 0.0) -
         for c in dataset.line.conveyors:
             check = drive_check(run, r.loads, c.id, {"belt_slip": belt_slip} if belt_slip else None)
             frames.append(drive_residuals_averaged(check).assign(run_id=run.id, conveyor_id=c.id))
-    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
-        columns=["run_id", "conveyor_id", "residual_mps", "load_force_n"])
+    return concat_typed(frames, DRIVE_RESIDUAL_DTYPES)
 
 
 @dataclass
@@ -291,13 +295,18 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
     runs = dataset.runs
     say(f"baseline: re-simulating {len(runs)} runs")
     base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
+    failed = [(r.run_id, r.error) for r in base_sims if r.error]
+    if failed:  # no baseline for a run, no diagnosis of the dataset: say so now rather than after the fits
+        (run_id, error), more = failed[0], failed[1:]
+        also = f"; also failed: {', '.join(repr(r) for r, _ in more)}" if more else ""
+        raise SimulationError(f"run '{run_id}': {error} (re-simulating it with the model as it is, the baseline of "
+                              f"the diagnosis{also})")
     baseline = residuals_of(dataset, base_sims)
     drive = drive_table(dataset, base_sims)
     timing["baseline"] = time.perf_counter() - t0
 
-    rows = pd.concat([b.rows for b in baseline], ignore_index=True)
-    pairs = pd.concat([b.pairs for b in baseline if len(b.pairs)], ignore_index=True) if any(
-        len(b.pairs) for b in baseline) else pd.DataFrame(columns=["run_id", "dsep_m"])
+    rows = concat_typed([b.rows for b in baseline], BELT_RESIDUAL_DTYPES)
+    pairs = concat_typed([b.pairs for b in baseline], PAIR_RESIDUAL_DTYPES)
     evidence = evidence_table(rows, pairs, drive, seed)
     say("evidence: " + ", ".join(f"{c} z={z:.1f}" for c, z in zip(evidence["candidate"], evidence["evidence"])))
 

@@ -16,6 +16,7 @@ import pandas as pd  # noqa: E402
 from fishfmu.candidates import CANDIDATES  # noqa: E402
 from fishfmu.diagnose import MIN_GAIN, Diagnosis  # noqa: E402
 from fishfmu.evidence import SUPPORT_Z, mucus_index, rigor_index  # noqa: E402
+from fishfmu.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, concat_typed  # noqa: E402
 
 
 def decision_text(d: Diagnosis) -> str:
@@ -78,8 +79,8 @@ def _img(fig, path: Path) -> str:
 
 
 def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:
-    rows = pd.concat([b.rows for b in d.baseline], ignore_index=True)
-    free = rows[~rows["crowded"]] if len(rows) else rows
+    rows = concat_typed([b.rows for b in d.baseline], BELT_RESIDUAL_DTYPES)
+    free = alone(rows)
     figs = {}
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.3))
     if len(free):
@@ -97,8 +98,7 @@ def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:
     axes[1].set_ylabel("mean lag of the run [m]")
     figs["evidence_friction.png"] = _img(fig, out / "evidence_friction.png")
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
-    pairs = pd.concat([b.pairs for b in d.baseline if len(b.pairs)], ignore_index=True) if any(
-        len(b.pairs) for b in d.baseline) else pd.DataFrame({"dsep_m": []})
+    pairs = concat_typed([b.pairs for b in d.baseline], PAIR_RESIDUAL_DTYPES)
     if len(pairs):
         axes[0].hist(pairs["dsep_m"].astype(float), bins=20)
     axes[0].set_xlabel("extra separation of close pairs, simulated - measured [m]")

@@ -23,6 +23,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from fishfmu.residuals import alone
+
 BOOTSTRAP = 400
 SUPPORT_Z = 2.0
 """Evidence needed before a candidate is worth fitting by simulation (the held-out gain decides)."""
@@ -68,7 +70,7 @@ def belt_evidence(rows: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
     one candidate at a time, with Student's t on (runs - 2) degrees of freedom, turned into the
     equivalent z.  A condition that does not vary gives no evidence.
     """
-    free = rows[~rows["crowded"]].dropna(subset=["lag_m", "heading", "hours_post_mortem"])
+    free = alone(rows).dropna(subset=["lag_m", "heading", "hours_post_mortem"])
     names = ["belt_friction", "direction_friction", "mucus_friction", "rigor_mortis"]
     result = {n: {"candidate": n, "coefficient": np.nan, "sd": np.nan, "z": 0.0, "n": len(free), "shape_rss": np.nan}
               for n in names}

@@ -218,12 +218,66 @@ def scene(run_dir: Path, measured: Measured | None = None) -> tuple[dict[str, An
     poses_file = run_dir / "poses.npz"
     if not poses_file.exists():
         raise InputError("no poses.npz: run the scenario with --replay to record the bodies' poses", file=run_dir)
-    data = read_dataset(run_dir / "run")
-    with np.load(poses_file) as npz:
-        p = {k: npz[k] for k in npz.files}
+    data = read_dataset(run_dir / "run", check_physics=False)  # written by this program (fish not yet dropped too)
+    p = read_poses(poses_file)
     if len(p["t_s"]) == 0:
         raise InputError("poses.npz holds no frames: the run stopped before its first pose sample", file=poses_file)
     return build_scene(data.line, data.name, data.runs[0], p, measured)
+
+
+POSE_ARRAYS = {"t_s": 1, "pos": 3, "quat": 3, "status": 2, "fish_id": 1, "body_fish": 1, "section_body": 1,
+               "section_x": 1, "section_half_height": 1, "section_half_width": 1}
+"""The arrays of poses.npz and their number of dimensions (:func:`plant.recorder.pose_record`)."""
+
+
+def read_poses(path: Path) -> dict[str, np.ndarray]:
+    """poses.npz, checked: a readable archive (no pickled objects) with every array, shapes and indices
+    that agree, finite times and outlines (poses are NaN while a fish is off the line); anything else is
+    bad input naming the file."""
+    import zipfile
+    import zlib
+
+    def bad(what: str) -> InputError:
+        return InputError(f"{what}; record it again with `fishfmu run --replay`", file=path)
+
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            missing = [k for k in POSE_ARRAYS if k not in npz.files]
+            if missing:
+                raise bad(f"not a pose record: no array {', '.join(missing)}")
+            p = {k: npz[k] for k in POSE_ARRAYS}
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
+        raise bad(f"not a readable pose record (corrupt or not a .npz file: {type(exc).__name__}: "
+                  f"{str(exc).strip() or 'no detail'})") from None
+    for k, ndim in POSE_ARRAYS.items():
+        if p[k].ndim != ndim:
+            raise bad(f"array {k} has {p[k].ndim} dimensions, expected {ndim}")
+    if p["fish_id"].dtype.kind not in "US":
+        raise bad(f"array fish_id holds {p['fish_id'].dtype}, expected text")
+    for k in POSE_ARRAYS:
+        if k != "fish_id" and p[k].dtype.kind not in "iuf":
+            raise bad(f"array {k} holds {p[k].dtype}, expected numbers")
+    n_t, n_fish, n_bodies = len(p["t_s"]), len(p["fish_id"]), len(p["body_fish"])
+    shapes = {"pos": (n_t, n_bodies, 3), "quat": (n_t, n_bodies, 4), "status": (n_t, n_fish)}
+    for k, shape in shapes.items():
+        if p[k].shape != shape:
+            raise bad(f"array {k} has shape {p[k].shape}, expected {shape} (frames, bodies or fish do not agree)")
+    n_sec = len(p["section_body"])
+    for k in ("section_x", "section_half_height", "section_half_width"):
+        if len(p[k]) != n_sec:
+            raise bad(f"array {k} has {len(p[k])} entries, section_body {n_sec}")
+    if n_bodies and (p["body_fish"].min() < 0 or p["body_fish"].max() >= n_fish):
+        raise bad("array body_fish names a fish that is not in fish_id")
+    if n_sec and (p["section_body"].min() < 0 or p["section_body"].max() >= n_bodies):
+        raise bad("array section_body names a body that is not in body_fish")
+    for k in ("t_s", "section_x", "section_half_height", "section_half_width"):  # poses are NaN off the line
+        if not np.all(np.isfinite(p[k])):
+            raise bad(f"array {k} holds a value that is not a finite number")
+    if n_t > 1 and np.any(np.diff(p["t_s"]) <= 0):
+        raise bad("array t_s does not increase")
+    return p
 
 
 def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measured: Measured | None = None,
@@ -297,10 +351,8 @@ def render_html(header: dict[str, Any], blob: str) -> str:
 def write_page(header: dict[str, Any], blob: str, out: Path) -> Path:
     """The page, written atomically (a reader never sees half a page)."""
     html = render_html(header, blob)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.name}.part")
-    tmp.write_text(html, encoding="utf-8", newline="\n")
-    tmp.replace(out)
+    from fishfmu.outputs import write_text_atomic
+    write_text_atomic(out, html)  # recorded in the folder's manifest (fishfmu.ownership)
     return out
 
 

@@ -27,6 +27,41 @@ from plant.measured import Run
 EDGE_M = 0.05
 """A fish counts as lying on a belt when its ends are this far inside the belt's ends."""
 
+# Every table here has explicit column dtypes, empty or not: pandas 3 keeps the dtype of an empty
+# frame in a concat, so an untyped empty table (object columns) would turn a boolean column of the
+# concatenated rows into object, where ``~`` is bitwise on Python ints (~False == -1), not a negation.
+TRACK_ERROR_DTYPES = {"fish_id": object, "t_s": float, "x_m": float, "y_m": float, "yaw_rad": float,
+                      "ex_m": float, "ey_m": float, "eyaw_rad": float}
+BELT_RESIDUAL_DTYPES = {"run_id": object, "fish_id": object, "belt": "int64", "conveyor_id": object,
+                        "t_start_s": float, "t_end_s": float, "offset_m": float, "lag_m": float, "heading": float,
+                        "hours_post_mortem": float, "length_m": float, "crowded": bool, "n_samples": "int64"}
+PAIR_RESIDUAL_DTYPES = {"run_id": object, "leader": object, "follower": object, "conveyor_id": object,
+                        "t_s": float, "separation_m": float, "dsep_m": float}
+DRIVE_RESIDUAL_DTYPES = {"run_id": object, "conveyor_id": object, "t_s": float, "residual_mps": float,
+                         "load_force_n": float}
+
+
+def typed_frame(rows: list[dict] | pd.DataFrame, dtypes: dict) -> pd.DataFrame:
+    """``rows`` as a frame with exactly these columns and dtypes (also when there are no rows)."""
+    df = rows if isinstance(rows, pd.DataFrame) else pd.DataFrame(rows, columns=list(dtypes))
+    return df.astype({c: t for c, t in dtypes.items() if c in df.columns})
+
+
+def concat_typed(frames: list[pd.DataFrame], dtypes: dict) -> pd.DataFrame:
+    """Frames one after the other, with the columns of ``dtypes`` in those dtypes (an empty list: no rows)."""
+    frames = [f for f in frames if len(f)]
+    if not frames:
+        return typed_frame([], dtypes)
+    return typed_frame(pd.concat(frames, ignore_index=True), dtypes)
+
+
+def alone(rows: pd.DataFrame) -> pd.DataFrame:
+    """The belt-residual rows of fish alone on their belt (``crowded`` is False; never a bitwise ``~``)."""
+    crowded = rows["crowded"]
+    if crowded.dtype != bool:
+        raise TypeError(f"belt residuals: column 'crowded' has dtype {crowded.dtype}, expected bool")
+    return rows[~crowded]
+
 
 def track_errors(measured: pd.DataFrame, simulated: pd.DataFrame, max_gap_s: float = 0.2) -> pd.DataFrame:
     """Simulated mid-point and heading interpolated at each measured sample, minus the measured ones.
@@ -55,8 +90,7 @@ def track_errors(measured: pd.DataFrame, simulated: pd.DataFrame, max_gap_s: flo
                                   "y_m": mm["y_m"].to_numpy(float), "yaw_rad": mm["yaw_rad"].to_numpy(float),
                                   "ex_m": sx - mm["x_m"].to_numpy(float), "ey_m": sy - mm["y_m"].to_numpy(float),
                                   "eyaw_rad": eyaw}))
-    cols = ["fish_id", "t_s", "x_m", "y_m", "yaw_rad", "ex_m", "ey_m", "eyaw_rad"]
-    return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=cols)
+    return concat_typed(rows, TRACK_ERROR_DTYPES)
 
 
 def _crowding(tracks: pd.DataFrame, fid: str, t0: float, t1: float, radius_m: float) -> bool:
@@ -96,9 +130,7 @@ def belt_residuals(run: Run, errors: pd.DataFrame, line: Line) -> pd.DataFrame:
                          "hours_post_mortem": hours, "length_m": length, "crowded": crowded,
                          "n_samples": len(on)})
             prev_offset, prev_t_end = offset, t1
-    cols = ["run_id", "fish_id", "belt", "conveyor_id", "t_start_s", "t_end_s", "offset_m", "lag_m", "heading",
-            "hours_post_mortem", "length_m", "crowded", "n_samples"]
-    return pd.DataFrame(rows, columns=cols)
+    return typed_frame(rows, BELT_RESIDUAL_DTYPES)
 
 
 def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float = 1.5) -> pd.DataFrame:
@@ -135,7 +167,7 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
                 if sep_m is not None and sep_s is not None:
                     rows.append({"run_id": run.id, "leader": fid, "follower": o["fish_id"], "conveyor_id": c.id,
                                  "t_s": tc, "separation_m": sep_m, "dsep_m": sep_s - sep_m})
-    return pd.DataFrame(rows, columns=["run_id", "leader", "follower", "conveyor_id", "t_s", "separation_m", "dsep_m"])
+    return typed_frame(rows, PAIR_RESIDUAL_DTYPES)
 
 
 def _separation(tracks: pd.DataFrame, a: str, b: str, t: float) -> float | None:

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from plant.errors import InputError
 from plant.line import Line
-from plant.measured import Run
+from plant.measured import MAX_RESIM_S, Run
 from plant.params import PlantParams
 from plant.population import fish_from_frame
 from plant.simulate import SimulatedRun, simulate_plant
@@ -74,6 +75,14 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
     body's pose at 25 Hz in ``sim.poses`` (for a 3D replay of the comparison; off by default, since
     diagnose re-simulates each run many times)."""
     params = params or PlantParams()
+    duration_s = duration_s or run_duration_s(run)
+    if not duration_s <= MAX_RESIM_S:  # the reader refuses such runs; this guards runs made in code
+        raise InputError(f"run '{run.id}': re-simulating it would take {duration_s:g} s of simulated time, more than "
+                         f"the limit of {MAX_RESIM_S:g} s per re-simulation")
+    unlogged = sorted({c.id for c in line.conveyors} - set(run.belts["conveyor_id"].unique()))
+    if unlogged:
+        raise InputError(f"run '{run.id}': no belt speeds logged for conveyor(s) {', '.join(unlogged)}: every "
+                         "conveyor of the line must be in belts.csv")
     rng = np.random.default_rng(run_seed(run.id, seed))
     fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
     speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
@@ -84,7 +93,7 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
         for cid in plant.conveyor_ids:
             loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
 
-    sim = simulate_plant(line, fish, speed_fn, duration_s or run_duration_s(run), params=params,
+    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params,
                          stop_when_clear=True, on_step=log_loads, record_poses=record_poses)
     return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
 
@@ -145,7 +154,8 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
     from fishfmu.fmu_instance import FmuInstance
     b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
     if len(b) < 2:
-        return pd.DataFrame(columns=["t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n"])
+        return pd.DataFrame({c: pd.Series(dtype=float)
+                             for c in ("t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n")})
     t = b["t_s"].to_numpy(float)
     sp = b["setpoint_mps"].to_numpy(float)
     measured = b["speed_mps"].to_numpy(float)

@@ -82,9 +82,9 @@ def _small_run(folder: Path, fish_rows: list[str], fish_header: str, n_fish: int
     (folder / "photoeyes.csv").write_text("sensor_id,t_on_s,t_off_s\npe_in,1.2,2.4\npe_in,3.2,4.4\n"
                                           "pe_out,8.0,9.0\npe_out,10.0,11.0\n")
     belts = ["t_s,conveyor_id,setpoint_mps,speed_mps"]
-    for i in range(5):
+    for i in range(25):  # the drive log covers the run (0-12 s): drops, tracks and photo-eyes are within it
         for c, v in (("c1", 0.5), ("c2", 1.0)):
-            belts.append(f"{0.01 * i:.2f},{c},{v},{v}")
+            belts.append(f"{0.5 * i:.2f},{c},{v},{v}")
     (folder / "belts.csv").write_text("\n".join(belts) + "\n")
 
 
@@ -212,6 +212,33 @@ def _set(name: str, row: int, column: str, value) -> callable:
     return edit
 
 
+def _set_many(row: int, **values: float) -> callable:
+    def edit(df: pd.DataFrame) -> None:
+        for column, value in values.items():
+            df.loc[row, column] = value
+    return edit
+
+
+def _append_belt_rows(t_s: float) -> callable:
+    def edit(df: pd.DataFrame) -> None:
+        for c, v in (("c1", 0.5), ("c2", 1.0)):
+            df.loc[len(df)] = [t_s, c, v, v]
+    return edit
+
+
+def _edit_bytes(root: Path, run: str, name: str, edit) -> None:
+    path = _csv(root, run, name)
+    path.write_bytes(edit(path.read_bytes()))
+
+
+def _trailing_comma(lines) -> callable:
+    """A comma at the end of these lines (1: the header)."""
+    def edit(data: bytes) -> bytes:
+        rows = data.split(b"\n")
+        return b"\n".join(r + b"," if i + 1 in lines and r else r for i, r in enumerate(rows))
+    return edit
+
+
 # (mutation of the small dataset, things str(InputError) must name)
 BAD_INPUTS = {
     "missing column": (lambda r: _edit_csv(r, "r1", "tracks", lambda df: df.pop("x_m")),
@@ -254,6 +281,48 @@ BAD_INPUTS = {
                                                                 'outfeed_photoeye = "pe_end"'),
                                           ["dataset.toml", "kpi", "'pe_end' is not a photo-eye"]),
     "TOML syntax": (lambda r: _edit_toml(r, "[kpi]", "[kpi"), ["dataset.toml", "TOML syntax error"]),
+    # physically implausible: refused before anything is simulated (plant.measured's bounds)
+    "drop outside the guides": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 1, "drop_y_m", 0.4)),
+                                ["r1/fish.csv", "row 3, column drop_y_m", "outside the side guides"]),
+    "drop beyond the line": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 0, "drop_x_m", 7.5)),
+                             ["r1/fish.csv", "row 2, column drop_x_m", "outside the line", "x = 0 to 4 m"]),
+    "drop below the belt": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 2, "drop_z_m", -0.1)),
+                            ["r1/fish.csv", "row 4, column drop_z_m", "below the belt top"]),
+    "drop from 1000 m": (lambda r: _edit_csv(r, "r2", "fish", _set("fish", 1, "drop_z_m", 1000.0)),
+                         ["r2/fish.csv", "row 3, column drop_z_m", "too high", "2 m"]),
+    "fish across the channel": (lambda r: _edit_csv(r, "r1", "fish", _set_many(0, drop_y_m=0.1, drop_yaw_rad=1.5708)),
+                                ["r1/fish.csv", "row 2, column drop_y_m", "into a side guide"]),
+    "5 m fish": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 1, "length_m", 5.0)),
+                 ["r1/fish.csv", "row 3, column length_m", "not a plausible salmon length", "0.2 to 1.5 m"]),
+    "weight in grams": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 0, "weight_kg", 2000.0)),
+                        ["r1/fish.csv", "row 2, column weight_kg", "not plausible for a 0.6 m salmon"]),
+    "height in centimetres": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 0, "height_m", 14.0)),
+                              ["r1/fish.csv", "row 2, column height_m", "not plausible"]),
+    "negative hours post mortem": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 2, "hours_post_mortem", -2.0)),
+                                   ["r1/fish.csv", "row 4, column hours_post_mortem", "between 0"]),
+    "belts at 1e6 m/s": (lambda r: _edit_csv(r, "r1", "belts", _set("belts", 2, "speed_mps", 1e6)),
+                         ["r1/belts.csv", "row 4, column speed_mps", "not a belt speed", "10 m/s"]),
+    "drop after the drive log": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 0, "drop_t_s", 1e6)),
+                                 ["r1/fish.csv", "row 2, column drop_t_s", "after the end of the drive log"]),
+    "track before the start": (lambda r: _edit_csv(r, "r1", "tracks", _set("tracks", 0, "t_s", -1.0)),
+                               ["r1/tracks.csv", "row 2, column t_s", "before the run's start"]),
+    "photo-eye after the drive log": (lambda r: _edit_csv(r, "r2", "photoeyes", _set("photoeyes", 3, "t_off_s", 100.0)),
+                                      ["r2/photoeyes.csv", "row 5, column t_off_s", "after the end of the drive log"]),
+    "conveyor not logged": (lambda r: _edit_bytes(r, "r1", "belts",
+                                                  lambda b: b"\n".join(x for x in b.split(b"\n") if b",c2," not in x)),
+                            ["r1/belts.csv", "column conveyor_id", "no rows for conveyor c2"]),
+    "run longer than a re-simulation may be": (lambda r: (_edit_csv(r, "r1", "belts", _append_belt_rows(700.0)),
+                                                          _edit_csv(r, "r1", "fish", _set("fish", 2, "drop_t_s", 650.0))),
+                                               ["r1/fish.csv", "row 4, column drop_t_s", "more than 600 s"]),
+    # CSV text a reader must not misread
+    "Latin-1 CSV": (lambda r: _edit_bytes(r, "r1", "fish", lambda b: b.replace(b"f02,", "f\u00f82,".encode("latin-1"))),
+                    ["r1/fish.csv", "row 3, column fish_id", "not UTF-8"]),
+    "trailing comma on a row": (lambda r: _edit_bytes(r, "r1", "tracks", _trailing_comma(lines=[5])),
+                                ["r1/tracks.csv", "row 5:", "6 fields, but the header has 5", "trailing comma"]),
+    "trailing comma on every row": (lambda r: _edit_bytes(r, "r2", "belts", _trailing_comma(lines=range(2, 100))),
+                                    ["r2/belts.csv", "row 2:", "trailing comma"]),
+    "trailing comma in the header too": (lambda r: _edit_bytes(r, "r1", "fish", _trailing_comma(lines=range(1, 5))),
+                                         ["r1/fish.csv", "line 1 (header)", "no column name", "trailing comma"]),
 }
 
 
