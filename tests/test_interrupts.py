@@ -1,0 +1,173 @@
+"""SIGTERM / Ctrl-C to the commands that start worker processes (issue 13).
+
+Each case runs the command in a process of its own (a new session, as a shell job), waits until
+its worker processes are up, sends the signal and checks: exit code 143 (SIGTERM) or 130
+(SIGINT), ``run_info.json`` says ``partial``, none of the command's processes is left, and the
+temporary folder (``TMPDIR``) holds nothing new: no unpacked FMUs, no Dask scratch space.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from fishfmu.interrupt import Interrupted, deferred_signals, session
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = str(ROOT / "scenarios" / "paper_test.toml")
+LONG_RUNS = ["--set", "run.duration_s=30", "--set", "run.stop_when_clear=false"]  # still running when signalled
+
+
+def launch(args: list[str], tmp_path: Path) -> tuple[subprocess.Popen, Path]:
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = {**os.environ, "TMPDIR": str(tmp), "CI": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", *args], cwd=ROOT, env=env, start_new_session=True,
+                            stdout=open(tmp_path / "stdout.txt", "wb"), stderr=open(tmp_path / "stderr.txt", "wb"))
+    return proc, tmp
+
+
+def workers_of(proc: subprocess.Popen) -> list[psutil.Process]:
+    try:
+        return [p for p in psutil.Process(proc.pid).children(recursive=True)
+                if "spawn_main" in " ".join(p.cmdline())]
+    except psutil.Error:
+        return []
+
+
+def wait_for_workers(proc: subprocess.Popen, n: int, timeout_s: float = 60.0) -> list[psutil.Process]:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, "the command ended before its workers started"
+        if len(workers_of(proc)) >= n:
+            time.sleep(1.5)  # the workers take their first tasks
+            return psutil.Process(proc.pid).children(recursive=True)
+        time.sleep(0.2)
+    raise AssertionError(f"no {n} worker processes within {timeout_s} s")
+
+
+def stop(proc: subprocess.Popen, signum: int, group: bool, tmp_path: Path) -> tuple[int, str]:
+    """Signal the command (or its whole process group, as Ctrl-C in a terminal) and wait for it."""
+    if group:
+        os.killpg(proc.pid, signum)
+    else:
+        proc.send_signal(signum)
+    try:
+        rc = proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    return rc, (tmp_path / "stderr.txt").read_text()
+
+
+def assert_nothing_left(children: list[psutil.Process], tmp: Path) -> None:
+    deadline = time.monotonic() + 5.0
+    alive = children
+    while alive and time.monotonic() < deadline:
+        alive = [p for p in children if p.is_running() and p.status() != psutil.STATUS_ZOMBIE]
+        time.sleep(0.2)
+    for p in alive:
+        p.kill()
+    assert not alive, f"processes left behind: {[' '.join(p.cmdline())[:80] for p in alive]}"
+    assert sorted(p.name for p in tmp.iterdir()) == [], "temporary files left behind"
+
+
+def run_info(folder: Path) -> dict:
+    return json.loads((folder / "run_info.json").read_text())
+
+
+def test_run_seeds_sigterm_stops_workers_and_marks_the_folder_partial(tmp_path):
+    out = tmp_path / "out"
+    proc, tmp = launch(["run", SCENARIO, "--seeds", "3", "--set", "fish.count=2", *LONG_RUNS, "--workers", "2",
+                        "--out", str(out)], tmp_path)
+    children = wait_for_workers(proc, 2)
+    rc, err = stop(proc, signal.SIGTERM, False, tmp_path)
+    assert rc == 143, err
+    assert "no run finished" not in err and "internal error" not in err and "Traceback" not in err, err
+    assert "stopped: by SIGTERM" in err
+    info = run_info(out)
+    assert info["status"] == "partial" and info["stopped_by"] == "SIGTERM"
+    assert_nothing_left(children, tmp)
+
+
+def test_sweep_ctrl_c_to_the_process_group_keeps_the_folder_resumable(tmp_path):
+    out = tmp_path / "sweep"
+    proc, tmp = launch(["sweep", SCENARIO, "--seeds", "1", "--param", "fish.count=1,2", *LONG_RUNS,
+                        "--workers", "2", "--out", str(out)], tmp_path)
+    children = wait_for_workers(proc, 2)
+    rc, err = stop(proc, signal.SIGINT, True, tmp_path)
+    assert rc == 130, err
+    assert "Traceback" not in err, err
+    info = run_info(out)
+    assert info["status"] == "partial" and info["stopped_by"] == "SIGINT" and info["n_runs"] == 2
+    assert (out / "sweep.json").is_file() and (out / "runs.csv").is_file()  # the same command resumes
+    assert_nothing_left(children, tmp)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    from plant.line import KpiSettings
+    from plant.measured import Dataset, Run, write_dataset
+    from plant.simulate import simulate_plant
+
+    from tests.plant_helpers import fish, straight_line
+    line = straight_line(("c1", 0.0, 1.5, 0.0), ("c2", 1.51, 1.5, -0.02),
+                         photoeyes=(("pe_a", 1.4, 0.015), ("pe_b", 2.9, -0.005)))
+    fishes = [fish("f01", 0.6, x_m=0.4, y_m=0.05, t_s=0.3), fish("f02", 0.5, x_m=0.4, y_m=-0.08, t_s=1.3)]
+    sim = simulate_plant(line, fishes, {"c1": 0.6, "c2": 1.0}, 8.0)
+    runs = [Run(f"r{i}", 24.0, "copy", sim.fish, sim.tracks, sim.photoeyes, sim.belts) for i in range(6)]
+    root = tmp_path_factory.mktemp("interrupt_data") / "six"
+    write_dataset(Dataset("six", "six copies of one two-fish run", line, KpiSettings(outfeed_photoeye="pe_b"), runs),
+                  root)
+    return root
+
+
+def test_compare_sigterm_stops_its_pool_and_writes_the_runs_that_finished(tmp_path, dataset):
+    out = tmp_path / "cmp"
+    proc, tmp = launch(["compare", str(dataset), "--workers", "2", "--out", str(out)], tmp_path)
+    children = wait_for_workers(proc, 2)
+    rc, err = stop(proc, signal.SIGTERM, False, tmp_path)
+    assert rc == 143, err
+    assert "Traceback" not in err, err
+    info = run_info(out)
+    assert info["status"] == "partial" and info["stopped_by"] == "SIGTERM"
+    if (out / "compare.json").is_file():  # stopped while re-simulating: the rest are listed
+        failed = json.loads((out / "compare.json").read_text())["failed"]
+        assert all("stopped by SIGTERM" in e for e in failed.values())
+    assert_nothing_left(children, tmp)
+
+
+# ------------------------------------------------------------------ the session itself, in-process
+
+def test_session_owns_a_temporary_folder_and_gives_it_back(tmp_path, monkeypatch):
+    import tempfile
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    tempfile.tempdir = None
+    try:
+        with session() as s:
+            assert os.environ["TMPDIR"] == str(s.tmp) and s.tmp.parent == tmp_path
+            (Path(tempfile.mkdtemp(prefix="fishfmu-fmu-")) / "x").write_text("unpacked")
+        assert os.environ["TMPDIR"] == str(tmp_path) and list(tmp_path.iterdir()) == []
+    finally:
+        tempfile.tempdir = None
+
+
+def test_a_signal_while_deferred_is_raised_at_the_end_of_the_block(tmp_path, monkeypatch):
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    reached = []
+    with pytest.raises(Interrupted) as info:
+        with session():
+            with deferred_signals():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.05)
+                reached.append("end of block")
+    assert reached == ["end of block"] and info.value.exit_code == 143
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL or callable(signal.getsignal(signal.SIGTERM))
