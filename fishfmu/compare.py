@@ -27,7 +27,8 @@ from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.residuals import concat_typed, drive_residuals, track_errors, typed_frame
-from fishfmu.resim import Resim, drive_check, resimulate_many
+from fishfmu.interrupt import Interrupted
+from fishfmu.resim import Resim, drive_check, not_resimulated, resimulate_many
 
 KPI_KEYS = ("throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost", "gap_median_m")
 
@@ -72,7 +73,13 @@ def simulated_run(run: Run, resim: Resim) -> Run:
 def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers: int | None = None,
                     drive_parameters: dict | None = None) -> Comparison:
     params = params or PlantParams()
-    resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers, record_poses=True)
+    try:
+        resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers, record_poses=True)
+    except Interrupted as exc:  # SIGINT/SIGTERM under the command: compare the runs that were re-simulated
+        if exc.partial is None:
+            raise
+        resims = [r if r is not None else not_resimulated(run, f"not re-simulated: stopped by {exc.signal_name}")
+                  for run, r in zip(dataset.runs, exc.partial)]
     kpi_rows, arrival_rows, track_rows, belt_rows, measures = [], [], [], [], []
     for run, r in zip(dataset.runs, resims):
         if r.error:

@@ -43,7 +43,7 @@ from fishfmu.evidence import evidence_table, run_level_choice
 from fishfmu.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone,
                                belt_residuals, concat_typed, drive_residuals_averaged, pair_residuals, track_errors,
                                typed_frame)
-from fishfmu.resim import Resim, drive_check, resim_pool, resimulate_many
+from fishfmu.resim import Resim, drive_check, resim_pool, resimulate_many, stop_pool
 
 MIN_GAIN = 0.02
 """A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
@@ -280,10 +280,13 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring)."""
     pool = resim_pool(workers)  # kept for every re-simulation below: a new process pays for importing Exudyn
     try:
-        return _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None))
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+        result = _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None))
+    except BaseException:  # an error, Ctrl-C or SIGTERM: the workers are stopped, not waited for
+        stop_pool(pool)
+        raise
+    if pool is not None:
+        pool.shutdown()
+    return result
 
 
 def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int,

@@ -164,11 +164,19 @@ def dask_client(scheduler: str | None, workers: int | None, threads_per_worker: 
         with client:
             yield client
         return
+    from fishfmu.interrupt import deferred_signals
     n = max(1, min(workers or os.cpu_count() or 1, n_tasks))
-    kwargs = {"preload": ["fishfmu.engine"], **(cluster_kwargs or {})}
-    # processes: each Exudyn run holds the GIL; one thread per worker: one run per core
-    with LocalCluster(n_workers=n, threads_per_worker=threads_per_worker, processes=True, dashboard_address=None,
-                      silence_logs=logging.ERROR, **kwargs) as cluster, Client(cluster) as client:
+    with contextlib.ExitStack() as stack:
+        # Dask's scratch space (dask-scratch-space) in a folder of ours, removed when the cluster is down
+        scratch = stack.enter_context(tempfile.TemporaryDirectory(prefix="fishfmu-dask-", ignore_cleanup_errors=True))
+        kwargs = {"preload": ["fishfmu.engine"], "local_directory": scratch, **(cluster_kwargs or {})}
+        with deferred_signals():  # a signal while the cluster starts stops it once it is up (no half-started workers)
+            # processes: each Exudyn run holds the GIL; one thread per worker: one run per core
+            cluster = stack.enter_context(LocalCluster(n_workers=n, threads_per_worker=threads_per_worker,
+                                                       processes=True, dashboard_address=None,
+                                                       silence_logs=logging.ERROR, **kwargs))
+            client = stack.enter_context(Client(cluster))
+            client.wait_for_workers(n, timeout=300)  # closing a worker that is still registering makes it print tracebacks
         yield client
 
 
@@ -206,8 +214,10 @@ def execute(tasks: list[RunTask], bundle: FmuBundle, on_row: Callable[[Row], Non
             cluster_kwargs: dict[str, Any] | None = None) -> None:
     """Run every task on Dask and call ``on_row`` with each row as it finishes (in any order).
 
-    A KeyboardInterrupt cancels what has not finished and propagates (rows already handed to
-    ``on_row`` stay); the local cluster is shut down in any case.
+    A KeyboardInterrupt (or :class:`fishfmu.interrupt.Interrupted`, a command's SIGINT/SIGTERM)
+    cancels what has not finished and propagates (rows already handed to ``on_row`` stay); the
+    local cluster (client, scheduler, nannies, workers) is shut down and its scratch folder removed
+    in any case.
     """
     if not tasks:
         return

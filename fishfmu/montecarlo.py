@@ -11,6 +11,7 @@ fails **on the mean over seeds** (not on single runs, nor on the interval), else
 
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +46,9 @@ class SeedsResult:
 
     @property
     def exit_code(self) -> int:
-        if self.n_failed or self.sweep.interrupted:
+        if self.sweep.interrupted:
+            return self.sweep.exit_code_interrupted  # 130 / 143: partial results
+        if self.n_failed:
             return EXIT_SIMULATION_FAILED
         return EXIT_OK if all(e.ok for e in self.expect) else EXIT_EXPECT_FAILED
 
@@ -60,12 +63,20 @@ def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out
     write_json_atomic(out_dir / "run_info.json", {"status": "running", "seeds": spec.seeds})  # marks the folder ours
     sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
     if sweep.summary.empty:
+        if sweep.interrupted:  # stopped before any run finished: nothing to average, the folder says so
+            from fishfmu.interrupt import Interrupted
+            write_json_atomic(out_dir / "run_info.json", {
+                "status": "partial", "seeds": spec.seeds, "n_ok": 0, "n_failed": 0,
+                "stopped_by": signal.Signals(sweep.exit_code_interrupted - 128).name,
+                "wall_s": round(time.perf_counter() - t0, 3), "workers": workers, "scheduler": scheduler})
+            raise Interrupted(sweep.exit_code_interrupted - 128)
         raise InputError("no run finished", file=scenario)
     stats = sweep.summary.iloc[0]
     expect = [ExpectResult(k, _mean(stats, k), b.min, b.max) for k, b in sc.expect.items()]
     result = SeedsResult(sweep, stats, expect)
+    status = "partial" if sweep.interrupted else ("failed" if result.n_failed else "ok")
     doc: dict[str, Any] = {k: _mean(stats, k) for k in KPI_KEYS}
-    doc.update(seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed, errors=stats["errors"],
+    doc.update(status=status, seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed, errors=stats["errors"],
                statistics={k: {f: stats[f"{k}_{f}"] for f in ("n", "n_undefined", "mean", "sd", "ci_low", "ci_high")}
                            for k in KPI_KEYS},
                singulation_rate_pooled={f: stats.get(f"singulation_rate_{f}") for f in ("pooled", "wilson_low",
@@ -74,8 +85,8 @@ def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out
                        for e in expect})
     write_json_atomic(out_dir / "kpis.json", _clean(doc))
     write_json_atomic(out_dir / "run_info.json", _clean({
-        "status": "interrupted" if sweep.interrupted else ("failed" if result.n_failed else "ok"),
-        "seeds": spec.seeds, "n_ok": int(stats["n_ok"]), "n_failed": result.n_failed,
+        "status": status, "seeds": spec.seeds, "n_ok": int(stats["n_ok"]), "n_failed": result.n_failed,
+        "stopped_by": signal.Signals(sweep.exit_code_interrupted - 128).name if sweep.interrupted else None,
         "wall_s": round(time.perf_counter() - t0, 3), "workers": workers, "scheduler": scheduler}))
     return result
 

@@ -98,25 +98,54 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
     return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
 
 
+def not_resimulated(run: Run, error: str) -> Resim:
+    """A run whose re-simulation failed or did not happen: empty tables and the reason."""
+    empty = SimulatedRun(run.fish, run.tracks.iloc[0:0], run.photoeyes.iloc[0:0], run.belts.iloc[0:0], 0.0, 0.0)
+    return Resim(run.id, empty, pd.DataFrame(columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]), error)
+
+
 def _task(args: tuple) -> Resim:
     line, run, params, seed, record_poses = args
     from plant.errors import SimulationError
     try:
         return resimulate(line, run, params, seed, record_poses=record_poses)
     except SimulationError as exc:
-        empty = SimulatedRun(run.fish, run.tracks.iloc[0:0], run.photoeyes.iloc[0:0], run.belts.iloc[0:0], 0.0, 0.0)
-        return Resim(run.id, empty, pd.DataFrame(columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]),
-                     str(exc))
+        return not_resimulated(run, str(exc))
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C (sent to the whole process group) to the parent, which stops them."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
     """Worker processes to keep for several :func:`resimulate_many` calls (each new process pays for
-    importing Exudyn); None when one process is asked for.  Use it as a context manager."""
+    importing Exudyn); None when one process is asked for.  End it with :func:`stop_pool` (which,
+    unlike ``shutdown``, does not wait for re-simulations still running)."""
     workers = max(1, workers or os.cpu_count() or 1)
     if workers == 1:
         return None
     import multiprocessing
-    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_ignore_sigint)
+
+
+def stop_pool(pool: ProcessPoolExecutor | None, grace_s: float = 2.0) -> None:
+    """Cancel what has not started, terminate the worker processes (a running re-simulation is not
+    waited for) and shut the pool down; its processes are gone when this returns."""
+    if pool is None:
+        return
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public way before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(grace_s)
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
 
 
 def _cost(run: Run) -> float:
@@ -133,15 +162,41 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
     lives for this call.  The longest runs start first, so that workers finish together.
     ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
     tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
+    from fishfmu.interrupt import STOPS, deferred_signals
+    done: list[Resim | None] = [None] * len(tasks)
     if pool is None:
         workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
         if workers == 1 or len(tasks) == 1:
-            return [_task(t) for t in tasks]
-        with resim_pool(workers) as own:
-            return resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses)
+            try:
+                for i, t in enumerate(tasks):
+                    done[i] = _task(t)
+            except STOPS as exc:
+                exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
+                raise
+            return done  # type: ignore[return-value]
+        own = resim_pool(workers)
+        try:
+            result = resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses)
+        except BaseException:
+            stop_pool(own)  # a signal or an error: no worker outlives the call, none is waited for
+            raise
+        own.shutdown()
+        return result
     order = sorted(range(len(tasks)), key=lambda i: -_cost(tasks[i][1]))
-    futures = {i: pool.submit(_task, tasks[i]) for i in order}
-    return [futures[i].result() for i in range(len(tasks))]
+    futures = {}
+    try:
+        with deferred_signals():  # the pool starts its processes here: they must not see a Ctrl-C while starting
+            futures.update({i: pool.submit(_task, tasks[i]) for i in order})
+        for i in range(len(tasks)):
+            done[i] = futures[i].result()
+    except STOPS as exc:
+        for i, f in futures.items():
+            f.cancel()
+            if done[i] is None and f.done() and not f.cancelled() and f.exception() is None:
+                done[i] = f.result()
+        exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
+        raise
+    return done  # type: ignore[return-value]
 
 
 def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:

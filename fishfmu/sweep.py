@@ -25,7 +25,9 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import re
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,9 +40,14 @@ import pandas as pd
 from plant.errors import InputError
 
 from fishfmu.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
+from fishfmu.interrupt import STOPS
 from fishfmu.scenario import KPI_KEYS, Scenario, load_scenario, parse_value
 
 DEFINITION = "sweep.json"
+MAX_RUNS = 100_000
+"""Runs in one sweep (points x seeds), and so values of one range: a run takes seconds to minutes of a
+core (the paper test: about 10 s), so 100 000 runs are days of a 64-core cluster, and the sweep's
+folder holds a file per run.  Larger sweeps are refused before anything is allocated."""
 FORMAT = 1
 _RANGE = re.compile(r"^\s*([-+]?[\d.eE+-]+)\s*:\s*([-+]?[\d.eE+-]+)\s*:\s*(\d+)\s*$")
 
@@ -75,6 +82,7 @@ def make_spec(scenario: str | Path, parameters: dict[str, list[Any]], n_seeds: i
     fixed = dict(fixed or {})
     if n_seeds < 1:
         raise InputError(f"--seeds must be at least 1 (got {n_seeds})")
+    check_size(math.prod(len(v) for v in parameters.values()), n_seeds)
     for key, values in parameters.items():
         if key == "run.seed":
             raise InputError("sweep the seed with --seeds N, not as a parameter")
@@ -127,12 +135,17 @@ def parse_param(text: str) -> tuple[str, list[Any]]:
         raise InputError(f"--param '{text}': expected KEY=V1,V2,... or KEY=START:STOP:N")
     m = _RANGE.match(values)
     if m:
+        if len(m.group(3).lstrip("0")) > len(str(MAX_RUNS)) or int(m.group(3)) > MAX_RUNS:
+            raise InputError(f"--param '{text}': a range may have at most {MAX_RUNS} values (runs in a sweep: "
+                             f"at most {MAX_RUNS}, points x seeds)")
         try:
             start, stop, n = float(m.group(1)), float(m.group(2)), int(m.group(3))
         except ValueError:
             raise InputError(f"--param '{text}': START and STOP of a range must be numbers") from None
         if n < 1:
             raise InputError(f"--param '{text}': a range needs at least one value")
+        if not (math.isfinite(start) and math.isfinite(stop)):
+            raise InputError(f"--param '{text}': START and STOP must be finite numbers (not NaN or inf)")
         ints = m.group(1).lstrip("+-").isdigit() and m.group(2).lstrip("+-").isdigit()
         grid = np.linspace(start, stop, n)
         if ints and np.allclose(grid, np.round(grid)):
@@ -141,7 +154,32 @@ def parse_param(text: str) -> tuple[str, list[Any]]:
     parsed = [parse_value(v) for v in _split_top_level(values)]
     if any(v == "" for v in parsed):
         raise InputError(f"--param '{text}': empty value")
+    if len(parsed) > MAX_RUNS:
+        raise InputError(f"--param '{text}': at most {MAX_RUNS} values (runs in a sweep: at most {MAX_RUNS})")
+    if any(not _finite(v) for v in parsed):
+        raise InputError(f"--param '{text}': NaN and inf are not values a scenario can take")
     return key, parsed
+
+
+def _finite(value: Any) -> bool:
+    """False for NaN or inf anywhere in a value (numbers, arrays, tables)."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, float) and not math.isfinite(v):
+            return False
+        if isinstance(v, (list, tuple)):
+            stack.extend(v)
+        elif isinstance(v, dict):
+            stack.extend(v.values())
+    return True
+
+
+def check_size(n_points: int, n_seeds: int) -> None:
+    """Refuse a sweep of more than :data:`MAX_RUNS` runs (before anything is allocated for it)."""
+    if n_seeds > MAX_RUNS or n_points * n_seeds > MAX_RUNS:
+        raise InputError(f"{n_points} point(s) x {n_seeds} seed(s) = {n_points * n_seeds} runs; a sweep may have at "
+                         f"most {MAX_RUNS} runs (split it, or sweep fewer values)")
 
 
 def run_id(params: dict[str, Any], seed: int | None = None) -> str:
@@ -252,6 +290,13 @@ class SweepResult:
     interrupted: bool
     wall_s: float
     paths: dict[str, Path] = field(default_factory=dict)
+    stop_signal: int | None = None
+    """the signal that stopped it (SIGINT, SIGTERM) when ``interrupted``"""
+
+    @property
+    def exit_code_interrupted(self) -> int:
+        """128 + the signal number: 130 for Ctrl-C, 143 for SIGTERM."""
+        return 128 + int(self.stop_signal or signal.SIGINT)
 
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
@@ -262,10 +307,13 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
 
     ``max_runs``: run at most this many of the missing runs now (the rest on a later call).
     ``retry_failed``: also re-run failed runs (runs that crashed or raised are re-run anyway).
-    Ctrl-C stops the runs; what finished is kept and the tables are written from it.
+    Ctrl-C (or SIGINT/SIGTERM under the command, see :func:`fishfmu.interrupt.session`) stops the
+    runs: what finished is kept, the tables are written from it (no plots) and ``interrupted`` is set.
     """
     t0 = time.perf_counter()
     out = open_folder(Path(out), spec)
+    from fishfmu.outputs import write_json_atomic
+    write_json_atomic(out / "run_info.json", {"status": "running", "command": "sweep"})  # "partial" if killed
     done = finished_rows(out)
     keep = {k: r for k, r in done.items() if r["status"] == "ok" or (r["error_kind"] in FINAL_ERROR_KINDS
                                                                      and not retry_failed)}
@@ -274,34 +322,37 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         ids = {seed: run_id(params, seed) for seed in spec.seeds}
         for seed, rid in ids.items():
             meta[rid] = {"point_id": run_id(params), "params": params, "seed": seed}
-        missing = [seed for seed, rid in ids.items() if rid not in keep]
-        if not missing:
-            continue
-        try:
-            base = prepare_point(spec, params, checker)
-        except InputError as exc:  # a bad value: recorded without sending anything to a worker
-            for seed in missing:
-                store_row(out, {**failed_row(ids[seed], "input", str(exc)), **meta[ids[seed]]})
-            continue
-        for seed in missing:
-            sc = base.model_copy(deep=True)
-            sc.run.seed = seed
-            tasks.append(RunTask(ids[seed], sc, spec.scenario))
-    if max_runs is not None:
-        tasks = tasks[:max_runs]
-    executed, interrupted = 0, False
+    executed, stop_signal = 0, None
 
     def on_row(row: Row) -> None:
         nonlocal executed
         store_row(out, {**row, **meta[row["run_id"]]})
         executed += 1
 
-    try:
+    try:  # a signal (Ctrl-C, or SIGTERM under the command) while checking or running: keep what finished
+        for params in spec.points():
+            ids = {seed: run_id(params, seed) for seed in spec.seeds}
+            missing = [seed for seed, rid in ids.items() if rid not in keep]
+            if not missing:
+                continue
+            try:
+                base = prepare_point(spec, params, checker)
+            except InputError as exc:  # a bad value: recorded without sending anything to a worker
+                for seed in missing:
+                    store_row(out, {**failed_row(ids[seed], "input", str(exc)), **meta[ids[seed]]})
+                continue
+            for seed in missing:
+                sc = base.model_copy(deep=True)
+                sc.run.seed = seed
+                tasks.append(RunTask(ids[seed], sc, spec.scenario))
+        if max_runs is not None:
+            tasks = tasks[:max_runs]
         if tasks:
             execute(tasks, fmu_bundle(t.scenario for t in tasks), on_row, scheduler=scheduler, workers=workers,
                     threads_per_worker=threads_per_worker, progress=progress, cluster_kwargs=cluster_kwargs)
-    except KeyboardInterrupt:
-        interrupted = True
+    except STOPS as exc:
+        stop_signal = getattr(exc, "signum", signal.SIGINT)
+    interrupted = stop_signal is not None
     rows = [r for r in finished_rows(out).values() if r["run_id"] in meta]
     runs, summary = tables(spec, rows)
     paths = write_tables(out, runs, summary)
@@ -309,7 +360,11 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         from fishfmu.sweep_report import write_plots
         paths["plots"] = write_plots(summary, list(spec.parameters), out / "plots")
     n_runs = len(spec.points()) * len(spec.seeds)
-    return SweepResult(out, runs, summary, n_runs, executed, len(keep), interrupted, time.perf_counter() - t0, paths)
+    write_json_atomic(out / "run_info.json", {
+        "status": "partial" if interrupted or len(rows) < n_runs else "ok", "command": "sweep", "n_runs": n_runs,
+        "n_done": len(rows), "stopped_by": signal.Signals(stop_signal).name if interrupted else None})
+    return SweepResult(out, runs, summary, n_runs, executed, len(keep), interrupted, time.perf_counter() - t0, paths,
+                       stop_signal)
 
 
 # ---------------------------------------------------------------- tables

@@ -38,7 +38,7 @@ from pydantic import Field
 from plant.errors import InputError
 from plant.fish_data import length_regressions
 from plant.line import Id, KpiSettings, Line
-from plant.validation import Strict, read_toml, validate
+from plant.validation import MAX_CSV_BYTES, Strict, file_size_checked, read_toml, validate
 
 
 @dataclass(frozen=True)
@@ -218,6 +218,8 @@ def read_table(path: Path, spec: TableSpec) -> pd.DataFrame:
 def _read_text(path: Path) -> str:
     """The file as text: UTF-8 (a byte-order mark is dropped).  Anything else names the line and column
     of the first byte that is not UTF-8 (a Latin-1 or Windows-1252 export, typically)."""
+    if path.is_file():
+        file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")  # before reading it into memory
     try:
         data = path.read_bytes()
     except FileNotFoundError:

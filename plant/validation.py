@@ -100,16 +100,80 @@ def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: 
         raise InputError(first_msg + (f" (also {more})" if more else ""), file=file, where=first_key or None) from None
 
 
+MAX_TOML_BYTES = 10 * 1024 * 1024
+"""A scenario or dataset.toml is a few kB; 10 MB is far beyond any real one and reads in well under a second."""
+MAX_TOML_DEPTH = 32
+"""Nesting of tables and arrays in a TOML file: a scenario needs 4 (``fmu[0].parameters.x``); 32 is
+far beyond any real file and far below Python's recursion limit (a parser or validator recursing
+into 10 000 levels would fail with RecursionError)."""
+MAX_CSV_BYTES = 512 * 1024 * 1024
+"""One CSV of a measured dataset: 512 MiB, several million rows (a tracks.csv at 25 Hz of 200 fish
+over ten minutes is about 200 MB); pandas needs a few times the file's size in memory."""
+
+
+def file_size_checked(path: Path, limit: int, what: str) -> int:
+    """The file's size, or an InputError naming the limit if it is larger (a symbolic link loop or an
+    unreadable path is an InputError too)."""
+    try:
+        size = path.stat().st_size
+    except FileNotFoundError:
+        raise InputError("file not found", file=path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror or exc}", file=path) from None  # ELOOP: a symbolic link loop
+    if size > limit:
+        raise InputError(f"is {size / 1024**2:.1f} MB; a {what} may be at most {limit / 1024**2:.0f} MB", file=path)
+    return size
+
+
+def toml_depth(doc: Any) -> int:
+    """How deeply tables and arrays nest in ``doc`` (iterative: any depth is measured)."""
+    deepest, stack = 0, [(doc, 0)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict):
+            children = node.values()
+        elif isinstance(node, list):
+            children = node
+        else:
+            continue
+        deepest = max(deepest, depth + 1)
+        if deepest > MAX_TOML_DEPTH:
+            break
+        stack.extend((c, depth + 1) for c in children)
+    return deepest
+
+
 def read_toml(path: str | Path) -> dict[str, Any]:
-    """Read a TOML file; a missing file or a syntax error becomes an InputError naming the file."""
+    """Read a TOML file; a missing file or a syntax error becomes an InputError naming the file.
+
+    Limits: :data:`MAX_TOML_BYTES` and :data:`MAX_TOML_DEPTH`."""
     path = Path(path)
     try:
+        if path.is_file():
+            file_size_checked(path, MAX_TOML_BYTES, "TOML file")
         with path.open("rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read(MAX_TOML_BYTES + 1)
+        if len(data) > MAX_TOML_BYTES:  # not a regular file (a pipe), or it grew
+            raise InputError(f"is larger than {MAX_TOML_BYTES / 1024**2:.0f} MB, the limit for a TOML file", file=path)
+        doc = _parse_toml(path, data)
+        if toml_depth(doc) > MAX_TOML_DEPTH:
+            raise InputError(f"tables and arrays nest more than {MAX_TOML_DEPTH} levels deep (the limit)", file=path)
+        return doc
+    except RecursionError:
+        raise InputError(f"tables and arrays nest too deeply (the limit is {MAX_TOML_DEPTH} levels)",
+                         file=path) from None
     except FileNotFoundError:
         raise InputError("file not found", file=path) from None
     except IsADirectoryError:
         raise InputError("is a folder, expected a TOML file", file=path) from None
+    except OSError as exc:  # a symbolic link loop (ELOOP), no permission, ...
+        raise InputError(f"cannot read: {exc.strerror or exc}", file=path) from None
+
+
+def _parse_toml(path: Path, data: bytes) -> dict[str, Any]:
+    try:
+        # a byte-order mark (Windows editors write one) is not part of the TOML text
+        return tomllib.loads(data.removeprefix(b"\xef\xbb\xbf").decode("utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"TOML syntax error: {exc}", file=path) from None
     except UnicodeDecodeError as exc:

@@ -1,0 +1,117 @@
+"""Limits on what input can make fishfmu allocate or run (issue 13): each is bad input (exit 2,
+``InputError``) naming the limit, found before anything is allocated or written."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from plant.errors import InputError
+from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, file_size_checked, read_toml
+
+from fishfmu.scenario import load_scenario
+from fishfmu.sweep import MAX_RUNS, check_size, make_spec, parse_param
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIO = ROOT / "scenarios" / "paper_test.toml"
+
+
+def fishfmu(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fishfmu.cli", *args], cwd=cwd, capture_output=True, text=True,
+                          env={**os.environ, "CI": "1", "PYTHONPATH": str(ROOT)}, timeout=60)
+
+
+@pytest.mark.parametrize("text", [
+    "a = " + "[" * 10_000 + "]" * 10_000,                               # arrays in arrays
+    "a = " + "{b = " * 5_000 + "1" + "}" * 5_000,                       # inline tables in inline tables
+    "[" + ".".join(["a"] * 10_000) + "]\nx = 1\n",                      # a table header 10 000 keys deep
+    "".join("[[" + ".".join(["a"] * i) + "]]\n" for i in range(1, 60)),  # arrays of tables in arrays of tables
+])
+def test_deeply_nested_toml_is_refused_naming_the_limit(tmp_path, text):
+    path = tmp_path / "deep.toml"
+    path.write_text(text)
+    with pytest.raises(InputError, match=f"nest.*{MAX_TOML_DEPTH} levels") as info:
+        load_scenario(path)
+    assert info.value.file == path
+
+
+def test_a_toml_file_within_the_depth_limit_is_read(tmp_path):
+    path = tmp_path / "ok.toml"
+    path.write_text("a = " + "[" * (MAX_TOML_DEPTH - 1) + "]" * (MAX_TOML_DEPTH - 1))
+    assert "a" in read_toml(path)
+
+
+def test_a_toml_file_over_10_mb_is_refused_before_it_is_read(tmp_path):
+    path = tmp_path / "big.toml"
+    with open(path, "wb") as fh:
+        fh.truncate(MAX_TOML_BYTES + 1)  # sparse: no 10 MB written
+    with pytest.raises(InputError, match="at most 10 MB"):
+        read_toml(path)
+
+
+def test_a_dataset_csv_over_the_limit_is_refused_before_it_is_read(tmp_path):
+    path = tmp_path / "tracks.csv"
+    with open(path, "wb") as fh:
+        fh.truncate(MAX_CSV_BYTES + 1)
+    with pytest.raises(InputError, match="at most 512 MB"):
+        file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")
+    from plant.measured import _read_text
+    with pytest.raises(InputError, match="at most 512 MB"):
+        _read_text(path)
+
+
+def test_a_symlink_loop_as_scenario_is_bad_input(tmp_path):
+    (tmp_path / "a.toml").symlink_to(tmp_path / "b.toml")
+    (tmp_path / "b.toml").symlink_to(tmp_path / "a.toml")
+    with pytest.raises(InputError, match="symbolic links") as info:
+        load_scenario(tmp_path / "a.toml")
+    assert info.value.file == tmp_path / "a.toml"
+
+
+def test_a_symlink_loop_as_out_folder_is_bad_input_naming_it(tmp_path):
+    (tmp_path / "o1").symlink_to(tmp_path / "o2")
+    (tmp_path / "o2").symlink_to(tmp_path / "o1")
+    p = fishfmu("run", str(SCENARIO), "--out", str(tmp_path / "o1"), "--set", "fish.count=1", cwd=tmp_path)
+    assert p.returncode == 2, p.stderr
+    assert "o1" in p.stderr and "internal error" not in p.stderr and len(p.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("param", ["fish.count=0:1:1000000000", "fish.count=1:2:" + "9" * 5000])
+def test_a_huge_range_is_refused_before_it_is_allocated(param):
+    with pytest.raises(InputError, match=f"at most {MAX_RUNS} values"):
+        parse_param(param)
+
+
+def test_points_times_seeds_is_capped():
+    check_size(1000, 100)  # exactly the limit
+    with pytest.raises(InputError, match=f"at most {MAX_RUNS} runs"):
+        check_size(1000, 101)
+    with pytest.raises(InputError, match=f"at most {MAX_RUNS} runs"):
+        make_spec(SCENARIO, {"fish.count": list(range(1, 1001))}, 101)
+    with pytest.raises(InputError, match=f"at most {MAX_RUNS} runs"):
+        make_spec(SCENARIO, {}, 1_000_000_000)  # run --seeds 1e9: refused before the seeds are listed
+
+
+@pytest.mark.parametrize("param", ["fish.length_mean_m=nan,0.5", "fish.length_mean_m=0.5,inf",
+                                   "fish.length_mean_m=-inf", "fmu[0].parameters.speed_2=[0.4, nan]",
+                                   "fish.length_mean_m=1e999:1:3"])
+def test_nan_or_inf_in_a_sweep_value_is_refused_naming_the_param(param):
+    with pytest.raises(InputError, match="NaN|inf") as info:
+        parse_param(param)
+    assert param.split("=")[0] in str(info.value)
+
+
+def test_the_sweep_command_refuses_a_billion_points_quickly_and_writes_nothing(tmp_path):
+    p = fishfmu("sweep", str(SCENARIO), "--out", str(tmp_path / "sw"), "--param", "fish.count=0:1:1000000000",
+                cwd=tmp_path)
+    assert p.returncode == 2 and f"at most {MAX_RUNS} values" in p.stderr, p.stderr
+    assert not (tmp_path / "sw").exists()
+
+
+def test_simulated_time_is_bounded_to_a_day():
+    with pytest.raises(InputError, match="86400"):
+        load_scenario(SCENARIO, {"run.duration_s": 1e9})
