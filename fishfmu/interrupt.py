@@ -6,6 +6,13 @@ and the command writes what was recorded so far, marked ``"status": "partial"``,
 128 + the signal number (130 for SIGINT, 143 for SIGTERM), the shell's convention.  A second
 signal is not waited on: the previous handler is put back and the signal delivered again (Ctrl-C
 twice stops at once; files are written atomically, so none is left half-written under its name).
+
+The commands with worker processes (``run --seeds``, ``sweep``, ``compare``, ``diagnose``) run
+inside :func:`session` (``fishfmu.cli.main`` opens one for every command): there the first signal
+raises :class:`Interrupted` in the main thread, so that a loop waiting for workers stops at once,
+cancels what has not run, shuts its cluster or pool down and writes what finished; the session owns
+the command's temporary folder (``TMPDIR`` of the command and its workers), removes it at the end and
+terminates any child process still alive.
 """
 
 from __future__ import annotations
