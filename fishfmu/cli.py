@@ -7,19 +7,22 @@ Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from pathlib import Path
 
 import typer
 from rich.console import Console
-from rich.markup import escape
 
 from plant.errors import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED, InputError,
                           SimulationError)
 
+from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
+
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  rich_markup_mode=None,  # help text is literal: "[expect]" stays in it
                   help="Co-simulate salmon singulation lines: plant in Exudyn, drives and controller as FMUs.")
-err_console = Console(stderr=True)
+err_console = literal_console(stderr=True)
 
 
 @app.callback()
@@ -45,12 +48,26 @@ def build_fmus(
         defaults[key.strip()] = parse_value(value.strip())
     if defaults and len(names or BUILTIN_FMUS) != 1:
         raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
+    from fishfmu.ownership import check_single_file_target, record_written
+    for name in names or BUILTIN_FMUS:  # an existing .fmu is replaced only if fishfmu wrote it
+        check_single_file_target(out / f"{name}.fmu")
     for name in names or BUILTIN_FMUS:
         try:
-            print(build_fmu(name, out, defaults))
+            fmu_path = build_fmu(name, out, defaults)
+            record_written(fmu_path)
+            print(fmu_path)
         except FmuBuildError as exc:
-            err_console.print(f"[bold red]build failed:[/] {name}: {exc}", highlight=False)
+            print_error("build failed", f"{name}: {exc}")
             raise typer.Exit(EXIT_SIMULATION_FAILED) from exc
+
+
+def _run_inputs(scenario: Path, sc, junit: Path | None) -> list:
+    """The files a run reads (never written over); checks ``--junit`` against them and for ownership."""
+    from fishfmu.ownership import check_single_file_target
+    inputs = [scenario, *(f.path for f in sc.fmu if f.path)]
+    if junit is not None:
+        check_single_file_target(junit, inputs)
+    return inputs
 
 
 def _show_progress() -> bool:
@@ -70,7 +87,7 @@ def print_kpis(result, console: Console) -> None:
             table.add_row(key, f"{v:.3f}" if isinstance(v, float) else str(v))
     console.print(table)
     for e in result.expect:
-        console.print(("[green]ok[/]   " if e.ok else "[red]FAIL[/] ") + e.message, highlight=False)
+        console.print(outcome(e.ok, e.message))
 
 
 @app.command("run")
@@ -89,7 +106,7 @@ def run(
     scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
-    from fishfmu.interrupt import stop_on_signals
+    from fishfmu.interrupt import register_output, stop_on_signals
     from fishfmu.outputs import discard_if_unused, mark_running, prepare_out_dir, write_junit, write_outputs
     from fishfmu.runner import check_scenario, run_scenario
     from fishfmu.scenario import load_scenario, parse_value
@@ -106,22 +123,29 @@ def run(
         if replay:
             raise InputError("--replay shows one run; drop it or run without --seeds")
         from fishfmu.montecarlo import run_seeds_command
-        check_scenario(load_scenario(scenario, overrides), scenario)
-        out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
+        from fishfmu.sweep import check_size
+        check_size(1, seeds)  # before anything is written
+        sc = load_scenario(scenario, overrides)
+        check_scenario(sc, scenario)
+        out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite,
+                                  _run_inputs(scenario, sc, junit), "run")
+        register_output(out_dir, {"command": "run", "seeds": seeds})  # a signal: run_info.json says partial
         raise typer.Exit(run_seeds_command(scenario, overrides, seeds, out_dir, junit, scheduler, workers,
                                            _show_progress()))
     sc = load_scenario(scenario, overrides)
     check_scenario(sc, scenario)  # FMU files, parameters, wiring: bad input before anything is written
-    out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite or out is None)
+    out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite,
+                              _run_inputs(scenario, sc, junit), "run")
     mark_running(out_dir, scenario)
-    console = Console()
+    register_output(out_dir)
+    console = literal_console()
     with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
         try:
             if _show_progress():
                 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
                 with Progress(TextColumn("{task.description}"), BarColumn(),
                               TextColumn("{task.fields[t]:.1f} s simulated"), TimeElapsedColumn(),
-                              console=Console(stderr=True), transient=True) as bar:
+                              console=literal_console(stderr=True), transient=True) as bar:
                     task = bar.add_task(sc.run.name, total=sc.run.duration_s, t=0.0)
                     result = run_scenario(sc, scenario, record_poses=replay, stop=stop,
                                           on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
@@ -133,15 +157,13 @@ def run(
         write_outputs(result, out_dir, report=report)
     if replay:
         from fishfmu.replay import write_replay
-        console.print(f"replay: {write_replay(out_dir)}", highlight=False)
+        console.print(f"replay: {write_replay(out_dir)}")
     if junit is not None:
         write_junit(result, junit, str(scenario))
     print_kpis(result, console)
-    console.print(f"outputs: {out_dir}", highlight=False)
+    console.print(f"outputs: {out_dir}")
     if result.status == "partial":
-        err_console.print(f"[bold yellow]stopped:[/] {escape(str(result.error))}; partial results written to "
-                          f"{escape(str(out_dir))}",
-                          highlight=False, soft_wrap=True)
+        err_console.print(labelled("stopped:", f"{result.error}; partial results written to {out_dir}", "bold yellow"))
         raise typer.Exit(stop.exit_code)
     if result.status != "ok":
         raise SimulationError(f"{result.error} (results so far written to {out_dir})")
@@ -178,18 +200,21 @@ def sweep(
     if len(params) != len(param):
         raise InputError("a key is given twice with --param")
     spec = make_spec(scenario, params, seeds, fixed)
+    from fishfmu.interrupt import register_output
+    register_output(out, {"command": "sweep"})
     result = run_sweep(spec, out, scheduler=scheduler, workers=workers, threads_per_worker=threads_per_worker,
                        progress=_show_progress(), max_runs=max_runs, retry_failed=retry_failed)
-    console = Console()
+    console = literal_console()
     if len(result.summary):
         print_summary(result.summary, list(spec.parameters), console, title=scenario.stem)
     done = len(result.runs)
     console.print(f"{done} of {result.n_runs} runs done ({result.n_executed} now, {result.n_skipped} from before), "
                   f"{int((result.runs['status'] != 'ok').sum()) if done else 0} failed, {result.wall_s:.0f} s; "
-                  f"tables and plots in {result.out}", highlight=False)
+                  f"tables and plots in {result.out}")
     if result.interrupted:
-        console.print("[yellow]interrupted[/]: run the same command again to resume", highlight=False)
-        raise typer.Exit(130)
+        console.print(labelled("stopped:", f"by {signal.Signals(result.exit_code_interrupted - 128).name}; run the "
+                               "same command again to resume", "yellow"))
+        raise typer.Exit(result.exit_code_interrupted)
 
 
 @app.command("bench")
@@ -213,7 +238,7 @@ def bench(
         raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
     if not counts or min(counts) < 0:
         raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
-    console = Console()
+    console = literal_console()
     table = Table(title=f"fishfmu bench: {duration:g} s simulated after the drop, step {comm_step:g} s, {threads} thread(s)")
     for col in ("fish", "RTF plant", "RTF co-sim", "Exudyn", "plant py", "FMUs", "master", "recording",
                 "FMU+master+rec", "peak MB"):
@@ -224,17 +249,25 @@ def bench(
         table.add_row(str(r.fish), f"{r.rtf_plant:.2f}", f"{r.rtf_cosim:.2f}", f"{100 * r.plant_exudyn_s / w:.0f} %",
                       f"{100 * r.plant_python_s / w:.0f} %", f"{100 * r.fmu_s / w:.1f} %", f"{100 * r.master_s / w:.1f} %",
                       f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
-        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}", highlight=False)
+        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
 
+    from fishfmu.ownership import check_single_file_target, note_temp, replace_into
+    for target in (json_file, plot_file):  # before measuring: an existing file is replaced only if ours
+        if target is not None:
+            check_single_file_target(target)
     records = run_bench(counts, duration, comm_step, threads, on_record=row)
     console.print(table)
     base, per = per_fish_cost(records)
     console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
-                  "measured counts)", highlight=False)
+                  "measured counts)")
     if json_file is not None:
-        json_file.write_text(json.dumps(records_json(records), indent=2) + "\n")
+        from fishfmu.outputs import write_text_atomic
+        write_text_atomic(json_file, json.dumps(records_json(records), indent=2) + "\n")
     if plot_file is not None:
-        plot(records, plot_file)
+        tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
+        note_temp(tmp)
+        plot(records, tmp)
+        replace_into(tmp, plot_file)
 
 
 @app.command("replay")
@@ -243,7 +276,10 @@ def replay_cmd(
     out: Path | None = typer.Option(None, "--out", help="HTML file to write (default: RUN_DIR/replay.html)."),
 ) -> None:
     """Write a run as one HTML page that replays it in 3D in a browser (offline, from the file)."""
+    from fishfmu.ownership import check_single_file_target
     from fishfmu.replay import write_replay
+    check_single_file_target(out if out is not None else run_dir / "replay.html",
+                             [run_dir / "run", run_dir / "poses.npz", run_dir / "scenario.resolved.toml"])
     print(write_replay(run_dir, out))
 
 
@@ -272,20 +308,29 @@ def compare(
     from fishfmu.compare import compare_dataset, write_comparison
     from fishfmu.outputs import prepare_out_dir, write_json_atomic
     ds, params, drive = _dataset_and_params(dataset, scenario)
-    out_dir = prepare_out_dir(out, overwrite)
-    c = compare_dataset(ds, params, workers, drive)
+    out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "compare")
+    from fishfmu.interrupt import current, register_output
+    register_output(out_dir, {"command": "compare", "dataset": str(dataset)})  # a signal: run_info.json says partial
+    c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
     paths = write_comparison(c, out_dir)
-    failure = c.failure()  # a re-simulation that failed: exit 3 once the rest is written
-    write_json_atomic(out_dir / "run_info.json", {"status": "failed" if failure else "ok", "command": "compare",
-                                                  "dataset": str(dataset)} | ({"error": failure} if failure else {}))
+    stopped = current() is not None and current().requested
+    failure = None if stopped else c.failure()  # a re-simulation that failed: exit 3 once the rest is written
+    write_json_atomic(out_dir / "run_info.json", {"status": "partial" if stopped else "failed" if failure else "ok",
+                                                  "command": "compare", "dataset": str(dataset)}
+                      | ({"stopped_by": current().signal_name} if stopped else {})
+                      | ({"error": failure} if failure else {}))
     from rich.table import Table
     table = Table(title=f"{ds.name}: simulated - measured, over {len(ds.runs)} runs")
     for col in ("measure", "mean", "sd", "min", "max"):
         table.add_column(col, justify="right" if col != "measure" else "left")
     for row in c.summary().itertuples():
         table.add_row(row.measure, *[f"{getattr(row, k):.4g}" for k in ("mean", "sd", "min", "max")])
-    Console().print(table)
-    Console().print(f"report: {paths['report']}", highlight=False)
+    literal_console().print(table)
+    literal_console().print(f"report: {paths['report']}")
+    if stopped:
+        err_console.print(labelled("stopped:", f"by {current().signal_name}; runs not re-simulated are listed as "
+                                   f"failed in {out_dir / 'compare.json'}", "bold yellow"))
+        raise typer.Exit(current().exit_code)
     if failure:
         raise SimulationError(f"{failure} (what the other runs gave is written to {out_dir})")
 
@@ -304,40 +349,66 @@ def diagnose_cmd(
     from fishfmu.diagnose_report import decision_text, write_diagnosis
     from fishfmu.outputs import prepare_out_dir, write_json_atomic
     ds, params, _ = _dataset_and_params(dataset, scenario)
-    out_dir = prepare_out_dir(out, overwrite)
+    out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "diagnose")
+    from fishfmu.interrupt import register_output
+    register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
     try:
-        d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text, highlight=False))
+        d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text))
     except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
         write_json_atomic(out_dir / "run_info.json", {"status": "failed", "command": "diagnose",
                                                       "dataset": str(dataset), "error": str(exc)})
         raise
     paths = write_diagnosis(d, out_dir)
     write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "diagnose", "dataset": str(dataset)})
-    Console().print(f"cause: [bold]{d.cause}[/]", highlight=False)
-    Console().print(decision_text(d), highlight=False)
-    Console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}",
-                    highlight=False)
+    literal_console().print(labelled("cause:", d.cause, "bold"))
+    literal_console().print(decision_text(d))
+    literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")
 
 
 def main() -> None:
     """Entry point: turn our own errors into one clear line and the matching exit code."""
+    from fishfmu.interrupt import Interrupted, mark_partial, session
     try:
-        app(standalone_mode=True)
+        code = 0
+        with session() as s:  # SIGINT/SIGTERM: workers stopped, temporary folder removed, exit 130/143
+            try:
+                app(standalone_mode=True)
+            except Interrupted as exc:
+                mark_partial(s.out_dir, exc.signum, s.out_info)
+                where = f"; what finished is in {s.out_dir} (run_info.json: partial)" if s.out_dir is not None else ""
+                err_console.print(labelled("stopped:", f"by {exc.signal_name}{where}", "bold yellow"))
+                code = exc.exit_code
+        sys.exit(code)
     except InputError as exc:
-        err_console.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        print_error("error", exc)
         sys.exit(EXIT_BAD_INPUT)
     except SimulationError as exc:
-        err_console.print(f"[bold red]simulation failed:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
+        print_error("simulation failed", exc)
         sys.exit(EXIT_SIMULATION_FAILED)
+    except OSError as exc:  # an output location that cannot be written (disk full, read-only): not a bug
+        from fishfmu.ownership import os_error
+        print_error("error", os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error"))
+        sys.exit(EXIT_BAD_INPUT)
+    except RuntimeError as exc:  # Path.resolve() on a symbolic link loop (Python < 3.13): bad input, not a bug
+        if not str(exc).startswith("Symlink loop from "):
+            _internal_error(exc)
+        print_error("error", f"{str(exc).removeprefix('Symlink loop from ').strip(chr(39))}: a symbolic link loop "
+                             "(the path leads back to itself)")
+        sys.exit(EXIT_BAD_INPUT)
     except Exception as exc:  # a bug: say so in one line, with where it happened (traceback on request)
-        if os.environ.get("FISHFMU_DEBUG"):
-            raise
-        import traceback
-        frame = traceback.extract_tb(exc.__traceback__)[-1]
-        err_console.print(f"[bold red]internal error[/] (a bug in fishfmu; please report it, FISHFMU_DEBUG=1 shows "
-                          f"the traceback): {escape(f'{type(exc).__name__}: {exc} [{Path(frame.filename).name}:{frame.lineno}]')}",
-                          highlight=False, soft_wrap=True)
-        sys.exit(EXIT_INTERNAL_ERROR)
+        _internal_error(exc)
+
+
+def _internal_error(exc: Exception) -> None:
+    """A bug: one line saying where it happened (the traceback with FISHFMU_DEBUG=1); exit 4."""
+    if os.environ.get("FISHFMU_DEBUG"):
+        raise exc
+    import traceback
+    frame = traceback.extract_tb(exc.__traceback__)[-1]
+    err_console.print(labelled("internal error", "(a bug in fishfmu; please report it, FISHFMU_DEBUG=1 shows "
+                               f"the traceback): {type(exc).__name__}: {exc} "
+                               f"[{Path(frame.filename).name}:{frame.lineno}]", "bold red"))
+    sys.exit(EXIT_INTERNAL_ERROR)
 
 
 if __name__ == "__main__":

@@ -15,8 +15,10 @@ import pandas as pd  # noqa: E402
 
 
 def _save(fig, path: Path) -> str:
+    from fishfmu.ownership import record_written
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
+    record_written(path)  # the folder's manifest: this file is fishfmu's
     return base64.b64encode(path.read_bytes()).decode()
 
 

@@ -73,8 +73,10 @@ def diagnosis_document(d: Diagnosis) -> dict:
 
 
 def _img(fig, path: Path) -> str:
+    from fishfmu.ownership import record_written
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
+    record_written(path)  # the folder's manifest: this file is fishfmu's
     return base64.b64encode(path.read_bytes()).decode()
 
 

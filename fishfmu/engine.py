@@ -193,11 +193,11 @@ def progress_bar(total: int, enabled: bool, description: str = "runs") -> Iterat
     if not enabled:
         yield lambda row: None
         return
-    from rich.console import Console
+    from fishfmu.terminal import console as literal_console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[failed]} failed"), TimeElapsedColumn(), TimeRemainingColumn(),
-                  console=Console(stderr=True), transient=False) as bar:
+                  console=literal_console(stderr=True), transient=False) as bar:
         task = bar.add_task(description, total=total, failed=0)
         failed = 0
 

@@ -19,13 +19,13 @@ from typing import Any
 from xml.etree import ElementTree as ET
 
 import pandas as pd
-from rich.console import Console
 
 from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
 
 from fishfmu.runner import ExpectResult
 from fishfmu.scenario import KPI_KEYS, load_scenario
 from fishfmu.sweep import SweepResult, make_spec, run_sweep
+from fishfmu.terminal import console as literal_console, labelled, outcome
 
 SHOWN_KPIS = ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
               "gap_min_m", "gap_p10_m", "gap_median_m")
@@ -116,19 +116,20 @@ def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, o
     """What ``fishfmu run --seeds N`` does after preparing the folder; returns the exit code."""
     result = run_seeds(scenario, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers, progress=progress)
     from fishfmu.sweep_report import print_statistics
-    console = Console()
+    console = literal_console()
     seeds = result.sweep.runs["seed"]
     print_statistics(result.statistics, SHOWN_KPIS, console,
                      f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
                      f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), "
                      f"{result.sweep.wall_s:.0f} s")
     if result.n_failed:
-        console.print(f"[red]failed runs:[/] {result.statistics['errors']}", highlight=False)
+        console.print(labelled("failed runs:", result.statistics['errors'], "red"))
     for e in result.expect:
-        console.print(("[green]ok[/]   " if e.ok else "[red]FAIL[/] ") + "mean " + e.message, highlight=False)
+        console.print(outcome(e.ok, "mean " + e.message))
     if junit is not None:
         write_junit_means(result, junit, str(scenario))
     if result.sweep.interrupted:
-        console.print("[yellow]interrupted[/]: the statistics cover the runs that finished", highlight=False)
-    console.print(f"outputs: {out_dir}", highlight=False)
+        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.exit_code_interrupted - 128).name}; the "
+                               "statistics cover the runs that finished (run_info.json: partial)", "yellow"))
+    console.print(f"outputs: {out_dir}")
     return result.exit_code

@@ -45,6 +45,15 @@ def write_text_atomic(path: Path, text: str) -> None:
     write_bytes_atomic(path, text.encode("utf-8"))
 
 
+def _file_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()
+
+
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write under a temporary name, record it in the folder's manifest, rename into place.
     An OS error (read-only, disk full, not a folder) is an :class:`~fishfmu.ownership.OutputError`."""
@@ -57,6 +66,7 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
     try:
         ownership.note_pending(tmp, path, data)
         with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), _FILE_MODE)  # mkstemp makes 0600; an output is as readable as any file
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())

@@ -38,7 +38,7 @@ from plant.errors import InputError
 from plant.line import KpiSettings, Line
 from plant.params import PlantParams
 from plant.population import PopulationSpec
-from plant.validation import Strict, read_toml, validate
+from plant.validation import Strict, ValueAtKey, read_toml, validate
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
 
@@ -86,7 +86,7 @@ class FmuInstance(Strict):
     @model_validator(mode="after")
     def _one_source(self) -> "FmuInstance":
         if (self.builtin is None) == (self.path is None):
-            raise ValueError(f"FMU '{self.name}': give exactly one of 'builtin' or 'path'")
+            raise ValueAtKey("path", f"FMU '{self.name}': give exactly one of 'builtin' or 'path'")
         return self
 
 
@@ -101,9 +101,9 @@ class Event(Strict):
     @model_validator(mode="after")
     def _value_needed(self) -> "Event":
         if self.action != "reset" and self.value is None:
-            raise ValueError(f"event '{self.action}' of '{self.target}' needs a value")
+            raise ValueAtKey("value", f"event '{self.action}' of '{self.target}' needs a value")
         if "." not in self.target:
-            raise ValueError(f"event target '{self.target}' must be '<fmu>.<variable>' or 'plant.<id>.<signal>'")
+            raise ValueAtKey("target", f"event target '{self.target}' must be '<fmu>.<variable>' or 'plant.<id>.<signal>'")
         return self
 
 
@@ -129,9 +129,9 @@ class Bound(Strict):
     @model_validator(mode="after")
     def _some(self) -> "Bound":
         if self.min is None and self.max is None:
-            raise ValueError("give min, max or both")
+            raise ValueAtKey("min", "give min, max or both")
         if self.min is not None and self.max is not None and self.min > self.max:
-            raise ValueError(f"min ({self.min}) is above max ({self.max})")
+            raise ValueAtKey("min", f"min ({self.min}) is above max ({self.max})")
         return self
 
 
@@ -165,20 +165,20 @@ class Scenario(Strict):
         names = [f.name for f in self.fmu]
         dup = sorted({n for n in names if names.count(n) > 1})
         if dup:
-            raise ValueError(f"FMU names must be unique; repeated: {', '.join(dup)}")
+            raise ValueAtKey("fmu", f"FMU names must be unique; repeated: {', '.join(dup)}")
         if "plant" in names:
-            raise ValueError("'plant' is reserved for the plant's ports; rename the FMU")
+            raise ValueAtKey(f"fmu[{names.index('plant')}].name", "'plant' is reserved for the plant's ports; rename the FMU")
         n_base = self.run.comm_step_s / self.plant.numerics.step_s
         if abs(n_base - round(n_base)) > 1e-6:
-            raise ValueError(f"run.comm_step_s ({self.run.comm_step_s}) must be a whole multiple of "
+            raise ValueAtKey("run.comm_step_s", f"{self.run.comm_step_s} s must be a whole multiple of "
                              f"plant.numerics.step_s ({self.plant.numerics.step_s})")
         longest = self.fish.length_max_m
         if self.line.conveyors[0].length_m < longest:
-            raise ValueError(f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
+            raise ValueAtKey("fish.length_max_m", f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
                              f"is shorter than the longest fish (fish.length_max_m = {longest} m)")
         for i, c in enumerate(self.line.conveyors):
             if c.length_m < longest:
-                raise ValueError(f"line.conveyors[{i}] ('{c.id}', length_m = {c.length_m} m) is shorter than the "
+                raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
                                  f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
         return self
 

@@ -243,21 +243,21 @@ def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) 
 def open_folder(out: Path, spec: SweepSpec) -> Path:
     """Create the sweep folder, or accept one holding this very sweep; refuse anything else."""
     from fishfmu.outputs import write_json_atomic
-    out = Path(out)
+    from fishfmu.ownership import is_internal, note_dir, open_resumable
     definition = spec.definition()
-    if out.exists() and not out.is_dir():
-        raise InputError("exists and is not a folder", file=out)
+    out = open_resumable(Path(out), [spec.scenario])  # refuses a folder holding anything fishfmu did not write
     if (out / DEFINITION).is_file():
         old = json.loads((out / DEFINITION).read_text())
         differ = [k for k in definition if old.get(k) != definition[k]]
         if differ:
             raise InputError(f"holds a different sweep ({', '.join(differ)} differ); use another --out to start a new "
                              "sweep, or the same command as before to resume this one", file=out)
-    elif out.exists() and any(out.iterdir()):
+    elif any(not is_internal(p.name) for p in out.iterdir()):
         raise InputError("folder is not empty and holds no sweep; choose another --out", file=out)
     else:
         write_json_atomic(out / DEFINITION, definition)
     (out / "points").mkdir(parents=True, exist_ok=True)
+    note_dir(out / "points")
     return out
 
 
@@ -404,16 +404,17 @@ def _table_safe(df: pd.DataFrame) -> pd.DataFrame:
 
 def write_tables(out: Path, runs: pd.DataFrame, summary: pd.DataFrame) -> dict[str, Path]:
     """runs/summary as parquet and CSV, each written to a temporary name and renamed into place."""
-    import os
+    from fishfmu.ownership import note_temp, replace_into
     paths = {}
     for name, df in (("runs", runs), ("summary", summary)):
         for ext in ("parquet", "csv"):
             path = out / f"{name}.{ext}"
             tmp = out / f".{name}.{ext}.part"
+            note_temp(tmp)  # the folder's manifest knows the name before the file exists
             if ext == "parquet":
                 df.to_parquet(tmp, index=False)
             else:
                 df.to_csv(tmp, index=False, float_format="%.10g")
-            os.replace(tmp, path)
+            replace_into(tmp, path)
             paths[f"{name}_{ext}"] = path
     return paths

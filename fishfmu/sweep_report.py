@@ -12,6 +12,8 @@ import pandas as pd
 from rich.console import Console
 from rich.table import Table
 
+from fishfmu.terminal import labelled
+
 PLOT_KPIS = ("singulation_rate", "throughput_time_s", "fpm_in", "fpm_out", "singulated", "lost",
              "gap_min_m", "gap_p10_m", "gap_median_m")
 TABLE_KPIS = ("singulation_rate", "throughput_time_s", "fpm_out")
@@ -37,7 +39,9 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
     line per combination of the other parameters.  Parameters with a single value get no plot; the
     singulation rate's band is drawn clipped to [0, 1] (the tables keep the unclipped interval)."""
     from matplotlib.figure import Figure  # no pyplot: no global state, Agg canvas
+    from fishfmu.ownership import note_dir, record_written
     folder.mkdir(parents=True, exist_ok=True)
+    note_dir(folder)
     for x_key in parameters:
         if x_key not in summary or summary[x_key].nunique(dropna=False) < 2:
             continue
@@ -80,7 +84,9 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
             if others and 1 < n_lines <= MAX_LEGEND:
                 ax.legend(fontsize=7)
             fig.tight_layout()
-            fig.savefig(folder / f"{kpi}__{re.sub(r'[^A-Za-z0-9_]+', '_', x_key).strip('_')}.png")
+            png = folder / f"{kpi}__{re.sub(r'[^A-Za-z0-9_]+', '_', x_key).strip('_')}.png"
+            fig.savefig(png)
+            record_written(png)  # the folder's manifest: this file is fishfmu's
     return folder
 
 
@@ -111,8 +117,7 @@ def print_summary(summary: pd.DataFrame, parameters: list[str], console: Console
     failed = summary[summary["n_failed"] > 0]
     for _, row in failed.iterrows():
         where = ", ".join(f"{k}={row[k]}" for k in parameters) or "scenario"
-        console.print(f"[red]failed[/] {where}: {row['n_failed']} of {row['n_runs']} runs: {row['errors']}",
-                      highlight=False)
+        console.print(labelled("failed", f"{where}: {row['n_failed']} of {row['n_runs']} runs: {row['errors']}", "red"))
 
 
 def print_statistics(row: pd.Series, kpis: tuple[str, ...], console: Console, title: str) -> None:

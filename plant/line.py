@@ -20,7 +20,7 @@ from typing import Annotated
 import pydantic
 from pydantic import Field
 
-from plant.validation import Strict
+from plant.validation import Strict, ValueAtKey
 
 Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z_][A-Za-z0-9_\-]*$")]
 
@@ -59,35 +59,35 @@ class Line(Strict):
         ids = [c.id for c in self.conveyors] + [p.id for p in self.photoeyes]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
-            raise ValueError(f"ids must be unique across conveyors and photo-eyes; repeated: {', '.join(dup)}")
+            raise ValueAtKey("conveyors", f"ids must be unique across conveyors and photo-eyes; repeated: {', '.join(dup)}")
         for i, (a, b) in enumerate(zip(self.conveyors, self.conveyors[1:])):
             if b.x_start_m < a.x_end_m - 1e-9:
-                raise ValueError(
+                raise ValueAtKey(f"conveyors.{i + 1}.x_start_m",
                     f"conveyors[{i + 1}] ('{b.id}') starts at x = {b.x_start_m} m, inside conveyors[{i}] "
                     f"('{a.id}') which ends at x = {a.x_end_m:g} m: conveyors overlap or are not in flow order")
             if b.x_start_m - a.x_end_m > 0.5:
-                raise ValueError(
+                raise ValueAtKey(f"conveyors.{i + 1}.x_start_m",
                     f"gap of {b.x_start_m - a.x_end_m:.3f} m between '{a.id}' and '{b.id}': fish would fall "
                     "through; gaps up to 0.5 m are supported")
             if b.z_top_m > a.z_top_m + 1e-3:
-                raise ValueError(
+                raise ValueAtKey(f"conveyors.{i + 1}.z_top_m",
                     f"conveyors[{i + 1}] ('{b.id}') top z_top_m = {b.z_top_m} is above '{a.id}' "
                     f"({a.z_top_m}): a step up stops fish; only steps down are supported")
             if a.z_top_m - b.z_top_m > 0.5:
-                raise ValueError(f"step down of {a.z_top_m - b.z_top_m:.3f} m from '{a.id}' to '{b.id}' "
+                raise ValueAtKey(f"conveyors.{i + 1}.z_top_m", f"step down of {a.z_top_m - b.z_top_m:.3f} m from '{a.id}' to '{b.id}' "
                                  "is more than 0.5 m: that is a drop, not a transfer")
         for i, c in enumerate(self.conveyors):
             if c.width_m < self.guide_width_m - 1e-9:
-                raise ValueError(
+                raise ValueAtKey(f"conveyors.{i}.width_m",
                     f"conveyors[{i}] ('{c.id}') width_m = {c.width_m} is narrower than guide_width_m = "
                     f"{self.guide_width_m}: fish would fall between belt edge and guide")
         for i, p in enumerate(self.photoeyes):
             if not (self.x_start_m <= p.x_m <= self.x_end_m):
-                raise ValueError(f"photoeyes[{i}] ('{p.id}') at x_m = {p.x_m} is outside the line "
+                raise ValueAtKey(f"photoeyes.{i}.x_m", f"photoeyes[{i}] ('{p.id}') at x_m = {p.x_m} is outside the line "
                                  f"[{self.x_start_m:g}, {self.x_end_m:g}] m")
             top = self.z_top_at(p.x_m)
             if not (top < p.z_m <= top + 0.5):
-                raise ValueError(f"photoeyes[{i}] ('{p.id}') beam z_m = {p.z_m} must be above the belt top "
+                raise ValueAtKey(f"photoeyes.{i}.z_m", f"photoeyes[{i}] ('{p.id}') beam z_m = {p.z_m} must be above the belt top "
                                  f"there (z = {top:g} m) and at most 0.5 m above it")
         return self
 
@@ -135,4 +135,4 @@ class KpiSettings(Strict):
         for key in ("outfeed_photoeye", "infeed_photoeye"):
             value = getattr(self, key)
             if value is not None and value not in names:
-                raise ValueError(f"{key} = '{value}' is not a photo-eye of the line (photo-eyes: {', '.join(names) or 'none'})")
+                raise ValueAtKey(f"kpi.{key}", f"'{value}' is not a photo-eye of the line (photo-eyes: {', '.join(names) or 'none'})")

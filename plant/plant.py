@@ -480,7 +480,10 @@ class Plant:
             raise SimulationError(f"fish '{self.fish_specs[fish_of[i]].fish_id}' left the line sideways "
                                   f"(y = {pos[i, 1]:.3f} m, guides at +-{half:g} m)", self.t_s)
         floor = self.floor_below(pos[:, 0])
-        below = within_x & (pos[:, 2] < floor - 0.08)
+        # a fish sliding off the end of the line hangs over the last drum: only a body clear of
+        # that drum (as floor_below counts it, 0.1 m) can have gone through a belt
+        before_end = pos[:, 0] < self.line.x_end_m - 0.1
+        below = within_x & before_end & (pos[:, 2] < floor - 0.08)
         if np.any(below):
             i = int(np.flatnonzero(below)[0])
             raise SimulationError(f"fish '{self.fish_specs[fish_of[i]].fish_id}' fell through a belt "

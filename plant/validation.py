@@ -27,6 +27,16 @@ class Strict(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
 
 
+class ValueAtKey(ValueError):
+    """A cross-field check's failure that names the key to fix (a model validator's error has no key
+    of its own: pydantic reports it at the table that holds the fields)."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(message)
+        self.key = key
+        self.message = message
+
+
 def _dotted(loc: tuple[Any, ...], prefix: str) -> str:
     out = prefix
     for part in loc:
@@ -68,6 +78,10 @@ def _inner_model(annotation: Any) -> Any:
 def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix: str) -> tuple[str, str]:
     """(dotted key, message) for one pydantic error dict."""
     loc = tuple(err.get("loc", ()))
+    raised = err.get("ctx", {}).get("error")
+    if isinstance(raised, ValueAtKey):
+        parts = tuple(int(k) if k.isdigit() else k for k in raised.key.split("."))  # "conveyors.1.x_m"
+        return _dotted(loc + parts, prefix), raised.message
     key = _dotted(loc, prefix)
     kind = err.get("type", "")
     if kind == "extra_forbidden":
@@ -80,6 +94,8 @@ def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix:
     if kind == "missing":
         return key, "required key is missing"
     msg = err.get("msg", "invalid value")
+    if kind in ("value_error", "assertion_error"):  # our validators' own text, without pydantic's "Value error, "
+        msg = str(err.get("ctx", {}).get("error", msg))
     if "input" in err and kind not in ("model_type", "dict_type") and not isinstance(err["input"], dict):
         msg = f"{msg} (got {err['input']!r})"
     return key, msg

@@ -96,7 +96,7 @@ SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
                             ("line.conveyors[0].width_m", "greater than 0.05")),
     "fish longer than a belt": (_replace((LAST_BELT, "x_start_m = 5.03\nlength_m = 0.7"),
                                          ("x_m = 6.43", "x_m = 5.6")),
-                                ("line.conveyors[3] ('c4', length_m = 0.7 m)", "longest fish", "0.75 m")),
+                                ("line.conveyors[3].length_m", "('c4')", "longest fish", "0.75 m")),
     "overlapping conveyors": (_replace(("x_start_m = 2.01", "x_start_m = 1.5")),
                               ("line", "conveyors[1] ('c2') starts at x = 1.5 m", "overlap")),
     "photo-eye outside the line": (_replace(("x_m = 6.43", "x_m = 7.5")),

@@ -28,6 +28,7 @@ def test_diagnose_names_the_hidden_effect_with_a_held_out_gain(effect: str, tmp_
     d = diagnose(dataset, workers=2)
     paths = write_diagnosis(d, tmp_path / "out")
     doc = json.loads(paths["json"].read_text())
+    print(effect, doc["decision"], doc.get("heldout"))
     assert doc["cause"] == effect, doc["decision"]
     if effect == "none":
         assert doc["parameters"] == {} and "no significant discrepancy" in doc["decision"]

@@ -50,14 +50,14 @@ BAD = [
     ("count = 18", "cuont = 18", "fish.cuont", "did you mean 'count'"),
     ("count = 18", 'count = "many"', "fish.count", "valid integer"),
     ("comm_step_s = 0.01", "comm_step_s = -1.0", "run.comm_step_s", "greater than or equal to 0.001"),
-    ("comm_step_s = 0.01", "comm_step_s = 0.0055", "", "whole multiple of plant.numerics.step_s"),
+    ("comm_step_s = 0.01", "comm_step_s = 0.0055", "run.comm_step_s", "whole multiple of plant.numerics.step_s"),
     ("x_start_m = 0.0 | length_m = 2.0 | length_max_m = 0.75",  # c1 from 0.6 to 1.8, fish up to 1.4 m
-     "x_start_m = 0.6 | length_m = 1.2 | length_max_m = 1.4", "", "shorter than the longest fish"),
-    ('outfeed_photoeye = "pe_c4"', 'outfeed_photoeye = "pe_c5"', "", "'pe_c5' is not a photo-eye"),
-    ("x_start_m = 2.01", "x_start_m = 1.5", "line", "overlap"),
-    ("x_m = 6.43", "x_m = 7.5", "line", "outside the line"),
+     "x_start_m = 0.6 | length_m = 1.2 | length_max_m = 1.4", "fish.length_max_m", "shorter than the longest fish"),
+    ('outfeed_photoeye = "pe_c4"', 'outfeed_photoeye = "pe_c5"', "kpi.outfeed_photoeye", "'pe_c5' is not a photo-eye"),
+    ("x_start_m = 2.01", "x_start_m = 1.5", "line.conveyors[1].x_start_m", "overlap"),
+    ("x_m = 6.43", "x_m = 7.5", "line.photoeyes[3].x_m", "outside the line"),
     ("lost = { max = 0 }", "singulaton_rate = { min = 0.1 }", "expect", "did you mean 'singulation_rate'"),
-    ("lost = { max = 0 }", "fpm_out = { min = 3, max = 1 }", "expect.fpm_out", "is above max"),
+    ("lost = { max = 0 }", "fpm_out = { min = 3, max = 1 }", "expect.fpm_out.min", "is above max"),
     ('builtin = "conveyor_drive"', 'builtin = "conveyor_drives"', "fmu[1].builtin", "conveyor_drive"),
     ("[run]", "[run\n", "", "TOML syntax error"),
     ("duration_s = 90.0", "duration_s = 90.0\nspeed = 3", "run.speed", "unknown key"),
@@ -70,8 +70,15 @@ def test_bad_scenario_names_file_key_and_problem(tmp_path: Path, old: str, new: 
     with pytest.raises(InputError) as info:
         load_scenario(path)
     text = str(info.value)
-    assert str(path) in text
-    assert key in text and message in text, text
+    assert text.startswith(f"{path}: {key}: " if key else f"{path}: "), text  # the file, then the key to fix
+    assert message in text, text
+    assert "Value error" not in text  # our validators' words, not pydantic's wrapping
+
+
+def test_a_byte_order_mark_is_not_part_of_the_toml(tmp_path: Path):
+    path = tmp_path / "bom.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + PAPER.read_bytes())  # as Windows editors save UTF-8
+    assert load_scenario(path).fish.count == load_scenario(PAPER).fish.count
 
 
 def test_missing_file_is_an_input_error(tmp_path: Path):
