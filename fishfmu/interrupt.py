@@ -217,31 +217,20 @@ def mark_partial(out_dir: Path | None, signum: int, info: dict[str, Any] | None 
         write_json_atomic(info_path, info)
 
 
-_spawn_lock = threading.Lock()
-
-
 def _spawn_ignoring_sigint(spawn: Any) -> Any:
-    """multiprocessing's spawn (fork + exec of a worker) with SIGINT ignored at the C level for the
-    moment of the fork: the worker starts with it ignored and Python keeps it so, so a Ctrl-C to
-    the process group cannot kill a worker that is still starting (importing for seconds).  Any
-    thread may spawn (Dask's event loop does), and only the main thread may call signal.signal,
-    hence sigaction through ctypes; the command's own handler is put back right after the fork."""
-    import ctypes
-    libc = ctypes.CDLL(None, use_errno=True)
-    ptr = ctypes.sizeof(ctypes.c_void_p)
+    """multiprocessing's spawn (fork + exec of a worker) with SIGINT blocked in the spawning thread
+    for the moment of the fork: the signal mask survives fork and exec, so the worker starts with
+    SIGINT blocked and a Ctrl-C to the process group cannot kill a worker that is still starting
+    (importing for seconds); the worker is stopped by the command (SIGTERM, then SIGKILL).  Any
+    thread may spawn (Dask's event loop does); the mask is per thread, so the command's own handler
+    keeps working in the main thread."""
 
     def wrapped(path, args, passfds):  # noqa: ANN001, ANN202
-        with _spawn_lock:
-            old = ctypes.create_string_buffer(512)  # larger than any struct sigaction
-            if libc.sigaction(signal.SIGINT, None, old) != 0:
-                return spawn(path, args, passfds)
-            new = ctypes.create_string_buffer(old.raw, 512)
-            ctypes.memmove(new, ctypes.byref(ctypes.c_size_t(int(signal.SIG_IGN))), ptr)  # sa_handler comes first
-            libc.sigaction(signal.SIGINT, new, None)
-            try:
-                return spawn(path, args, passfds)
-            finally:
-                libc.sigaction(signal.SIGINT, old, None)
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            return spawn(path, args, passfds)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
     wrapped.fishfmu_wraps = spawn
     return wrapped
