@@ -28,13 +28,20 @@ def test_diagnose_names_the_hidden_effect_with_a_held_out_gain(effect: str, tmp_
     d = diagnose(dataset, workers=2)
     paths = write_diagnosis(d, tmp_path / "out")
     doc = json.loads(paths["json"].read_text())
-    print(effect, doc["decision"], doc.get("heldout"))
     assert doc["cause"] == effect, doc["decision"]
+    # the verdict is clear by a margin, not decided by the last bits of rounding: the cause's held-out
+    # gain clears the rule's minimum and its interval clears zero, and every other fitted candidate
+    # misses one of them by a margin (measured here: none had every candidate's gain below -0.2 %;
+    # the named causes: gains 2.6-81 %, interval lower ends 1.9-70 % with six pair runs; adhesion 0.0 % with four)
+    min_gain = doc["rules"]["min_gain"]
+    for c in doc["candidates"]:
+        if c["fitted"] and c["name"] != effect:
+            assert c["heldout_gain"] < 0.8 * min_gain or c["heldout_gain_ci95"][0] < -0.01, c
     if effect == "none":
         assert doc["parameters"] == {} and "no significant discrepancy" in doc["decision"]
         assert "no extension" in paths["fragment"].read_text()
     else:
-        assert doc["heldout"]["gain"] > 0.0 and doc["heldout"]["gain_ci95"][0] > 0.0
+        assert doc["heldout"]["gain"] > 1.1 * min_gain and doc["heldout"]["gain_ci95"][0] > 0.01, doc["heldout"]
         assert doc["heldout"]["rms_after"] < doc["heldout"]["rms_before"]
         fragment = paths["fragment"].read_text()
         assert effect in fragment or "belt_slip" in fragment
