@@ -1,7 +1,7 @@
 """Energy watch: a blow-up shows as fish gaining energy that nothing supplied.
 
 The plant already stops on a non-finite state, a fish faster than 25 m/s, a fish outside the
-guides or below a belt (:meth:`plant.plant.Plant._check_health`).  A numerical instability starts
+guides or below a belt (:func:`check_health`, after every plant step).  A numerical instability starts
 well below those limits; what gives it away early is energy.  The only sources of energy of the
 fish are
 
@@ -38,6 +38,58 @@ import numpy as np
 
 from plant.errors import SimulationError
 
+MAX_SPEED_MPS = 25.0
+"""Anything faster than this in a fish plant is a numerical blow-up, not physics."""
+
+
+def floor_below(line, x_m: np.ndarray) -> np.ndarray:
+    """Lowest belt top of ``line`` (a :class:`plant.line.Line`) within 0.1 m of each x: where a fish
+    can lie, drape or hang over a drum (``inf`` where no belt is that near)."""
+    x = np.asarray(x_m, dtype=float)[:, None]
+    starts = np.array([c.x_start_m for c in line.conveyors])
+    ends = np.array([c.x_end_m for c in line.conveyors])
+    z_top = np.array([c.z_top_m for c in line.conveyors])
+    near = (x >= starts[None, :] - 0.1) & (x <= ends[None, :] + 0.1)
+    return np.where(near, z_top[None, :], np.inf).min(axis=1)
+
+
+def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids, line, t_s: float) -> None:
+    """Raise SimulationError, naming the fish, on a body of a fish on the line that is non-finite,
+    faster than :data:`MAX_SPEED_MPS`, outside the guides or fallen through a belt.
+
+    ``pos`` and ``vel`` (n, 3) are those bodies' positions and velocities, ``fish_of`` (n,) each
+    body's fish as an index into ``fish_ids``; ``line`` the :class:`plant.line.Line`; ``t_s`` the
+    time reported with the error.  A body over the last 0.1 m of the line (hanging over the end drum)
+    or past its end is not checked against the belts: a fish leaving the line over the end."""
+    if len(pos) == 0:
+        return
+    bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
+    if np.any(bad):
+        raise SimulationError(f"numerical blow-up: fish '{fish_ids[fish_of[bad][0]]}' has "
+                              "non-finite position or velocity", t_s)
+    speed = np.linalg.norm(vel, axis=1)
+    if np.any(speed > MAX_SPEED_MPS):
+        i = int(np.argmax(speed))
+        raise SimulationError(f"numerical blow-up: fish '{fish_ids[fish_of[i]]}' moves at "
+                              f"{speed[i]:.1f} m/s", t_s)
+    within_x = (pos[:, 0] >= line.x_start_m - 0.1) & (pos[:, 0] <= line.x_end_m)
+    half = 0.5 * line.guide_width_m
+    outside = within_x & (np.abs(pos[:, 1]) > half + 0.05)
+    if np.any(outside):
+        i = int(np.flatnonzero(outside)[0])
+        raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' left the line sideways "
+                              f"(y = {pos[i, 1]:.3f} m, guides at +-{half:g} m)", t_s)
+    floor = floor_below(line, pos[:, 0])
+    # a fish sliding off the end of the line hangs over the last drum: only a body clear of
+    # that drum (as floor_below counts it, 0.1 m) can have gone through a belt
+    before_end = pos[:, 0] < line.x_end_m - 0.1
+    below = within_x & before_end & (pos[:, 2] < floor - 0.08)
+    if np.any(below):
+        i = int(np.flatnonzero(below)[0])
+        raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' fell through a belt "
+                              f"(z = {pos[i, 2]:.3f} m at x = {pos[i, 0]:.3f} m)", t_s)
+
+
 RESERVE_MIN_J = 8.0
 RESERVE_J_PER_KG = 0.5
 """Spring reserve: what contact and joint springs may hold and give back, 8 J plus 0.5 J per kg of
@@ -57,7 +109,7 @@ def spring_reserve_j(mass_on_line_kg: float) -> float:
 class EnergyWatch:
     """Checks after every communication step that the fish gained no energy without a source."""
 
-    plant: object  # plant.plant.Plant (not imported: plant.plant imports nothing from here)
+    plant: object  # plant.plant.Plant (not imported: plant.plant imports the checks above from here)
     worst_excess_j: float = 0.0
     """Largest ``E - B`` seen so far [J] (for calibration)."""
     worst_ratio: float = 0.0

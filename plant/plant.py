@@ -32,6 +32,7 @@ import numpy as np
 
 from plant.errors import SimulationError
 from plant.extensions import friction_level
+from plant.health import MAX_SPEED_MPS, check_health, floor_below  # noqa: F401 (MAX_SPEED_MPS: re-exported)
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
 from plant.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, park_positions, parked_member,
@@ -42,8 +43,6 @@ from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matri
 from plant.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
 
 WAITING, ON_LINE, LEFT = 0, 1, 2
-MAX_SPEED_MPS = 25.0
-"""Anything faster than this in a fish plant is a numerical blow-up, not physics."""
 ADMIT_AHEAD_S = 1.0
 """Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
 
@@ -97,6 +96,7 @@ class Plant:
         self.line = line
         self.params = params or PlantParams()
         self.fish_specs = list(fish)
+        self._fish_ids = [f.fish_id for f in self.fish_specs]
         n_sub = comm_step_s / self.params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
             raise ValueError(f"communication step {comm_step_s} s is not a whole multiple of the integration "
@@ -106,8 +106,6 @@ class Plant:
         self.photoeye_ids = [p.id for p in line.photoeyes]
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
-        self._x_starts = np.array([c.x_start_m for c in line.conveyors])
-        self._z_top = np.array([c.z_top_m for c in line.conveyors])
         self._gravity = self.params.gravity_mps2 * np.array(
             [np.sin(np.radians(self.params.incline_deg)), 0.0, -np.cos(np.radians(self.params.incline_deg))])
         ext = self.params.extensions
@@ -461,39 +459,12 @@ class Plant:
         body_on = self.status[self._fish_of_body] == ON_LINE
         if not np.any(body_on):
             return
-        pos, vel = self._pos[body_on], self._vel[body_on]
-        fish_of = self._fish_of_body[body_on]
-        bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
-        if np.any(bad):
-            raise SimulationError(f"numerical blow-up: fish '{self.fish_specs[fish_of[bad][0]].fish_id}' has "
-                                  "non-finite position or velocity", self.t_s)
-        speed = np.linalg.norm(vel, axis=1)
-        if np.any(speed > MAX_SPEED_MPS):
-            i = int(np.argmax(speed))
-            raise SimulationError(f"numerical blow-up: fish '{self.fish_specs[fish_of[i]].fish_id}' moves at "
-                                  f"{speed[i]:.1f} m/s", self.t_s)
-        within_x = (pos[:, 0] >= self.line.x_start_m - 0.1) & (pos[:, 0] <= self.line.x_end_m)
-        half = 0.5 * self.line.guide_width_m
-        outside = within_x & (np.abs(pos[:, 1]) > half + 0.05)
-        if np.any(outside):
-            i = int(np.flatnonzero(outside)[0])
-            raise SimulationError(f"fish '{self.fish_specs[fish_of[i]].fish_id}' left the line sideways "
-                                  f"(y = {pos[i, 1]:.3f} m, guides at +-{half:g} m)", self.t_s)
-        floor = self.floor_below(pos[:, 0])
-        # a fish sliding off the end of the line hangs over the last drum: only a body clear of
-        # that drum (as floor_below counts it, 0.1 m) can have gone through a belt
-        before_end = pos[:, 0] < self.line.x_end_m - 0.1
-        below = within_x & before_end & (pos[:, 2] < floor - 0.08)
-        if np.any(below):
-            i = int(np.flatnonzero(below)[0])
-            raise SimulationError(f"fish '{self.fish_specs[fish_of[i]].fish_id}' fell through a belt "
-                                  f"(z = {pos[i, 2]:.3f} m at x = {pos[i, 0]:.3f} m)", self.t_s)
+        check_health(self._pos[body_on], self._vel[body_on], self._fish_of_body[body_on], self._fish_ids,
+                     self.line, self.t_s)
 
     def floor_below(self, x_m: np.ndarray) -> np.ndarray:
         """Lowest belt top within 0.1 m of each x: where a fish can lie, drape or hang over a drum."""
-        x = np.asarray(x_m, dtype=float)[:, None]
-        near = (x >= self._x_starts[None, :] - 0.1) & (x <= self._x_ends[None, :] + 0.1)
-        return np.where(near, self._z_top[None, :], np.inf).min(axis=1)
+        return floor_below(self.line, x_m)
 
     # ---- state for recording -----------------------------------------------------------------
     def fish_state(self) -> FishState:
