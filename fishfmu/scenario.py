@@ -60,10 +60,16 @@ CONNECTION_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*->\s*([A-Za-z_
 class RunSettings(Strict):
     """How long, with which seed and communication step, and how the components are coupled."""
 
-    name: str = Field("run", min_length=1, max_length=80, pattern=r"^[\w\-. ]+$")
-    duration_s: float = Field(60.0, gt=0.0, le=24 * 3600.0)
-    seed: int = Field(1, ge=0, le=2**32 - 1)
-    comm_step_s: float = Field(0.01, ge=0.001, le=0.1, description="base communication step of the master")
+    name: str = Field("run", min_length=1, max_length=80, pattern=r"^[\w\-. ]+$", description=(
+        "names the run in the KPI table, the report, the JUnit suite and the recorded run; the default "
+        "output folder is named after the scenario file instead"))
+    duration_s: float = Field(60.0, gt=0.0, le=24 * 3600.0, description=(
+        "simulated time; the run ends earlier with stop_when_clear"))
+    seed: int = Field(1, ge=0, le=2**32 - 1, description=(
+        "seed of the random draws (fish sizes and drops, with fish.seed_offset): the same seed gives the "
+        "same run; --seed overrides it"))
+    comm_step_s: float = Field(0.01, ge=0.001, le=0.1, description=(
+        "base communication step of the master; a whole multiple of plant.numerics.step_s"))
     coupling: Literal["gauss-seidel", "jacobi"] = Field("gauss-seidel", description=(
         "gauss-seidel: components stepped in dependency order, each seeing the values its sources produced "
         "this step (the plant last); jacobi: every component sees the values of the previous step"))
@@ -77,11 +83,17 @@ class RunSettings(Strict):
 class FmuInstance(Strict):
     """One FMU instance: ``builtin`` (a name from ``fishfmu build-fmus``) or ``path`` to a ``.fmu``."""
 
-    name: Name
-    builtin: Literal["conveyor_drive", "singulation_controller"] | None = None
-    path: str | None = Field(None, description="relative to the scenario file")
+    name: Name = Field(description=(
+        "instance name, used as '<name>.<variable>' in [wiring] and [[event]]; unique, and not 'plant'"))
+    builtin: Literal["conveyor_drive", "singulation_controller"] | None = Field(None, description=(
+        "an FMU fishfmu builds (conveyor_drive: a gearmotor on an inverter driving a belt; "
+        "singulation_controller: PLC-style speed profile, gap control and jam detection); give this or path"))
+    path: str | None = Field(None, description=(
+        "an FMI 2.0 co-simulation .fmu file, relative to the scenario file; give this or builtin"))
     step_multiple: int = Field(1, ge=1, le=10000, description="the FMU steps every this many base steps")
-    parameters: dict[str, FmuValue] = Field(default_factory=dict)
+    parameters: dict[str, FmuValue] = Field(default_factory=dict, description=(
+        "start values of the FMU's parameters by variable name, checked against its modelDescription; "
+        "finite numbers, booleans or strings"))
 
     @model_validator(mode="after")
     def _one_source(self) -> "FmuInstance":
@@ -93,10 +105,12 @@ class FmuInstance(Strict):
 class Event(Strict):
     """At ``t_s``: ``override`` a variable's value, ``bias`` it (add), or ``reset`` it to normal."""
 
-    t_s: float = Field(ge=0.0)
+    t_s: float = Field(ge=0.0, description="simulation time; applied at the first communication step at or after it")
     target: str = Field(description="'<fmu>.<variable>' or 'plant.<id>.<signal>'")
-    action: Literal["override", "bias", "reset"]
-    value: Annotated[float | bool | None, AfterValidator(_finite)] = None
+    action: Literal["override", "bias", "reset"] = Field(description=(
+        "override: the variable takes value; bias: value is added to it; reset: back to its own value"))
+    value: Annotated[float | bool | None, AfterValidator(_finite)] = Field(None, description=(
+        "the value to set or add; needed by override and bias, finite"))
 
     @model_validator(mode="after")
     def _value_needed(self) -> "Event":
@@ -110,8 +124,13 @@ class Event(Strict):
 class WiringSpec(Strict):
     """Connections between FMU variables and plant ports, and constants for unconnected inputs."""
 
-    connections: list[str] = Field(default_factory=list, max_length=2000)
-    inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict)
+    connections: list[str] = Field(default_factory=list, max_length=2000, description=(
+        "'source.variable -> target.variable' pairs between FMU variables and plant ports "
+        "('plant.<id>.<signal>'), checked against each modelDescription and the plant's ports "
+        "(names, causality, types)"))
+    inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict, description=(
+        "constants for inputs left unconnected, by '<fmu>.<variable>' or 'plant.<id>.<signal>' "
+        "(e.g. \"plant.c1.speed\" = 0.3)"))
 
     @field_validator("connections")
     @classmethod
@@ -123,8 +142,10 @@ class WiringSpec(Strict):
 
 
 class Bound(Strict):
-    min: float | None = None
-    max: float | None = None
+    """A bound on one KPI for CI: ``min``, ``max`` or both; a run outside it exits with 1."""
+
+    min: float | None = Field(None, description="the KPI must be at least this")
+    max: float | None = Field(None, description="the KPI must be at most this")
 
     @model_validator(mode="after")
     def _some(self) -> "Bound":
@@ -146,7 +167,8 @@ class Scenario(Strict):
     wiring: WiringSpec = Field(default_factory=WiringSpec)
     event: list[Event] = Field(default_factory=list, max_length=10000)
     kpi: KpiSettings
-    expect: dict[str, Bound] = Field(default_factory=dict)
+    expect: dict[str, Bound] = Field(default_factory=dict, description=(
+        "bounds by KPI (contracts/kpis.md): " + ", ".join(KPI_KEYS)))
 
     @field_validator("expect")
     @classmethod

@@ -28,11 +28,15 @@ Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z_][A-Za
 class Conveyor(Strict):
     """A straight belt along x; its top surface moves at the speed its drive delivers."""
 
-    id: Id
-    x_start_m: float = Field(ge=-100.0, le=1000.0, description="upstream end of the belt's top surface")
+    id: Id = Field(description=(
+        "unique among conveyors and photo-eyes; names the belt's plant ports (plant.<id>.speed, "
+        ".load_force, .load_mass)"))
+    x_start_m: float = Field(ge=-100.0, le=1000.0, description=(
+        "upstream end of the belt's top surface; at or after the end of the conveyor before, gaps up to 0.5 m"))
     length_m: float = Field(gt=0.05, le=200.0, description="length of the flat top surface along x")
-    width_m: float = Field(gt=0.05, le=5.0, description="belt width across y")
-    z_top_m: float = Field(ge=-10.0, le=10.0, description="height of the top surface")
+    width_m: float = Field(gt=0.05, le=5.0, description="belt width across y; at least guide_width_m")
+    z_top_m: float = Field(ge=-10.0, le=10.0, description=(
+        "height of the top surface; a conveyor may step down from the one before, by at most 0.5 m, not up"))
 
     @property
     def x_end_m(self) -> float:
@@ -42,17 +46,18 @@ class Conveyor(Strict):
 class PhotoEye(Strict):
     """A light beam across the line (along y) at x, height z: blocked when a fish is in it."""
 
-    id: Id
-    x_m: float = Field(ge=-100.0, le=1000.0)
-    z_m: float = Field(ge=-10.0, le=10.0, description="beam height (absolute z)")
+    id: Id = Field(description="unique among conveyors and photo-eyes; its plant port is plant.<id>.blocked")
+    x_m: float = Field(ge=-100.0, le=1000.0, description="position of the beam along the line, between its ends")
+    z_m: float = Field(ge=-10.0, le=10.0, description=(
+        "beam height (absolute z): above the belt top there, by at most 0.5 m"))
 
 
 class Line(Strict):
     """Conveyors in flow order, side guides along the whole line, photo-eyes."""
 
     guide_width_m: float = Field(gt=0.05, le=5.0, description="side guides at y = +-guide_width_m/2")
-    conveyors: list[Conveyor] = Field(min_length=1, max_length=64)
-    photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256)
+    conveyors: list[Conveyor] = Field(min_length=1, max_length=64, description="the belts, in flow order")
+    photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
 
     @pydantic.model_validator(mode="after")
     def _check_geometry(self) -> "Line":
@@ -125,9 +130,12 @@ class Line(Strict):
 class KpiSettings(Strict):
     """The ``[kpi]`` table (contracts/kpis.md): which beams count fish in and out, and the gap needed."""
 
-    infeed_photoeye: Id | None = None
-    outfeed_photoeye: Id
-    min_gap_m: float = Field(default=0.05, ge=0.0, le=5.0)
+    infeed_photoeye: Id | None = Field(None, description="the beam at the infeed, if any; a photo-eye of the line")
+    outfeed_photoeye: Id = Field(description=(
+        "the beam at which fish are counted out and singulation is judged; a photo-eye of the line"))
+    min_gap_m: float = Field(default=0.05, ge=0.0, le=5.0, description=(
+        "least gap along x, at belt speed, to the fish before and after for a fish to count as singulated "
+        "(contracts/kpis.md); the beam's clear moments shorter than this are flicker, not a gap"))
 
     def check_against(self, line: Line) -> None:
         """Raise ValueError if a named photo-eye is not on the line."""

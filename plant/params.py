@@ -95,7 +95,7 @@ class PlantParams(Strict):
     joints: JointParams = Field(default_factory=JointParams)
     numerics: NumericsParams = Field(default_factory=NumericsParams)
     guide_height_m: float = Field(0.30, gt=0.02, le=2.0, description="height of the side guides above the belt (assumption)")
-    gravity_mps2: float = Field(9.81, ge=0.0, le=20.0)
+    gravity_mps2: float = Field(9.81, ge=0.0, le=20.0, description="gravitational acceleration (standard gravity)")
     incline_deg: float = Field(0.0, ge=-45.0, le=45.0, description=(
         "tilts gravity about y (positive: the line rises downstream), for incline tests and inclined lines"))
     extensions: Extensions = Field(default_factory=Extensions, description=(

@@ -52,20 +52,24 @@ class PopulationSpec(Strict):
     """The ``[fish]`` table of a scenario: how many fish, their sizes and how they are dropped."""
 
     count: int = Field(18, ge=1, le=2000, description="fish in the batch (the paper's test: 18)")
-    length_mean_m: float = Field(0.60, gt=0.1, le=1.5, description="Table I mean (0.597 m)")
+    length_mean_m: float = Field(0.60, gt=0.1, le=1.5, description=(
+        "Table I mean (0.597 m); within [length_min_m, length_max_m]"))
     length_sd_m: float = Field(0.06, ge=0.0, le=0.5, description=(
         "spread of lengths in a graded batch (Table I: 0.085 m over a wider range)"))
     length_min_m: float = Field(0.42, gt=0.1, le=1.5, description="shortest fish of Table I")
-    length_max_m: float = Field(0.75, gt=0.1, le=1.5, description="a little above the longest of Table I (0.68 m)")
+    length_max_m: float = Field(0.75, gt=0.1, le=1.5, description=(
+        "a little above the longest of Table I (0.68 m); every conveyor must be at least this long"))
     hours_post_mortem: float = Field(24.0, ge=0.0, le=240.0, description=(
-        "time since slaughter; the paper's physical test used fish dead for more than a day"))
+        "time since slaughter (unit: h); the paper's physical test used fish dead for more than a day"))
     drop: Literal["bulk", "sparse"] = Field("bulk", description=(
         "bulk: the batch dumped onto the infeed in quick succession; sparse: one at a time at the infeed end"))
-    first_drop_s: float = Field(0.5, ge=0.0, le=3600.0)
+    first_drop_s: float = Field(0.5, ge=0.0, le=3600.0, description=(
+        "release of the first fish; the others follow every drop_interval_s"))
     drop_interval_s: float = Field(0.25, gt=0.0, le=600.0, description=(
         "time between releases (bulk: a dump takes a few seconds for 18 fish)"))
-    drop_x_min_m: float | None = Field(None, description="drop zone along x (default: first 60 % of the first conveyor)")
-    drop_x_max_m: float | None = None
+    drop_x_min_m: float | None = Field(None, description=(
+        "drop zone along x (default: first 60 % of the first conveyor); give both ends or neither"))
+    drop_x_max_m: float | None = Field(None, description="downstream end of the drop zone (see drop_x_min_m)")
     drop_height_m: float = Field(0.10, ge=0.0, le=2.0, description="lowest point of a fish above whatever is below it at release")
     yaw_spread_deg: float = Field(30.0, ge=0.0, le=180.0, description=(
         "bulk: headings spread this much around the flow direction (either way round); sparse: around head-first"))

@@ -22,9 +22,14 @@ M = TypeVar("M", bound=pydantic.BaseModel)
 
 
 class Strict(pydantic.BaseModel):
-    """Base for every user-facing table: unknown keys are errors, values are checked on assignment."""
+    """Base for every user-facing table: unknown keys are errors, values are checked on assignment.
 
-    model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+    A field is documented by ``Field(description=...)`` or by a docstring line under it
+    (``use_attribute_docstrings``; a description given in ``Field`` wins); either way it shows in
+    docs/scenario-reference.md (:mod:`fishfmu.scenario_reference`).  Validation is the same."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
+                                       use_attribute_docstrings=True)
 
 
 class ValueAtKey(ValueError):
