@@ -149,7 +149,7 @@ def test_existing_output_folder_is_not_overwritten_without_asking(tmp_path: Path
     out.mkdir()
     (out / "notes.txt").write_text("keep me")
     proc = _cli("run", str(PAPER), "--out", str(out), cwd=tmp_path)
-    assert proc.returncode == 2 and "not empty" in proc.stderr
+    assert proc.returncode == 2 and "notes.txt" in proc.stderr and "not written by fishfmu" in proc.stderr
     assert (out / "notes.txt").read_text() == "keep me"
 
 
