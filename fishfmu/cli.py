@@ -39,13 +39,8 @@ def build_fmus(
 ) -> None:
     """Build the built-in FMUs as standalone .fmu files (Linux binary and C sources inside)."""
     from fishfmu.fmu_build import BUILTIN_FMUS, FmuBuildError, build_fmu
-    from fishfmu.scenario import parse_value
-    defaults = {}
-    for item in param:
-        key, eq, value = item.partition("=")
-        if not eq:
-            raise InputError(f"--param '{item}': expected NAME=VALUE")
-        defaults[key.strip()] = parse_value(value.strip())
+    from fishfmu.scenario import parse_assignments
+    defaults = parse_assignments(param, "--param")
     if defaults and len(names or BUILTIN_FMUS) != 1:
         raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
     from fishfmu.ownership import check_single_file_target, record_written
@@ -109,14 +104,9 @@ def run(
     from fishfmu.interrupt import register_output, stop_on_signals
     from fishfmu.outputs import discard_if_unused, mark_running, prepare_out_dir, write_junit, write_outputs
     from fishfmu.runner import check_scenario, run_scenario
-    from fishfmu.scenario import load_scenario, parse_value
+    from fishfmu.scenario import load_scenario, parse_assignments
 
-    overrides = {}
-    for item in set_:
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip():
-            raise InputError(f"--set '{item}': expected KEY=VALUE")
-        overrides[key.strip()] = parse_value(value.strip())
+    overrides = parse_assignments(set_)
     if seed is not None:
         overrides["run.seed"] = seed
     if seeds > 1:  # Monte-Carlo over seeds: fishfmu.montecarlo
@@ -189,13 +179,8 @@ def sweep(
     """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
     from fishfmu.sweep import make_spec, parse_param, run_sweep
     from fishfmu.sweep_report import print_summary
-    from fishfmu.scenario import parse_value
-    fixed = {}
-    for item in set_:
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip():
-            raise InputError(f"--set '{item}': expected KEY=VALUE")
-        fixed[key.strip()] = parse_value(value.strip())
+    from fishfmu.scenario import parse_assignments
+    fixed = parse_assignments(set_)
     params = dict(parse_param(p) for p in param)
     if len(params) != len(param):
         raise InputError("a key is given twice with --param")

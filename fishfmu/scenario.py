@@ -263,6 +263,21 @@ def parse_value(text: str) -> Any:
         return text
 
 
+def parse_assignments(items: list[str], option: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` items of a command-line option as a dict, values read as TOML would read them.
+
+    >>> parse_assignments(["fish.count=30", "run.name = a b"])
+    {'fish.count': 30, 'run.name': 'a b'}
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise InputError(f"{option} '{item}': expected KEY=VALUE")
+        out[key.strip()] = parse_value(value.strip())
+    return out
+
+
 def resolved_toml(scenario: Scenario) -> str:
     """The scenario with every default filled in, as TOML (what a run actually used)."""
     data = scenario.model_dump(mode="json", exclude_none=True)
