@@ -75,8 +75,8 @@ def print_kpis(result, console: Console) -> None:
     table = Table(title=f"KPIs: {result.scenario.run.name} (seed {result.scenario.run.seed})")
     table.add_column("KPI")
     table.add_column("value", justify="right")
-    for key in ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
-                "gap_min_m", "gap_p10_m", "gap_median_m", "method"):
+    from plant.kpis import SHOWN_KPI_KEYS
+    for key in (*SHOWN_KPI_KEYS, "method"):
         if key in result.kpis:
             v = result.kpis[key]
             table.add_row(key, f"{v:.3f}" if isinstance(v, float) else str(v))

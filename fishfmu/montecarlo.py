@@ -21,14 +21,12 @@ from xml.etree import ElementTree as ET
 import pandas as pd
 
 from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
+from plant.kpis import KPI_KEYS, SHOWN_KPI_KEYS
 
 from fishfmu.runner import ExpectResult
-from fishfmu.scenario import KPI_KEYS, load_scenario
+from fishfmu.scenario import load_scenario
 from fishfmu.sweep import SweepResult, make_spec, run_sweep
 from fishfmu.terminal import console as literal_console, labelled, outcome
-
-SHOWN_KPIS = ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
-              "gap_min_m", "gap_p10_m", "gap_median_m")
 
 
 @dataclass
@@ -118,7 +116,7 @@ def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, o
     from fishfmu.sweep_report import print_statistics
     console = literal_console()
     seeds = result.sweep.runs["seed"]
-    print_statistics(result.statistics, SHOWN_KPIS, console,
+    print_statistics(result.statistics, SHOWN_KPI_KEYS, console,
                      f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
                      f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), "
                      f"{result.sweep.wall_s:.0f} s")

@@ -35,6 +35,7 @@ import tomli_w
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
 from plant.errors import InputError
+from plant.kpis import KPI_KEYS
 from plant.line import KpiSettings, Line
 from plant.params import PlantParams
 from plant.population import PopulationSpec
@@ -52,8 +53,6 @@ def _finite(value: Any) -> Any:
 
 FmuValue = Annotated[float | int | bool | str, AfterValidator(_finite)]
 """A parameter value for an FMU: finite numbers, booleans, strings."""
-KPI_KEYS = ("fish_in", "throughput_time_s", "fpm_in", "singulated", "singulation_rate", "fpm_out", "lost",
-            "gap_min_m", "gap_median_m", "gap_p10_m")
 CONNECTION_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*->\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*$")
 
 

@@ -38,10 +38,11 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
+from plant.kpis import KPI_KEYS
 
 from fishfmu.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
 from fishfmu.interrupt import STOPS
-from fishfmu.scenario import KPI_KEYS, Scenario, load_scenario, parse_value
+from fishfmu.scenario import Scenario, load_scenario, parse_value
 
 DEFINITION = "sweep.json"
 MAX_RUNS = 100_000

@@ -23,6 +23,7 @@ so the arithmetic can be checked by hand:
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -31,11 +32,57 @@ import pandas as pd
 from plant.line import KpiSettings, Line
 from plant.passages import MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages
 
-__all__ = ["arrival_times", "compute_kpis", "kpis_from_passages", "paper_rounded", "passages", "round_half_up",
-           "singulation_table"]
+__all__ = ["KPIS", "KPI_KEYS", "Kpi", "SHOWN_KPI_KEYS", "arrival_times", "compute_kpis", "kpi_keys",
+           "kpis_from_passages", "paper_rounded", "passages", "round_half_up", "singulation_table"]
 
 TOL_M = 1e-9
 """Floating-point tolerance on gap comparisons (1 nm)."""
+
+
+@dataclass(frozen=True)
+class Kpi:
+    """One KPI of a run: its key in :func:`kpis_from_passages`' result (and in kpis.json, the
+    ``[expect]`` table, a sweep's columns), its unit and what it means."""
+
+    key: str
+    unit: str
+    description: str
+
+
+KPIS: tuple[Kpi, ...] = (
+    Kpi("fish_in", "fish", "fish dropped onto the line (N)"),
+    Kpi("throughput_time_s", "s", "from the first drop until the last fish clears the outfeed beam (T)"),
+    Kpi("fpm_in", "fish/min", "fish in per minute: 60 N / T"),
+    Kpi("singulated", "fish", "fish whose outfeed passage overlaps no other, with at least min_gap_m before and after"),
+    Kpi("singulation_rate", "1", "singulated / N"),
+    Kpi("fpm_out", "fish/min", "singulated fish per minute: 60 singulated / T"),
+    Kpi("lost", "fish", "fish that never passed the outfeed beam"),
+    Kpi("gap_min_m", "m", "smallest gap between consecutive fish at the outfeed (negative: overlap)"),
+    Kpi("gap_median_m", "m", "median gap between consecutive fish at the outfeed"),
+    Kpi("gap_p10_m", "m", "10th percentile of the gaps between consecutive fish at the outfeed"),
+)
+"""Every numeric KPI, the one list of them (fishfmu's scenario, CLI, sweeps and statistics import it)."""
+
+KPI_KEYS: tuple[str, ...] = tuple(k.key for k in KPIS)
+"""The KPI keys in the order :func:`kpis_from_passages` returns them; also the column order of a
+sweep's ``runs.csv``."""
+
+SHOWN_KPI_KEYS: tuple[str, ...] = (*(k for k in KPI_KEYS if not k.startswith("gap_")),
+                                   *sorted((k for k in KPI_KEYS if k.startswith("gap_")),
+                                           key=("gap_min_m", "gap_p10_m", "gap_median_m").index))
+"""The order of a KPI table for a person: the gap statistics by increasing quantile (min, p10, median)."""
+
+
+def kpi_keys(*keys: str) -> tuple[str, ...]:
+    """A selection of KPI keys in the order given, each checked to be a KPI (a typo fails at import).
+
+    >>> kpi_keys("fpm_out", "lost")
+    ('fpm_out', 'lost')
+    """
+    unknown = [k for k in keys if k not in KPI_KEYS]
+    if unknown:
+        raise KeyError(f"not KPIs: {', '.join(unknown)}")
+    return keys
 
 
 def _json(x: Any) -> float | None:
