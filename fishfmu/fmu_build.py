@@ -31,6 +31,7 @@ import fmpy
 from fmpy.build import create_cmake_settings
 
 from plant.errors import InputError
+from plant.validation import suggest
 
 BUILTIN_FMUS = ("conveyor_drive", "singulation_controller")
 FMUS_DIR = Path(__file__).parent / "fmus"
@@ -317,15 +318,12 @@ def _zip_tree(root: Path, zip_path: Path) -> None:
 def with_defaults(spec: FmuSpec, defaults: dict[str, float | int | bool]) -> FmuSpec:
     """The spec with changed start values of parameters (baked into the FMU as its defaults)."""
     import dataclasses
-    import difflib
     names = {v.name: v for v in spec.variables}
     for key, value in defaults.items():
         v = names.get(key)
         if v is None or v.causality != "parameter":
             params = [n for n, x in names.items() if x.causality == "parameter"]
-            close = difflib.get_close_matches(key, params, n=1)
-            raise InputError(f"'{key}' is not a parameter of {spec.model_identifier}"
-                             + (f"; did you mean '{close[0]}'?" if close else ""))
+            raise InputError(f"'{key}' is not a parameter of {spec.model_identifier}{suggest(key, params)}")
         if (v.min is not None and value < v.min) or (v.max is not None and value > v.max):
             raise InputError(f"{key} = {value} is outside [{v.min}, {v.max}]")
     variables = tuple(dataclasses.replace(v, start=defaults[v.name]) if v.name in defaults else v

@@ -13,7 +13,6 @@ Every problem is an :class:`~plant.errors.InputError` naming the file and the me
 
 from __future__ import annotations
 
-import difflib
 import os
 import platform
 import re
@@ -31,6 +30,7 @@ from typing import Any
 from fmpy import read_model_description
 
 from plant.errors import InputError
+from plant.validation import suggest
 
 MAX_UNPACKED_BYTES = 1 << 30  # 1 GiB: far above any real FMU, far below filling a disk
 MAX_MEMBERS = 20_000
@@ -347,8 +347,7 @@ def require_variables(fmu: OpenedFmu, wanted: dict[str, tuple[str, str]]) -> Non
     for name, (causality, type_) in wanted.items():
         var = fmu.variables.get(name)
         if var is None:
-            close = difflib.get_close_matches(name, list(fmu.variables), n=1)
-            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            hint = suggest(name, fmu.variables, template=" (did you mean '{}'?)")  # the problems are joined by "; "
             problems.append(f"no variable '{name}'{hint}")
             continue
         if var.causality != causality:

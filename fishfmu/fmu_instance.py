@@ -35,6 +35,7 @@ from typing import Any
 from fmpy.fmi2 import FMU2Slave
 
 from plant.errors import InputError, SimulationError
+from plant.validation import suggest
 
 from fishfmu.fmu_files import OpenedFmu, library_path
 
@@ -119,13 +120,10 @@ def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any],
 
 
 def _check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any]) -> None:
-    import difflib
     for key, value in parameters.items():
         var = fmu.variables.get(key)
         if var is None:
-            close = difflib.get_close_matches(key, list(fmu.variables), n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else ""
-            raise InputError(f"FMU '{name}' has no variable '{key}'{hint}", file=fmu.path,
+            raise InputError(f"FMU '{name}' has no variable '{key}'{suggest(key, fmu.variables)}", file=fmu.path,
                              where=f"fmu.{name}.parameters.{key}")
         if var.causality not in SETTABLE_BEFORE_INIT:
             raise InputError(f"'{key}' of FMU '{name}' is an {var.causality}, not a parameter: it cannot be set",

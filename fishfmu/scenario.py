@@ -39,7 +39,7 @@ from plant.kpis import KPI_KEYS
 from plant.line import KpiSettings, Line
 from plant.params import PlantParams
 from plant.population import PopulationSpec
-from plant.validation import Strict, ValueAtKey, read_toml, validate
+from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
 
@@ -172,12 +172,9 @@ class Scenario(Strict):
     @field_validator("expect")
     @classmethod
     def _expect_keys(cls, value: dict[str, Bound]) -> dict[str, Bound]:
-        import difflib
         for k in value:
             if k not in KPI_KEYS:
-                close = difflib.get_close_matches(k, KPI_KEYS, n=1)
-                hint = f"; did you mean '{close[0]}'?" if close else f"; KPIs: {', '.join(KPI_KEYS)}"
-                raise ValueError(f"unknown KPI '{k}'{hint}")
+                raise ValueError(f"unknown KPI '{k}'{suggest(k, KPI_KEYS, allowed='KPIs')}")
         return value
 
     @model_validator(mode="after")

@@ -24,10 +24,10 @@ previous step's values, in any order.
 
 from __future__ import annotations
 
-import difflib
 from dataclasses import dataclass, field
 
 from plant.errors import InputError
+from plant.validation import suggest
 from plant.line import Line
 
 from fishfmu.fmu_files import FmuVariable
@@ -88,8 +88,7 @@ def _lookup(scenario_file, component: str, variable: str, want: str, fmus: dict[
     if component == PLANT:
         candidates = plant.get(variable)
         if candidates is None:
-            close = difflib.get_close_matches(variable, list(plant), n=1)
-            hint = f"; did you mean 'plant.{close[0]}'?" if close else ""
+            hint = suggest(variable, plant, prefix="plant.")
             raise InputError(f"the plant has no port '{variable}'{hint}", file=scenario_file, where=where)
         for p in candidates:
             if p.causality == want:
@@ -97,13 +96,11 @@ def _lookup(scenario_file, component: str, variable: str, want: str, fmus: dict[
         raise InputError(f"'plant.{variable}' is an {candidates[0].causality}, it cannot be a "
                          f"{'source' if want == 'output' else 'target'}", file=scenario_file, where=where)
     if component not in fmus:
-        close = difflib.get_close_matches(component, list(fmus) + [PLANT], n=1)
-        hint = f"; did you mean '{close[0]}'?" if close else ""
+        hint = suggest(component, [*fmus, PLANT])
         raise InputError(f"no FMU or plant named '{component}'{hint}", file=scenario_file, where=where)
     var = fmus[component].get(variable)
     if var is None:
-        close = difflib.get_close_matches(variable, list(fmus[component]), n=1)
-        hint = f"; did you mean '{component}.{close[0]}'?" if close else ""
+        hint = suggest(variable, fmus[component], prefix=f"{component}.")
         raise InputError(f"FMU '{component}' has no variable '{variable}'{hint}", file=scenario_file, where=where)
     if var.causality != want:
         raise InputError(f"'{component}.{variable}' is an {var.causality}; a connection needs an "

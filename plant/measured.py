@@ -22,7 +22,6 @@ conveyor in the drive log, and no more than :data:`MAX_RESIM_S` of simulated tim
 from __future__ import annotations
 
 import csv
-import difflib
 import io
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -38,7 +37,7 @@ from pydantic import Field
 from plant.errors import InputError
 from plant.fish_data import length_regressions
 from plant.line import Id, KpiSettings, Line
-from plant.validation import MAX_CSV_BYTES, Strict, file_size_checked, read_toml, validate
+from plant.validation import MAX_CSV_BYTES, Strict, file_size_checked, read_toml, suggest, validate
 
 
 @dataclass(frozen=True)
@@ -488,9 +487,9 @@ def _check_run_entries(doc: DatasetFile, toml: Path) -> None:
                              where=f"runs[{i}].id")
         seen[entry.id] = i
         for key in entry.model_extra or {}:
-            close = difflib.get_close_matches(key, known, n=1, cutoff=0.8)
-            if close:
-                raise InputError(f"unknown key '{key}'; did you mean '{close[0]}'?", file=toml, where=f"runs[{i}].{key}")
+            hint = suggest(key, known, cutoff=0.8)
+            if hint:
+                raise InputError(f"unknown key '{key}'{hint}", file=toml, where=f"runs[{i}].{key}")
 
 
 def read_dataset(path: str | Path, check_physics: bool = True) -> Dataset:

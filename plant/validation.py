@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import tomllib
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -30,6 +31,27 @@ class Strict(pydantic.BaseModel):
 
     model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
                                        use_attribute_docstrings=True)
+
+
+def suggest(name: str, known: Iterable[str], *, prefix: str = "", cutoff: float = 0.6, allowed: str | None = None,
+            template: str = "; did you mean '{}'?") -> str:
+    """The hint to append to a message about a misspelt ``name``: the closest of ``known`` (difflib,
+    ``cutoff``) as ``"; did you mean 'x'?"`` (``prefix`` + the name in ``template``); when none is
+    close, ``"; <allowed>: a, b"`` listing ``known`` in the order given if ``allowed`` names them,
+    else ``""``.  The one home of every "did you mean" in plant and fishfmu.
+
+    >>> suggest("cuont", ["count", "seed"])
+    "; did you mean 'count'?"
+    >>> suggest("sped", ["speed"], prefix="plant.c1.", template=" (did you mean '{}'?)")
+    " (did you mean 'plant.c1.speed'?)"
+    >>> suggest("xyz", ["count", "seed"]), suggest("xyz", ["count", "seed"], allowed="allowed keys")
+    ('', '; allowed keys: count, seed')
+    """
+    known = list(known)
+    close = difflib.get_close_matches(name, known, n=1, cutoff=cutoff)
+    if close:
+        return template.format(prefix + close[0])
+    return f"; {allowed}: {', '.join(known)}" if allowed and known else ""
 
 
 class ValueAtKey(ValueError):
@@ -92,10 +114,7 @@ def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix:
     if kind == "extra_forbidden":
         name = str(loc[-1]) if loc else "?"
         known = _known_keys(model, loc[:-1])
-        close = difflib.get_close_matches(name, known, n=1, cutoff=0.6)
-        hint = f"; did you mean '{close[0]}'?" if close else (
-            f"; allowed keys: {', '.join(sorted(known))}" if known else "")
-        return key, f"unknown key '{name}'{hint}"
+        return key, f"unknown key '{name}'{suggest(name, sorted(known), allowed='allowed keys')}"
     if kind == "missing":
         return key, "required key is missing"
     msg = err.get("msg", "invalid value")
