@@ -32,6 +32,7 @@ import pandas as pd
 from plant.errors import SimulationError
 from plant.health import EnergyWatch
 from plant.plant import Plant
+from plant.state import PlantOutputs
 from plant.recorder import RunRecorder
 
 from fishfmu.scenario import Event
@@ -76,7 +77,7 @@ class CoSimulation:
         self.signal_names = signal_names(self.wiring)
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
-        self.energy_watch = EnergyWatch(self.plant)
+        self.energy_watch = EnergyWatch()
         self._constants_of = {name: [(key, key.partition(".")[2], v) for key, v in self.wiring.constants.items()
                                      if key.partition(".")[0] == name] for name in self.fmus}
         # initial values: FMU outputs after initialisation, the plant at rest
@@ -87,11 +88,7 @@ class CoSimulation:
             self.values[f"{PLANT}.{port}"] = v
 
     def _plant_outputs_at_rest(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for c in self.plant.conveyor_ids:
-            out.update({f"{c}.speed": 0.0, f"{c}.load_force": 0.0, f"{c}.load_mass": 0.0})
-        out.update({f"{p}.blocked": False for p in self.plant.photoeye_ids})
-        return out
+        return PlantOutputs.at_rest(self.plant.conveyor_ids, self.plant.photoeye_ids).port_values()
 
     @property
     def t_s(self) -> float:
@@ -110,7 +107,7 @@ class CoSimulation:
         for c in self.plant.conveyor_ids:
             speeds[c] = float(self._input_value(f"{PLANT}.{c}.speed", held))
         out = self.plant.step(speeds)
-        self.energy_watch.check(out.belt_speed_mps, out.belt_load_force_n, dt)
+        self.energy_watch.check(self.plant.state, dt)
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1

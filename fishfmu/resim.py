@@ -89,7 +89,7 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
     loads: list[tuple] = []
 
     def log_loads(plant) -> None:
-        out = plant.last_outputs
+        out = plant.state.outputs
         for cid in plant.conveyor_ids:
             loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
 

@@ -17,6 +17,10 @@ Guides and the end plate are fixed and do no work; contact and joint dampers and
 only take energy out.  Contact and joint springs store some for a moment (a landing fish) and give
 it back, so the check allows the fish that much: :func:`spring_reserve_j`.
 
+The watch reads only the plant's published state (:class:`plant.state.PlantState`, ``plant.state``
+after each step): positions, velocities, masses, gravity, the adhesion forces and the belt speeds
+and loads of the step.
+
 So, with E the kinetic (translation and rotation) plus potential energy of the fish on the line,
 the watch keeps a bound B on E: B grows by the belts' work and the energy of entering fish, falls
 by that of leaving fish, and is lowered to E whenever E is below it (what was dissipated cannot
@@ -37,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant.errors import SimulationError
+from plant.state import FishStatus, PlantState
 
 MAX_SPEED_MPS = 25.0
 """Anything faster than this in a fish plant is a numerical blow-up, not physics."""
@@ -107,9 +112,11 @@ def spring_reserve_j(mass_on_line_kg: float) -> float:
 
 @dataclass
 class EnergyWatch:
-    """Checks after every communication step that the fish gained no energy without a source."""
+    """Checks after every communication step that the fish gained no energy without a source.
 
-    plant: object  # plant.plant.Plant (not imported: plant.plant imports the checks above from here)
+    >>> watch = EnergyWatch()   # then, after each plant step: watch.check(plant.state, dt_s)
+    """
+
     worst_excess_j: float = 0.0
     """Largest ``E - B`` seen so far [J] (for calibration)."""
     worst_ratio: float = 0.0
@@ -118,64 +125,45 @@ class EnergyWatch:
     """``E - B`` after the last step [J]."""
     worst_j_per_kg: float = 0.0
     """Largest ``(E - B) / mass of the fish on the line`` seen so far [J/kg]."""
-    _members: object = None
-    _mass_b: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    _inertia_b: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     _energy: np.ndarray | None = None
     """Energy of each fish after the last step (NaN: not on the line)."""
     _lowest: np.ndarray | None = None
     """Lowest energy of each fish since it came onto the line."""
     _bound_j: float = 0.0
-    _mass_kg: np.ndarray | None = None
 
-    def _body_properties(self) -> None:
-        p = self.plant
-        if self._members is p._member:
-            return
-        masses, inertias = [], []
-        for k in p._member:
-            prep = p.prepared[k]
-            masses += [b.mass_kg for b in prep.geometry.bodies]
-            inertias += [np.asarray(i, dtype=float) for i in prep.inertias]
-        self._mass_b = np.array(masses, dtype=float)
-        self._inertia_b = np.array(inertias, dtype=float).reshape(-1, 3)
-        self._members = p._member
-        if self._mass_kg is None:
-            self._mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in p.prepared])
-
-    def fish_energy(self) -> np.ndarray:
-        """Kinetic plus potential energy [J] of every fish (NaN for fish not on the line)."""
-        from plant.plant import ON_LINE
-        p = self.plant
-        self._body_properties()
-        n = len(p.fish_specs)
-        on = p.status[p._fish_of_body] == ON_LINE
+    @staticmethod
+    def fish_energy(state: PlantState) -> np.ndarray:
+        """Kinetic plus potential energy [J] of every fish in ``state`` (NaN for fish not on the line)."""
+        n = len(state.status)
+        on = state.status[state.fish_of_body] == FishStatus.ON_LINE
         if not np.any(on):
             return np.full(n, np.nan)
-        m, inertia = self._mass_b[on], self._inertia_b[on]
-        e = (0.5 * m * np.einsum("ij,ij->i", p._vel[on], p._vel[on])
-             + 0.5 * np.einsum("ij,ij->i", inertia, p._omega_local[on] ** 2)
-             - m * (p._pos[on] @ p._gravity))
-        fish = p._fish_of_body[on]
+        m, inertia = state.body_mass_kg[on], state.body_inertia[on]
+        vel = state.vel[on]
+        e = (0.5 * m * np.einsum("ij,ij->i", vel, vel)
+             + 0.5 * np.einsum("ij,ij->i", inertia, state.omega_local[on] ** 2)
+             - m * (state.pos[on] @ state.gravity_mps2))
+        fish = state.fish_of_body[on]
         total = np.bincount(fish, weights=e, minlength=n)
         total[np.bincount(fish, minlength=n) == 0] = np.nan
         return total
 
-    def _adhesion_power_bound(self) -> float:
-        force = getattr(self.plant, "_adhesion_force", None)
-        vel = self.plant._vel
+    @staticmethod
+    def _adhesion_power_bound(state: PlantState) -> float:
+        force, vel = state.adhesion_force_n, state.vel
         if force is None or force.shape != vel.shape or not np.any(force):
             return 0.0
         return float(np.abs(np.einsum("ij,ij->i", force, vel)).sum())
 
-    def check(self, belt_speed_mps: dict[str, float], belt_load_force_n: dict[str, float], dt_s: float) -> None:
-        """Call after each plant step with that step's belt speeds and loads; raises SimulationError on
-        energy from nowhere."""
-        now = self.fish_energy()
+    def check(self, state: PlantState, dt_s: float) -> None:
+        """Call after each plant step of ``dt_s`` with the state it published (its outputs: the step's belt
+        speeds and loads); raises SimulationError on energy from nowhere."""
+        belt_speed_mps, belt_load_force_n = state.outputs.belt_speed_mps, state.outputs.belt_load_force_n
+        now = self.fish_energy(state)
         before = self._energy if self._energy is not None else np.full(len(now), np.nan)
         on_now, on_before = ~np.isnan(now), ~np.isnan(before)
         work = dt_s * sum(belt_load_force_n[c] * belt_speed_mps[c] for c in belt_speed_mps)
-        work += dt_s * self._adhesion_power_bound()
+        work += dt_s * self._adhesion_power_bound(state)
         entered = float(now[on_now & ~on_before].sum())
         left = float(before[on_before & ~on_now].sum())
         bound = self._bound_j + work + entered - left
@@ -185,7 +173,7 @@ class EnergyWatch:
         if not np.any(on_now):
             self._bound_j = 0.0
             return
-        mass = float(self._mass_kg[on_now].sum())
+        mass = float(state.fish_mass_kg[on_now].sum())
         reserve = spring_reserve_j(mass)
         excess = total - bound if np.isfinite(total) else np.inf
         self.last_excess_j = excess
@@ -195,9 +183,9 @@ class EnergyWatch:
         if excess > reserve:
             gains = np.where(on_now, now - self._lowest, -np.inf)
             k = int(np.argmax(np.nan_to_num(gains, nan=np.inf)))
-            fish_id = self.plant.fish_specs[k].fish_id
+            fish_id = state.fish_ids[k]
             raise SimulationError(
                 f"numerical blow-up: the fish gained {excess:.1f} J more energy than the belts supplied "
                 f"(allowed {reserve:.1f} J for the springs), most of it fish '{fish_id}' "
-                f"(+{gains[k]:.1f} J since its lowest)", self.plant.t_s)
+                f"(+{gains[k]:.1f} J since its lowest)", state.t_s)
         self._bound_j = min(bound, total)

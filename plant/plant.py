@@ -8,6 +8,8 @@
 >>> out = plant.step({"c1": 0.3})
 >>> round(plant.t_s, 3), out.photoeyes["pe1"], sorted(plant.input_ports())
 (0.01, False, ['c1.speed'])
+>>> plant.state.outputs is out, plant.state.t_s == plant.t_s
+(True, True)
 
 One step is a short, fixed pipeline (read it top to bottom):
 
@@ -16,7 +18,8 @@ One step is a short, fixed pipeline (read it top to bottom):
 3. re-linearise the joints that are at or running into their limits; with the model's extensions
    (plant.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
 4. let Exudyn integrate to the end of the step;
-5. read the state, work out the sensors, retire fish that have left the line, check health.
+5. read the state, work out the sensors, retire fish that have left the line, publish the state
+   (:attr:`Plant.state`, a read-only :class:`plant.state.PlantState`), check its health.
 
 Only fish in play are in the Exudyn system (see :mod:`plant.model`): when fish are about to be
 dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
@@ -41,32 +44,11 @@ from plant.params import PlantParams
 from plant.population import FishSpec
 from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
+from plant.state import FishStatus, PlantOutputs, PlantState
 
-WAITING, ON_LINE, LEFT = 0, 1, 2
+WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
 ADMIT_AHEAD_S = 1.0
 """Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
-
-
-@dataclass
-class PlantOutputs:
-    """Sensor readings at the end of a communication step."""
-
-    t_s: float
-    belt_speed_mps: dict[str, float]
-    belt_load_force_n: dict[str, float]
-    belt_load_mass_kg: dict[str, float]
-    photoeyes: dict[str, bool]
-
-    def port_values(self) -> dict[str, float | bool]:
-        """Every output as ``"<id>.<signal>"`` (the names connections use)."""
-        out: dict[str, float | bool] = {}
-        for cid in self.belt_speed_mps:
-            out[f"{cid}.speed"] = self.belt_speed_mps[cid]
-            out[f"{cid}.load_force"] = self.belt_load_force_n[cid]
-            out[f"{cid}.load_mass"] = self.belt_load_mass_kg[cid]
-        for pid, blocked in self.photoeyes.items():
-            out[f"{pid}.blocked"] = blocked
-        return out
 
 
 @dataclass
@@ -79,7 +61,8 @@ class FishState:
     z_m: np.ndarray
     yaw_rad: np.ndarray
     status: np.ndarray
-    """WAITING (not dropped yet), ON_LINE, or LEFT (gone past the end of the line)."""
+    """:class:`FishStatus` (int8) of every fish: WAITING (not dropped yet), ON_LINE, or LEFT (gone past the
+    end of the line)."""
 
 
 @dataclass
@@ -97,6 +80,7 @@ class Plant:
         self.params = params or PlantParams()
         self.fish_specs = list(fish)
         self._fish_ids = [f.fish_id for f in self.fish_specs]
+        self._fish_id_tuple = tuple(self._fish_ids)
         n_sub = comm_step_s / self.params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
             raise ValueError(f"communication step {comm_step_s} s is not a whole multiple of the integration "
@@ -108,6 +92,7 @@ class Plant:
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._gravity = self.params.gravity_mps2 * np.array(
             [np.sin(np.radians(self.params.incline_deg)), 0.0, -np.cos(np.radians(self.params.incline_deg))])
+        self._gravity.setflags(write=False)
         ext = self.params.extensions
         if joint_factors is None:
             joint_factors = [ext.rigor_mortis.joint_factors(f.hours_post_mortem) if ext.rigor_mortis.on else (1.0, 1.0)
@@ -117,6 +102,7 @@ class Plant:
         self._mucus = np.array([ext.mucus_friction.factor(f.hours_post_mortem) for f in self.fish_specs])
         self._level = friction_level(self._mucus) if len(self.fish_specs) else np.zeros(0, dtype=np.int64)
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self.prepared]
+        self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self.prepared])
         self.status = np.full(len(self.fish_specs), WAITING, dtype=np.int8)
         self.drop_adjustments: list[DropAdjustment] = []
         self.rebuilds = 0
@@ -125,6 +111,7 @@ class Plant:
         self._steps = 0
         self._t_model0 = 0.0
         self._set_model(build_model(line, [], self.params, self._gravity), [])
+        self._publish(PlantOutputs.at_rest(self.conveyor_ids, self.photoeye_ids))
 
     # ---- ports -------------------------------------------------------------------------------
     def input_ports(self) -> list[str]:
@@ -139,6 +126,12 @@ class Plant:
     @property
     def t_s(self) -> float:
         return self._steps * self.comm_step_s
+
+    @property
+    def state(self) -> PlantState:
+        """The plant after the last step (read-only; at rest before the first step): what readers
+        outside the plant use (the energy watch, re-simulation), never the plant's private fields."""
+        return self._state
 
     # ---- the step ----------------------------------------------------------------------------
     def step(self, belt_speeds_mps: dict[str, float] | np.ndarray) -> PlantOutputs:
@@ -156,8 +149,8 @@ class Plant:
         self._steps += 1
         self._read_state()
         outputs = self._sensors(speeds)
-        self.last_outputs = outputs
         self._retire_fish()
+        self._publish(outputs)
         self._check_health()
         return outputs
 
@@ -168,6 +161,10 @@ class Plant:
         self._slot_of = {m.index: i for i, m in enumerate(members)}
         self._member = model.member_index
         self._fish_of_body = np.repeat(self._member, 5)
+        self._body_mass = np.array([b.mass_kg for k in self._member for b in self.prepared[k].geometry.bodies],
+                                   dtype=float)
+        self._body_inertia = np.array([np.asarray(i, dtype=float) for k in self._member
+                                       for i in self.prepared[k].inertias], dtype=float).reshape(-1, 3)
         self._laws = stack_laws([m.prepared.laws for m in members])
         self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
         self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
@@ -455,12 +452,23 @@ class Plant:
         for load in self.model.fish[slot].gravity_loads:
             self.model.mbs.SetLoadParameter(load, "loadVector", gravity)
 
+    def _publish(self, outputs: PlantOutputs) -> None:
+        """The state after this step, as readers outside the plant see it (:attr:`state`).  The arrays
+        are shared, not copied: every one of them is made anew when it changes (by :meth:`_read_state`,
+        :meth:`_set_model`, :meth:`_apply_adhesion`), except the status, which is copied."""
+        self._state = PlantState(
+            t_s=self.t_s, fish_ids=self._fish_id_tuple, status=self.status.copy(), member=self._member,
+            fish_of_body=self._fish_of_body, pos=self._pos, rot=self._rot, vel=self._vel,
+            omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
+            fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
+            outputs=outputs)
+
     def _check_health(self) -> None:
-        body_on = self.status[self._fish_of_body] == ON_LINE
+        s = self._state
+        body_on = s.on_line_bodies()
         if not np.any(body_on):
             return
-        check_health(self._pos[body_on], self._vel[body_on], self._fish_of_body[body_on], self._fish_ids,
-                     self.line, self.t_s)
+        check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self.line, s.t_s)
 
     def floor_below(self, x_m: np.ndarray) -> np.ndarray:
         """Lowest belt top within 0.1 m of each x: where a fish can lie, drape or hang over a drum."""

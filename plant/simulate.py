@@ -17,9 +17,10 @@ import pandas as pd
 from plant.line import Line
 from plant.params import PlantParams
 from plant.health import EnergyWatch
-from plant.plant import LEFT, WAITING, DropAdjustment, Plant
+from plant.plant import DropAdjustment, Plant
 from plant.population import FishSpec, fish_to_frame
 from plant.recorder import RunRecorder, pose_record
+from plant.state import FishStatus
 
 BeltSpeeds = dict[str, float] | Callable[[float], dict[str, float]]
 
@@ -53,7 +54,7 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     fish has been dropped and has left the line.  ``record_poses``: also keep every body's pose at
     25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory)."""
     plant = Plant(line, fish, params, comm_step_s, joint_factors)
-    energy = EnergyWatch(plant)
+    energy = EnergyWatch()
     rec = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids, comm_step_s,
                       record_poses=record_poses)
     body_poses = plant.body_poses if record_poses else None
@@ -64,16 +65,16 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     for _ in range(n_steps):
         speeds = speed_fn(plant.t_s)
         out = plant.step(speeds)
-        energy.check(out.belt_speed_mps, out.belt_load_force_n, comm_step_s)  # a blow-up stops here, as in a co-simulation
+        energy.check(plant.state, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(plant.t_s, plant.fish_state, out.photoeyes, speeds, out.belt_speed_mps, body_poses)
         if on_step is not None:
             on_step(plant)
         if stop_when_clear and len(fish):
-            if np.all(plant.status == LEFT):
+            if np.all(plant.status == FishStatus.LEFT):
                 clear_since = plant.t_s if clear_since is None else clear_since
                 if plant.t_s - clear_since >= clear_margin_s - 1e-9:
                     break
-            elif np.any(plant.status == WAITING):
+            elif np.any(plant.status == FishStatus.WAITING):
                 clear_since = None
     wall = time.perf_counter() - t0
     tables = rec.tables()

@@ -12,7 +12,9 @@ import pytest
 from plant.errors import SimulationError
 from plant.health import EnergyWatch, check_health, floor_below, spring_reserve_j
 from plant.line import Line
-from plant.plant import LEFT, ON_LINE, WAITING
+from plant.state import FishStatus, PlantOutputs, PlantState
+
+WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
 
 # two belts, x 0..2 at z 0 and x 2..4 stepped down to z -0.1; guides at y = +-0.25
 LINE = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
@@ -95,27 +97,31 @@ FISH_KG = 5 * BODY_KG  # 2 kg
 
 
 def watched_plant(n_fish: int = 1) -> SimpleNamespace:
-    """What EnergyWatch reads of a plant: n fish of five 0.4 kg bodies (no rotational inertia), all
-    in the system, waiting to be dropped."""
-    body = SimpleNamespace(mass_kg=BODY_KG)
-    prepared = [SimpleNamespace(geometry=SimpleNamespace(bodies=[body] * 5), inertias=[(0.0, 0.0, 0.0)] * 5)
-                for _ in range(n_fish)]
-    member = np.arange(n_fish)
-    return SimpleNamespace(
-        _member=member, prepared=prepared, fish_specs=[SimpleNamespace(fish_id=f"f{k + 1}") for k in range(n_fish)],
-        status=np.full(n_fish, WAITING, dtype=np.int8), _fish_of_body=np.repeat(member, 5),
-        _pos=np.zeros((5 * n_fish, 3)), _vel=np.zeros((5 * n_fish, 3)), _omega_local=np.zeros((5 * n_fish, 3)),
-        _gravity=np.array([0.0, 0.0, -G]), t_s=0.0)
+    """A plant made by hand: n fish of five 0.4 kg bodies (no rotational inertia), all in the system,
+    waiting to be dropped; :func:`snapshot` publishes its state as the plant would."""
+    return SimpleNamespace(n_fish=n_fish, status=np.full(n_fish, WAITING, dtype=np.int8),
+                           pos=np.zeros((5 * n_fish, 3)), vel=np.zeros((5 * n_fish, 3)), t_s=0.0)
+
+
+def snapshot(plant: SimpleNamespace, speed_mps: float = 0.0, load_force_n: float = 0.0) -> PlantState:
+    """What EnergyWatch reads: the hand-made plant's state, with belt c1 at ``speed_mps`` pushing the
+    fish with ``load_force_n``."""
+    n = plant.n_fish
+    member = np.arange(n)
+    outputs = PlantOutputs(plant.t_s, {"c1": speed_mps}, {"c1": load_force_n}, {"c1": 0.0}, {})
+    return PlantState(t_s=plant.t_s, fish_ids=tuple(f"f{k + 1}" for k in range(n)), status=plant.status.copy(),
+                      member=member, fish_of_body=np.repeat(member, 5), pos=plant.pos.copy(),
+                      rot=np.tile(np.eye(3), (5 * n, 1, 1)), vel=plant.vel.copy(), omega_local=np.zeros((5 * n, 3)),
+                      body_mass_kg=np.full(5 * n, BODY_KG), body_inertia=np.zeros((5 * n, 3)),
+                      fish_mass_kg=np.full(n, FISH_KG), gravity_mps2=np.array([0.0, 0.0, -G]), outputs=outputs)
 
 
 def move(plant: SimpleNamespace, fish: int, z: float, vx: float) -> None:
     """Every body of the fish at height z moving at vx."""
     b = slice(5 * fish, 5 * fish + 5)
-    plant._pos[b, 2] = z
-    plant._vel[b, 0] = vx
+    plant.pos[b, 2] = z
+    plant.vel[b, 0] = vx
 
-
-NO_BELT = ({"c1": 0.0}, {"c1": 0.0})
 
 
 def test_spring_reserve_is_8_j_plus_half_a_joule_per_kg():
@@ -126,14 +132,14 @@ def test_spring_reserve_is_8_j_plus_half_a_joule_per_kg():
 
 def test_energy_gained_within_the_reserve_passes_and_beyond_it_raises():
     plant = watched_plant()
-    watch = EnergyWatch(plant)
-    watch.check(*NO_BELT, 0.01)  # nobody on the line
+    watch = EnergyWatch()
+    watch.check(snapshot(plant), 0.01)  # nobody on the line
     plant.status[0] = ON_LINE  # dropped at rest at z = 0: E = 0
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == 0.0
     # 0.5 * 2 kg * (2.9 m/s)^2 = 8.41 J from nowhere: below the 9 J reserve
     move(plant, 0, 0.0, 2.9)
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == pytest.approx(8.41)
     assert watch.worst_ratio == pytest.approx(8.41 / 9.0)
     # 0.5 * 2 * 3.1^2 = 9.61 J: beyond it
@@ -141,41 +147,41 @@ def test_energy_gained_within_the_reserve_passes_and_beyond_it_raises():
     plant.t_s = 0.04
     with pytest.raises(SimulationError, match=r"gained 9\.6 J more energy than the belts supplied \(allowed 9\.0 J "
                                               r"for the springs\), most of it fish 'f1' \(\+9\.6 J since its lowest\)") as info:
-        watch.check(*NO_BELT, 0.01)
+        watch.check(snapshot(plant), 0.01)
     assert info.value.time_s == 0.04
 
 
 def test_belt_work_and_falling_are_sources_of_energy():
     plant = watched_plant()
-    watch = EnergyWatch(plant)
+    watch = EnergyWatch()
     plant.status[0] = ON_LINE
     move(plant, 0, 1.0, 0.0)  # enters 1 m up: brings m g h = 19.62 J
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == 0.0
     # falls 1 m: v = sqrt(2 g h); kinetic energy from potential, nothing gained
     move(plant, 0, 0.0, np.sqrt(2 * G))
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == pytest.approx(0.0, abs=1e-9)
     # a belt at 2 m/s pushing with 1000 N for 0.01 s does 20 J of work: 19.62 J + 20 J on the fish
     # is 0 in excess; 8 J more is still within the reserve
     v = np.sqrt(2 * (2 * G + 20.0 + 8.0) / FISH_KG)
     move(plant, 0, 0.0, v)
-    watch.check({"c1": 2.0}, {"c1": 1000.0}, 0.01)
+    watch.check(snapshot(plant, 2.0, 1000.0), 0.01)
     assert watch.last_excess_j == pytest.approx(8.0)
 
 
 def test_dissipated_energy_cannot_come_back():
     plant = watched_plant()
-    watch = EnergyWatch(plant)
+    watch = EnergyWatch()
     plant.status[0] = ON_LINE
     move(plant, 0, 1.0, 0.0)  # enters with 19.62 J
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     move(plant, 0, 0.0, 0.0)  # landed and came to rest: 19.62 J dissipated
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     # springs back up 0.5 m: 9.81 J, half of what it had, but more than the 9 J reserve from nowhere
     move(plant, 0, 0.5, 0.0)
     with pytest.raises(SimulationError, match=r"gained 9\.8 J .*allowed 9\.0 J"):
-        watch.check(*NO_BELT, 0.01)
+        watch.check(snapshot(plant), 0.01)
 
 
 def test_reserve_grows_with_the_mass_on_the_line():
@@ -183,31 +189,31 @@ def test_reserve_grows_with_the_mass_on_the_line():
     three, two = watched_plant(3), watched_plant(2)
     three.status[:] = ON_LINE
     two.status[:] = ON_LINE
-    w3, w2 = EnergyWatch(three), EnergyWatch(two)
-    w3.check(*NO_BELT, 0.01)
-    w2.check(*NO_BELT, 0.01)
+    w3, w2 = EnergyWatch(), EnergyWatch()
+    w3.check(snapshot(three), 0.01)
+    w2.check(snapshot(two), 0.01)
     move(three, 2, 0.0, 3.25)
     move(two, 1, 0.0, 3.25)
-    w3.check(*NO_BELT, 0.01)  # three fish, 6 kg: reserve 8 + 3 = 11 J
+    w3.check(snapshot(three), 0.01)  # three fish, 6 kg: reserve 8 + 3 = 11 J
     assert w3.last_excess_j == pytest.approx(10.5625)
     with pytest.raises(SimulationError, match=r"gained 10\.6 J .*allowed 10\.0 J.*fish 'f2'"):
-        w2.check(*NO_BELT, 0.01)  # two fish, 4 kg: reserve 10 J
+        w2.check(snapshot(two), 0.01)  # two fish, 4 kg: reserve 10 J
 
 
 def test_a_fish_leaving_the_line_takes_its_energy_with_it():
     plant = watched_plant(3)
-    watch = EnergyWatch(plant)
+    watch = EnergyWatch()
     plant.status[:2] = ON_LINE
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     plant.status[2] = ON_LINE
     move(plant, 2, 1.0, 0.0)  # f3 enters 1 m up with 19.62 J
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == pytest.approx(0.0)
     plant.status[2] = LEFT  # ... and leaves with it: the bound is back to 0
-    watch.check(*NO_BELT, 0.01)
+    watch.check(snapshot(plant), 0.01)
     assert watch.last_excess_j == pytest.approx(0.0)
     # f1 and f2, 4 kg: reserve 10 J; f2 gains 0.5 * 2 * 3.2^2 = 10.24 J, which the 19.62 J f3
     # brought would have covered had it stayed
     move(plant, 1, 0.0, 3.2)
     with pytest.raises(SimulationError, match=r"gained 10\.2 J .*allowed 10\.0 J.*fish 'f2'"):
-        watch.check(*NO_BELT, 0.01)
+        watch.check(snapshot(plant), 0.01)

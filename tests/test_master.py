@@ -79,8 +79,10 @@ class FakePlant:
     def step(self, speeds: dict[str, float]) -> PlantOutputs:
         self.log.append(PLANT)
         self.received.append(dict(speeds))
-        return PlantOutputs(len(self.received) * DT, dict(speeds), {c: 0.5 * v for c, v in speeds.items()},
-                            {c: 0.0 for c in speeds}, {"pe1": speeds["c1"] > 1.0})
+        out = PlantOutputs(len(self.received) * DT, dict(speeds), {c: 0.5 * v for c, v in speeds.items()},
+                           {c: 0.0 for c in speeds}, {"pe1": speeds["c1"] > 1.0})
+        self.state = SimpleNamespace(outputs=out)  # what the master hands the energy watch
+        return out
 
     def speeds(self, conveyor: str = "c1") -> list[float]:
         return [s[conveyor] for s in self.received]
@@ -93,9 +95,9 @@ class WatchStub:
         self.log = log
         self.calls: list[tuple[dict, dict, float]] = []
 
-    def check(self, speed: dict, force: dict, dt: float) -> None:
+    def check(self, state, dt: float) -> None:
         self.log.append("watch")
-        self.calls.append((dict(speed), dict(force), dt))
+        self.calls.append((dict(state.outputs.belt_speed_mps), dict(state.outputs.belt_load_force_n), dt))
 
 
 def port(key: str, causality: str, type_: str = "Real") -> Port:
