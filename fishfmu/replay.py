@@ -39,6 +39,7 @@ from plant.errors import InputError
 from plant.fish_data import length_regressions
 from plant.line import Line
 from plant.measured import Run, read_dataset
+from plant.state import FishStatus
 
 POS_UNIT_M = 0.001
 """Position quantum: 1 mm, below what a screen shows of a 6 m line (and the tracking noise)."""
@@ -48,8 +49,6 @@ TIME_UNIT_S = 0.001
 ANGLE_UNIT_RAD = 1e-4
 MAX_FRAME_RATE_HZ = 30.0
 """Poses recorded faster than this are thinned: a browser interpolates between frames anyway."""
-ON_LINE = 1
-"""A fish's status in poses.npz (plant.plant): 0 waiting to be dropped, 1 on the line, 2 gone."""
 
 
 # ------------------------------------------------------------------------------------- the codec
@@ -290,7 +289,7 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
     t_s, pos, quat, status = p["t_s"][::stride], p["pos"][::stride], p["quat"][::stride], p["status"][::stride]
     n_fish, n_bodies = status.shape[1], pos.shape[1]
     body_fish = p["body_fish"]
-    visible = status[:, body_fish] == ON_LINE                       # (F, B)
+    visible = status[:, body_fish] == FishStatus.ON_LINE            # (F, B)
     pos = np.stack([hold_hidden(pos[:, b], visible[:, b]) for b in range(n_bodies)], axis=1)
     quat = np.stack([hold_hidden(quat[:, b], visible[:, b]) for b in range(n_bodies)], axis=1)
     quat = continuous_quaternions(quat)

@@ -18,8 +18,9 @@ import numpy as np
 import pandas as pd
 
 from plant.measured import BELTS, PHOTOEYES, TRACKS
-from plant.plant import ON_LINE, FishState, Plant
+from plant.plant import FishState, Plant
 from plant.rotations import matrix_to_quaternion
+from plant.state import FishStatus
 
 TRACK_PERIOD_S = 0.04
 BELT_PERIOD_S = 0.01
@@ -58,7 +59,7 @@ class RunRecorder:
         if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
             fish = fish()
-            for k in np.flatnonzero(fish.status == ON_LINE):
+            for k in np.flatnonzero(fish.status == FishStatus.ON_LINE):
                 self._tracks.append((t_s, self.fish_ids[k], fish.x_m[k], fish.y_m[k], fish.yaw_rad[k]))
             if self.record_poses and body_poses is not None:
                 pos, rot = body_poses()
@@ -81,7 +82,7 @@ class RunRecorder:
 
     def poses(self) -> dict[str, np.ndarray] | None:
         """Body poses at the track rate: ``t_s`` (F,), ``pos`` (F, B, 3), ``quat`` (F, B, 4: w, x, y, z),
-        ``status`` (F, n_fish) of WAITING/ON_LINE/LEFT; None unless ``record_poses``."""
+        ``status`` (F, n_fish) of :class:`plant.state.FishStatus` (int8); None unless ``record_poses``."""
         if not self.record_poses:
             return None
         n_b = 5 * len(self.fish_ids)

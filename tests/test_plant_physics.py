@@ -11,6 +11,7 @@ from plant.params import PlantParams
 from plant.plant import Plant
 from plant.population import PopulationSpec, sample_fish
 from plant.simulate import simulate_plant
+from plant.state import FishStatus
 from tests.plant_helpers import fish, straight_line
 
 G = 9.81
@@ -113,7 +114,7 @@ def test_twenty_fish_dropped_in_bulk_stay_on_the_line():
 
     def watch(plant: Plant) -> None:
         pos, _ = plant.body_poses()
-        on = np.repeat(plant.status == 1, 5)
+        on = np.repeat(plant.status == FishStatus.ON_LINE, 5)
         if np.any(on):
             p = pos[on]
             inside = p[:, 0] < line.x_end_m

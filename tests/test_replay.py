@@ -16,6 +16,7 @@ from hypothesis.extra import numpy as hnp
 from typer.testing import CliRunner
 
 from plant.measured import read_dataset
+from plant.state import FishStatus
 
 from fishfmu.cli import app
 from fishfmu.outputs import prepare_out_dir, write_outputs
@@ -73,7 +74,7 @@ def test_packed_poses_decode_to_the_recorded_ones(run_dir, poses):
     assert np.allclose(a["t"][0], poses["t_s"], atol=0.0005)
     pos = a["pos"].reshape(B, 3, F).transpose(2, 0, 1)
     quat = a["quat"].reshape(B, 4, F).transpose(2, 0, 1)
-    visible = poses["status"][:, poses["body_fish"]] == 1
+    visible = poses["status"][:, poses["body_fish"]] == FishStatus.ON_LINE
     assert visible.sum() > 0.5 * visible.size
     assert np.abs(pos - poses["pos"])[visible].max() <= 0.0005 + 1e-6          # mm quantum, rounded
     same_sign = np.abs(quat - poses["quat"]).max(axis=-1)
@@ -171,7 +172,8 @@ def test_page_renders_from_a_file_in_headless_chromium(page):
 
 @needs_chromium
 def test_fish_are_drawn_where_the_recorded_poses_put_them(page, poses):
-    k = int(np.flatnonzero((poses["status"] == 1).all(axis=1))[-1])   # the last frame with every fish on the line
+    # the last frame with every fish on the line
+    k = int(np.flatnonzero((poses["status"] == FishStatus.ON_LINE).all(axis=1))[-1])
     page.eval(f"window.replay.setView('top'); window.replay.setTime({float(poses['t_s'][k])!r})")
     vp, size = page.eval("window.replay.viewProjection()"), page.eval("window.replay.canvasSize()")
     expected = projected(poses["pos"][k].astype(float), vp, size)
