@@ -102,7 +102,8 @@ def run(
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
     from fishfmu.interrupt import register_output, stop_on_signals
-    from fishfmu.outputs import discard_if_unused, mark_running, prepare_out_dir, write_junit, write_outputs
+    from fishfmu.outputs import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir, write_junit,
+                                 write_outputs)
     from fishfmu.runner import check_scenario, run_scenario
     from fishfmu.scenario import load_scenario, parse_assignments
 
@@ -149,7 +150,7 @@ def run(
         from fishfmu.replay import write_replay
         console.print(f"replay: {write_replay(out_dir)}")
     if junit is not None:
-        write_junit(result, junit, str(scenario))
+        write_junit(junit, **junit_args_of_run(result, str(scenario)))
     print_kpis(result, console)
     console.print(f"outputs: {out_dir}")
     if result.status == "partial":
@@ -291,7 +292,7 @@ def compare(
 ) -> None:
     """Re-simulate every measured run and show what the simulation gets wrong (KPIs, arrivals, tracks, belts)."""
     from fishfmu.compare import compare_dataset, write_comparison
-    from fishfmu.outputs import prepare_out_dir, write_json_atomic
+    from fishfmu.outputs import prepare_out_dir, write_run_info
     ds, params, drive = _dataset_and_params(dataset, scenario)
     out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "compare")
     from fishfmu.interrupt import current, register_output
@@ -300,10 +301,9 @@ def compare(
     paths = write_comparison(c, out_dir)
     stopped = current() is not None and current().requested
     failure = None if stopped else c.failure()  # a re-simulation that failed: exit 3 once the rest is written
-    write_json_atomic(out_dir / "run_info.json", {"status": "partial" if stopped else "failed" if failure else "ok",
-                                                  "command": "compare", "dataset": str(dataset)}
-                      | ({"stopped_by": current().signal_name} if stopped else {})
-                      | ({"error": failure} if failure else {}))
+    write_run_info(out_dir, "partial" if stopped else "failed" if failure else "ok", command="compare",
+                   dataset=str(dataset), **({"stopped_by": current().signal_name} if stopped else {}),
+                   **({"error": failure} if failure else {}))
     from rich.table import Table
     table = Table(title=f"{ds.name}: simulated - measured, over {len(ds.runs)} runs")
     for col in ("measure", "mean", "sd", "min", "max"):
@@ -332,7 +332,7 @@ def diagnose_cmd(
     """Name the cause of what the simulation gets wrong, fit it, and measure the gain on held-out runs."""
     from fishfmu.diagnose import diagnose
     from fishfmu.diagnose_report import decision_text, write_diagnosis
-    from fishfmu.outputs import prepare_out_dir, write_json_atomic
+    from fishfmu.outputs import prepare_out_dir, write_run_info
     ds, params, _ = _dataset_and_params(dataset, scenario)
     out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "diagnose")
     from fishfmu.interrupt import register_output
@@ -340,11 +340,10 @@ def diagnose_cmd(
     try:
         d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text))
     except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
-        write_json_atomic(out_dir / "run_info.json", {"status": "failed", "command": "diagnose",
-                                                      "dataset": str(dataset), "error": str(exc)})
+        write_run_info(out_dir, "failed", command="diagnose", dataset=str(dataset), error=str(exc))
         raise
     paths = write_diagnosis(d, out_dir)
-    write_json_atomic(out_dir / "run_info.json", {"status": "ok", "command": "diagnose", "dataset": str(dataset)})
+    write_run_info(out_dir, "ok", command="diagnose", dataset=str(dataset))
     literal_console().print(labelled("cause:", d.cause, "bold"))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")

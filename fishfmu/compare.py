@@ -136,11 +136,6 @@ def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers
         typed_frame(measures, {"run_id": o, "measure": o, "value": f, "note": o}))
 
 
-def _json_number(value: float) -> float | None:
-    """NaN (an sd over one run, a measure no run has) is null in JSON."""
-    return float(value) if np.isfinite(value) else None
-
-
 def write_replays(c: Comparison, folder: Path) -> dict[str, Path]:
     """One replay page per re-simulated run (run id -> page): the simulated fish and the measured ones
     over them (:func:`fishfmu.replay.write_compare_replay`).  Runs whose re-simulation failed, or
@@ -161,7 +156,7 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     from plant.measured import write_dataset
 
     from fishfmu.compare_report import write_compare_report
-    from fishfmu.outputs import write_json_atomic, write_text_atomic
+    from fishfmu.outputs import json_safe, write_json_atomic, write_text_atomic
     paths = {}
     for name, df in (("kpis", c.kpis), ("arrivals", c.arrivals), ("error_measures", c.measures),
                      ("error_summary", c.summary())):
@@ -177,7 +172,8 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     write_json_atomic(out / "compare.json", {
         "dataset": c.dataset.name, "runs": len(c.dataset.runs),
         "failed": {s.run_id: s.error for s in c.resims if s.error},
-        "error_summary": {row.measure: {k: _json_number(getattr(row, k)) for k in ("mean", "sd", "min", "max")}
+        # NaN (an sd over one run, a measure no run has) is null
+        "error_summary": {row.measure: {k: json_safe(float(getattr(row, k))) for k in ("mean", "sd", "min", "max")}
                           for row in summary.itertuples()}})
     replays = write_replays(c, out / "replay")
     if replays:

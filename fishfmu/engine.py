@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import logging
-import math
 import os
 import socket
 import tempfile
@@ -99,16 +98,10 @@ def install_bundle(bundle: FmuBundle) -> dict[str, str]:
 
 
 def scalar_kpis(kpis: dict[str, Any]) -> dict[str, Any]:
-    """The KPIs that fit a table cell (numbers, text, flags); NaN/inf -> None, numpy -> Python."""
-    out: dict[str, Any] = {}
-    for k, v in kpis.items():
-        if hasattr(v, "item") and not isinstance(v, (list, dict)):
-            v = v.item()  # numpy scalar
-        if isinstance(v, float) and not math.isfinite(v):
-            v = None
-        if v is None or isinstance(v, (bool, int, float, str)):
-            out[k] = v
-    return out
+    """The KPIs that fit a table cell (numbers, text, flags), JSON-safe (:func:`fishfmu.outputs.json_safe`:
+    NaN/inf -> None, numpy -> Python)."""
+    from fishfmu.outputs import json_safe
+    return {k: v for k, v in json_safe(kpis).items() if v is None or isinstance(v, (bool, int, float, str))}
 
 
 def _worker_name() -> str:

@@ -16,7 +16,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
-from xml.etree import ElementTree as ET
 
 import pandas as pd
 
@@ -54,19 +53,18 @@ class SeedsResult:
 def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,
               scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
     """Run the scenario for ``n_seeds`` seeds into ``out_dir`` (already prepared) and write its KPIs."""
-    from fishfmu.outputs import _clean, write_json_atomic
+    from fishfmu.outputs import json_safe, write_json_atomic, write_run_info
     sc = load_scenario(scenario, overrides)
     spec = make_spec(scenario, {}, n_seeds, overrides)
     t0 = time.perf_counter()
-    write_json_atomic(out_dir / "run_info.json", {"status": "running", "seeds": spec.seeds})  # marks the folder ours
+    write_run_info(out_dir, "running", seeds=spec.seeds)  # marks the folder ours
     sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
     if sweep.summary.empty:
         if sweep.interrupted:  # stopped before any run finished: nothing to average, the folder says so
             from fishfmu.interrupt import Interrupted
-            write_json_atomic(out_dir / "run_info.json", {
-                "status": "partial", "seeds": spec.seeds, "n_ok": 0, "n_failed": 0,
-                "stopped_by": signal.Signals(sweep.exit_code_interrupted - 128).name,
-                "wall_s": round(time.perf_counter() - t0, 3), "workers": workers, "scheduler": scheduler})
+            write_run_info(out_dir, "partial", seeds=spec.seeds, n_ok=0, n_failed=0,
+                           stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name,
+                           wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
             raise Interrupted(sweep.exit_code_interrupted - 128)
         raise InputError("no run finished", file=scenario)
     stats = sweep.summary.iloc[0]
@@ -81,11 +79,10 @@ def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out
                                                                                         "wilson_high")},
                expect={e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok, "on": "mean over seeds"}
                        for e in expect})
-    write_json_atomic(out_dir / "kpis.json", _clean(doc))
-    write_json_atomic(out_dir / "run_info.json", _clean({
-        "status": status, "seeds": spec.seeds, "n_ok": int(stats["n_ok"]), "n_failed": result.n_failed,
-        "stopped_by": signal.Signals(sweep.exit_code_interrupted - 128).name if sweep.interrupted else None,
-        "wall_s": round(time.perf_counter() - t0, 3), "workers": workers, "scheduler": scheduler}))
+    write_json_atomic(out_dir / "kpis.json", json_safe(doc))
+    write_run_info(out_dir, status, seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed,
+                   stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name if sweep.interrupted else None,
+                   wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
     return result
 
 
@@ -96,17 +93,9 @@ def _mean(stats: pd.Series, kpi: str) -> float | None:
 
 def write_junit_means(result: SeedsResult, path: Path, scenario_file: str) -> None:
     """Each [expect] bound, checked on the mean over seeds, as a JUnit test case."""
-    from fishfmu.outputs import write_text_atomic
-    suite = ET.Element("testsuite", name=f"fishfmu:{Path(scenario_file).stem}:seeds", tests=str(len(result.expect)),
-                       failures=str(sum(not e.ok for e in result.expect)), errors=str(min(result.n_failed, 1)))
-    if result.n_failed:
-        case = ET.SubElement(suite, "testcase", classname="fishfmu.seeds", name="simulation")
-        ET.SubElement(case, "error", message=f"{result.n_failed} runs failed").text = str(result.statistics["errors"])
-    for e in result.expect:
-        case = ET.SubElement(suite, "testcase", classname="fishfmu.seeds", name=f"expect.{e.kpi}")
-        ET.SubElement(case, "failure" if not e.ok else "system-out", message=f"mean {e.message}").text = e.message
-    ET.indent(suite)
-    write_text_atomic(Path(path), ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")
+    from fishfmu.outputs import write_junit
+    write_junit(path, f"fishfmu:{Path(scenario_file).stem}:seeds", "fishfmu.seeds", result.expect, on="mean",
+                error=(f"{result.n_failed} runs failed", str(result.statistics["errors"])) if result.n_failed else None)
 
 
 def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, junit: Path | None,

@@ -16,19 +16,22 @@ writer here records what it writes there before the file appears under its name.
 from __future__ import annotations
 
 import json
+import math
 import os
 import platform
 import shutil
 import tempfile
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, Sequence
 from xml.etree import ElementTree as ET
+
+import numpy as np
 
 from plant.errors import InputError
 from plant.measured import write_dataset
 
 from fishfmu import ownership
-from fishfmu.runner import RunResult
+from fishfmu.runner import ExpectResult, RunResult
 from fishfmu.scenario import resolved_toml
 
 MARKER = "run_info.json"
@@ -81,10 +84,16 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         raise
 
 
+def write_run_info(out: Path, /, status: str, **fields: Any) -> None:
+    """Write ``out/run_info.json``: ``status`` and ``fields`` (made JSON-safe, see :func:`json_safe`).
+    The one writer of that file, for every command (run, run --seeds, sweep, compare, diagnose) and
+    for :func:`fishfmu.interrupt.mark_partial`."""
+    write_json_atomic(Path(out) / MARKER, json_safe({"status": status, **fields}))
+
+
 def mark_running(out: Path, scenario_file: str | Path | None = None) -> None:
     """Mark ``out`` as fishfmu's before the run starts (``run_info.json`` with status ``running``)."""
-    write_json_atomic(out / MARKER, {"status": "running", "scenario": None if scenario_file is None
-                                     else str(scenario_file)})
+    write_run_info(out, "running", scenario=None if scenario_file is None else str(scenario_file))
 
 
 def discard_if_unused(out: Path) -> None:
@@ -111,18 +120,21 @@ def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
     doc["error"] = result.error
     doc["t_end_s"] = round(result.t_end_s, 6)
     doc["expect"] = {e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok} for e in result.expect}
-    return _clean(doc)
+    return json_safe(doc)
 
 
-def _clean(x: Any) -> Any:
-    """JSON-safe: NaN/inf -> None, numpy scalars -> Python, keys -> str."""
-    import math
+def json_safe(x: Any) -> Any:
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python, tuples -> lists, keys -> str.  Every JSON
+    document fishfmu writes from computed numbers goes through this (:func:`write_json_atomic` itself
+    refuses NaN, so a value that escaped it is a bug that shows).
 
-    import numpy as np
+    >>> json_safe({1: (np.float64("nan"), np.int64(3), np.bool_(True), 0.5)})
+    {'1': [None, 3, True, 0.5]}
+    """
     if isinstance(x, dict):
-        return {str(k): _clean(v) for k, v in x.items()}
+        return {str(k): json_safe(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_clean(v) for v in x]
+        return [json_safe(v) for v in x]
     if isinstance(x, (np.integer,)):
         return int(x)
     if isinstance(x, (float, np.floating)):
@@ -130,6 +142,9 @@ def _clean(x: Any) -> Any:
     if isinstance(x, np.bool_):
         return bool(x)
     return x
+
+
+_clean = json_safe  # the former name (fishfmu.diagnose_report imports it)
 
 
 def write_outputs(result: RunResult, out: Path, partial: bool = False, report: bool = True) -> dict[str, Path]:
@@ -142,8 +157,7 @@ def write_outputs(result: RunResult, out: Path, partial: bool = False, report: b
     except (ownership.OutputError, OSError) as exc:
         err = exc if isinstance(exc, ownership.OutputError) else ownership.os_error(exc, exc.filename or out)
         try:
-            write_json_atomic(out / MARKER, {"status": "failed", "error": f"writing the outputs failed: {err}",
-                                             "t_end_s": round(result.t_end_s, 6)})
+            write_run_info(out, "failed", error=f"writing the outputs failed: {err}", t_end_s=round(result.t_end_s, 6))
             note = f"{MARKER} says failed"
         except OSError:
             note = f"{MARKER} could not be updated and still says running"
@@ -184,40 +198,60 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
         write_report(result, out)
     import exudyn
     import fmpy
-    info = {
-        "status": "partial" if partial else result.status,
-        "error": result.error,
-        "t_end_s": round(result.t_end_s, 6),
-        "wall_s": round(result.wall_s, 3),
-        "real_time_factor": round(result.t_end_s / result.wall_s, 3) if result.wall_s > 0 else None,
-        "setup_s": round(result.timings_s.get("setup", 0.0), 3),
-        "seed": result.scenario.run.seed,
-        "drops_raised": [{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
-        "energy_watch": {k: round(v, 4) for k, v in result.energy_watch.items()},
-        "versions": {"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
-    }
-    write_json_atomic(paths["info"], _clean(info))
+    write_run_info(
+        out, "partial" if partial else result.status,
+        error=result.error,
+        t_end_s=round(result.t_end_s, 6),
+        wall_s=round(result.wall_s, 3),
+        real_time_factor=round(result.t_end_s / result.wall_s, 3) if result.wall_s > 0 else None,
+        setup_s=round(result.timings_s.get("setup", 0.0), 3),
+        seed=result.scenario.run.seed,
+        drops_raised=[{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
+        energy_watch={k: round(v, 4) for k, v in result.energy_watch.items()},
+        versions={"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
+    )
     return paths
 
 
-def write_junit(result: RunResult, path: Path, scenario_file: str | None) -> None:
-    """Each [expect] bound as a JUnit test case (CI systems show them like unit tests)."""
-    name = result.scenario.run.name
-    suite = ET.Element("testsuite", name=f"fishfmu:{name}", tests=str(len(result.expect)),
-                       failures=str(sum(not e.ok for e in result.expect)),
-                       errors="1" if result.status != "ok" else "0", time=f"{result.wall_s:.3f}")
-    props = ET.SubElement(suite, "properties")
-    ET.SubElement(props, "property", name="scenario", value=str(scenario_file or name))
-    ET.SubElement(props, "property", name="seed", value=str(result.scenario.run.seed))
-    if result.status != "ok":
-        case = ET.SubElement(suite, "testcase", classname=f"fishfmu.{name}", name="simulation")
-        ET.SubElement(case, "error", message=result.error or "failed").text = result.error
-    for e in result.expect:
-        case = ET.SubElement(suite, "testcase", classname=f"fishfmu.{name}", name=f"expect.{e.kpi}")
-        if not e.ok:
+def write_junit(path: Path, suite_name: str, classname: str, expect: Sequence[ExpectResult], *,
+                error: tuple[str, str | None] | None = None, on: str | None = None, time_s: float | None = None,
+                properties: dict[str, str] | None = None) -> None:
+    """Each [expect] bound as a JUnit test case (CI systems show them like unit tests): the one JUnit
+    writer, for a single run (:func:`junit_args_of_run`) and for ``run --seeds``.
+
+    ``error``: (message, details) of a run that failed, as a test case ``simulation`` with an
+    ``error``; ``on``: what the bounds were checked on (``"mean"`` over seeds), put before every
+    case's message, which then labels passed cases too; ``time_s`` and ``properties``: the suite's
+    ``time`` attribute and ``<properties>``, left out when None."""
+    attrs = {"name": suite_name, "tests": str(len(expect)), "failures": str(sum(not e.ok for e in expect)),
+             "errors": "1" if error is not None else "0"}
+    if time_s is not None:
+        attrs["time"] = f"{time_s:.3f}"
+    suite = ET.Element("testsuite", attrs)
+    if properties is not None:
+        props = ET.SubElement(suite, "properties")
+        for k, v in properties.items():
+            ET.SubElement(props, "property", name=k, value=v)
+    if error is not None:
+        case = ET.SubElement(suite, "testcase", classname=classname, name="simulation")
+        ET.SubElement(case, "error", message=error[0]).text = error[1]
+    for e in expect:
+        case = ET.SubElement(suite, "testcase", classname=classname, name=f"expect.{e.kpi}")
+        if on is not None:
+            ET.SubElement(case, "failure" if not e.ok else "system-out", message=f"{on} {e.message}").text = e.message
+        elif not e.ok:
             ET.SubElement(case, "failure", message=e.message).text = e.message
         else:
             ET.SubElement(case, "system-out").text = e.message
-    tree = ET.ElementTree(suite)
-    ET.indent(tree)
+    ET.indent(suite)
     write_text_atomic(Path(path), ET.tostring(suite, encoding="unicode", xml_declaration=True) + "\n")
+
+
+def junit_args_of_run(result: RunResult, scenario_file: str | None) -> dict[str, Any]:
+    """:func:`write_junit`'s arguments for a single run: suite ``fishfmu:<run name>``, its wall time,
+    scenario and seed as properties, an error case when the run did not finish ok."""
+    name = result.scenario.run.name
+    return {"suite_name": f"fishfmu:{name}", "classname": f"fishfmu.{name}", "expect": result.expect,
+            "error": (result.error or "failed", result.error) if result.status != "ok" else None,
+            "time_s": result.wall_s,
+            "properties": {"scenario": str(scenario_file or name), "seed": str(result.scenario.run.seed)}}

@@ -271,8 +271,8 @@ def finished_rows(out: Path) -> dict[str, Row]:
 
 
 def store_row(out: Path, row: Row) -> None:
-    from fishfmu.outputs import _clean, write_json_atomic
-    write_json_atomic(out / "points" / f"{row['run_id']}.json", _clean(row))
+    from fishfmu.outputs import json_safe, write_json_atomic
+    write_json_atomic(out / "points" / f"{row['run_id']}.json", json_safe(row))
 
 
 # ---------------------------------------------------------------- running
@@ -313,8 +313,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     """
     t0 = time.perf_counter()
     out = open_folder(Path(out), spec)
-    from fishfmu.outputs import write_json_atomic
-    write_json_atomic(out / "run_info.json", {"status": "running", "command": "sweep"})  # "partial" if killed
+    from fishfmu.outputs import write_run_info
+    write_run_info(out, "running", command="sweep")  # "partial" if killed
     done = finished_rows(out)
     keep = {k: r for k, r in done.items() if r["status"] == "ok" or (r["error_kind"] in FINAL_ERROR_KINDS
                                                                      and not retry_failed)}
@@ -361,9 +361,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         from fishfmu.sweep_report import write_plots
         paths["plots"] = write_plots(summary, list(spec.parameters), out / "plots")
     n_runs = len(spec.points()) * len(spec.seeds)
-    write_json_atomic(out / "run_info.json", {
-        "status": "partial" if interrupted or len(rows) < n_runs else "ok", "command": "sweep", "n_runs": n_runs,
-        "n_done": len(rows), "stopped_by": signal.Signals(stop_signal).name if interrupted else None})
+    write_run_info(out, "partial" if interrupted or len(rows) < n_runs else "ok", command="sweep", n_runs=n_runs,
+                   n_done=len(rows), stopped_by=signal.Signals(stop_signal).name if interrupted else None)
     return SweepResult(out, runs, summary, n_runs, executed, len(keep), interrupted, time.perf_counter() - t0, paths,
                        stop_signal)
 
