@@ -20,6 +20,7 @@ import pytest
 
 from plant.errors import InputError, SimulationError
 from plant.measured import MAX_RESIM_S, read_dataset, write_dataset
+from plant.state import FishStatus
 
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)
 
@@ -130,7 +131,8 @@ def _run_dir(small_dataset: Path, tmp_path: Path) -> Path:  # noqa: F811
     write_dataset(ds, run_dir / "run")
     n_fish, n_b = 3, 15
     np.savez(run_dir / "poses.npz", t_s=np.array([0.0, 0.04]), pos=np.zeros((2, n_b, 3), np.float32),
-             quat=np.tile(np.array([1, 0, 0, 0], np.float32), (2, n_b, 1)), status=np.ones((2, n_fish), np.int8),
+             quat=np.tile(np.array([1, 0, 0, 0], np.float32), (2, n_b, 1)),
+             status=np.full((2, n_fish), FishStatus.ON_LINE, np.int8),
              fish_id=np.array(["f01", "f02", "f03"]), body_fish=np.repeat(np.arange(n_fish), 5).astype(np.int32),
              section_body=np.arange(n_b, dtype=np.int32), section_x=np.zeros(n_b, np.float32),
              section_half_height=np.full(n_b, 0.05, np.float32), section_half_width=np.full(n_b, 0.03, np.float32))
