@@ -106,13 +106,17 @@ class PlantState:
     """The sensor readings of the step (at rest before the first step)."""
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, np.ndarray):
-                view = value.view()
+        for name in _ARRAY_FIELDS:
+            value = getattr(self, name)
+            if value is not None:
+                view = np.asarray(value).view()
                 view.setflags(write=False)
-                object.__setattr__(self, f.name, view)
+                object.__setattr__(self, name, view)
 
     def on_line_bodies(self) -> np.ndarray:
         """(n_bodies,) True for the bodies of fish on the line."""
         return self.status[self.fish_of_body] == FishStatus.ON_LINE
+
+
+_ARRAY_FIELDS = tuple(f.name for f in fields(PlantState) if "ndarray" in str(f.type))
+"""The fields :class:`PlantState` holds as read-only views."""
