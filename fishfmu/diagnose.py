@@ -6,11 +6,12 @@ The pipeline is built so that it fits in minutes on a 2-core machine:
    residuals per fish and belt, per pair of fish at transfers, per drive (:mod:`fishfmu.residuals`).
    A run whose baseline re-simulation fails stops the diagnosis (:class:`~plant.errors.SimulationError`
    naming the run); a failed simulation during a fit counts as no better than the baseline.
-2. **Evidence.** Which candidates' conditions the residuals depend on (:mod:`fishfmu.evidence`).
-   Only candidates with enough evidence are fitted: direction friction and adhesion, and of the
-   candidates acting through hours post mortem (or a constant) the best-shaped one; at most
-   ``max_fit`` plant candidates.  Drive droop is fitted analytically, so it costs nothing.  With
-   none, the answer is ``none``.
+2. **Evidence.** Which candidates' conditions the residuals depend on (each candidate of the
+   registry :data:`fishfmu.candidates.CANDIDATES` names its test in :mod:`fishfmu.evidence`).
+   Only candidates with enough evidence are fitted: those with a test of their own (direction
+   friction, adhesion), and of the candidates acting through hours post mortem (or a constant) the
+   best-shaped one; at most ``max_fit`` plant candidates.  Drive candidates (drive droop) are
+   fitted analytically, so they cost nothing.  With none, the answer is ``none``.
 3. **Fit.** Each chosen plant candidate is simulated at a few strengths (its grid, extended once
    beyond an end where the error is still falling) on every run;
    the error of a run is the mean square of its residuals (lag of fish alone on a belt, extra
@@ -38,8 +39,8 @@ from plant.errors import SimulationError
 from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
-from fishfmu.candidates import CANDIDATES, PARAMETER_NAMES, fragment
-from fishfmu.evidence import evidence_table, run_level_choice
+from fishfmu.candidates import CANDIDATES, Candidate, fragment
+from fishfmu.evidence import RunLevelShape, evidence_table, run_level_choice
 from fishfmu.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone,
                                belt_residuals, concat_typed, drive_residuals_averaged, pair_residuals, track_errors,
                                typed_frame)
@@ -97,13 +98,14 @@ def residuals_of(dataset: Dataset, resims: list[Resim]) -> list[RunResiduals]:
     return out
 
 
-def drive_table(dataset: Dataset, resims: list[Resim], belt_slip: float = 0.0) -> pd.DataFrame:
+def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, float] | None = None) -> pd.DataFrame:
+    """Drive residuals of every run and conveyor, with the drive FMUs' ``parameters`` (None: as they are)."""
     frames = []
     for run, r in zip(dataset.runs, resims):
         if r.error:
             continue
         for c in dataset.line.conveyors:
-            check = drive_check(run, r.loads, c.id, {"belt_slip": belt_slip} if belt_slip else None)
+            check = drive_check(run, r.loads, c.id, parameters or None)
             frames.append(drive_residuals_averaged(check).assign(run_id=run.id, conveyor_id=c.id))
     return concat_typed(frames, DRIVE_RESIDUAL_DTYPES)
 
@@ -167,7 +169,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
     cand = CANDIDATES[name]
     values = np.array([cand.off, *sorted(grid)])
     table = {cand.off: base, **grid}
-    groups = _groups(name)
+    groups = cand.groups
     # score on the runs that carry the candidate's signal (adhesion: runs with touching pairs)
     runs = sorted(r for r in base if sum(base[r].squares(g)[1] for g in groups) > 0) or sorted(base)
     ss = {g: np.array([[table[v][r].squares(g)[0] for r in runs] for v in values]) for g in groups}
@@ -186,7 +188,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
                        heldout_rms_before=float(np.sqrt(e0.sum() / max(n_total, 1))),
                        heldout_rms_after=float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / max(n_total, 1))))
     # fitted values on all runs, with a bootstrap over runs
-    for g, pname in zip(groups, PARAMETER_NAMES[name]):
+    for g, pname in zip(groups, cand.parameters):
         err = ss[g].sum(axis=1) / np.maximum(nn[g].sum(axis=1), 1)
         fit.values[pname] = _vertex(values, err)
         boot = []
@@ -200,10 +202,6 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
     return fit
 
 
-def _groups(name: str) -> tuple[str | None, ...]:
-    return {"direction_friction": ("tail_first", "head_first"), "adhesion": ("pairs",)}.get(name, (None,))
-
-
 def beyond_the_ends(name: str, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]]) -> list[float]:
     """Values to simulate beyond the grid where a group's error is lowest at its end (within the bounds):
     a fit stuck at the edge of its grid would report the edge, not the strength."""
@@ -211,7 +209,7 @@ def beyond_the_ends(name: str, base: dict[str, RunResiduals], grid: dict[float, 
     table = {cand.off: base, **grid}
     values = sorted(table)
     extra = []
-    for g in _groups(name):
+    for g in cand.groups:
         err = []
         for v in values:
             sq = [table[v][r].squares(g) for r in base]
@@ -224,9 +222,12 @@ def beyond_the_ends(name: str, base: dict[str, RunResiduals], grid: dict[float, 
     return sorted({round(v, 6) for v in extra} - set(values))
 
 
-def fit_drive_droop(z: float, drive: pd.DataFrame, rng: np.random.Generator) -> CandidateFit:
-    """belt_slip from the drive residuals: a linear effect, so no simulation is needed."""
-    fit = CandidateFit("drive_droop", z, error_unit="m/s")
+def fit_drive_candidate(cand: Candidate, z: float, drive: pd.DataFrame, rng: np.random.Generator) -> CandidateFit:
+    """A drive candidate's one parameter (drive droop: belt_slip) from the drive residuals: the speed lost per
+    newton of load, a linear effect, so no simulation is needed."""
+    fit = CandidateFit(cand.name, z, error_unit="m/s")
+    (pname,) = cand.parameters
+    lo, hi = cand.bounds
     d = drive.dropna(subset=["residual_mps", "load_force_n"])
     runs = sorted(d["run_id"].unique())
     if len(runs) < 2:
@@ -235,7 +236,7 @@ def fit_drive_droop(z: float, drive: pd.DataFrame, rng: np.random.Generator) -> 
     def slip(rows: pd.DataFrame) -> float:
         if len(rows) < 3 or np.std(rows["load_force_n"]) < 1e-9:
             return 0.0
-        return float(np.clip(-np.polyfit(rows["load_force_n"], rows["residual_mps"], 1)[0], 0.0, 0.01))
+        return float(np.clip(-np.polyfit(rows["load_force_n"], rows["residual_mps"], 1)[0], lo, hi))
 
     u, e0 = np.zeros(len(runs)), np.zeros(len(runs))
     for fold in folds(runs):
@@ -248,10 +249,10 @@ def fit_drive_droop(z: float, drive: pd.DataFrame, rng: np.random.Generator) -> 
     fit.heldout_gain, fit.heldout_gain_ci95 = _gain_with_ci(u, e0, rng)
     fit.heldout_rms_before = float(np.sqrt(e0.sum() / len(d)))
     fit.heldout_rms_after = float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / len(d)))
-    fit.values["belt_slip"] = slip(d)
+    fit.values[pname] = slip(d)
     boot = [slip(pd.concat([d[d["run_id"] == runs[i]] for i in rng.integers(0, len(runs), len(runs))]))
             for _ in range(200)]
-    fit.ci95["belt_slip"] = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
+    fit.ci95[pname] = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
     return fit
 
 
@@ -316,7 +317,10 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
     fits: list[CandidateFit] = []
     base_by_run = {b.run_id: b for b in baseline if not b.error}
     supported = set(evidence.loc[evidence["supported"], "candidate"])
-    plant_choice = [c for c in ("direction_friction", "adhesion") if c in supported] + run_level_choice(evidence)
+    # candidates tested on their own are fitted when supported; those acting through hours post mortem compete
+    plant_choice = [c.name for c in CANDIDATES.values()
+                    if c.simulated and not isinstance(c.evidence, RunLevelShape) and c.name in supported]
+    plant_choice += run_level_choice(evidence)
     plant_choice = sorted(plant_choice, key=lambda c: -float(evidence.set_index("candidate").loc[c, "evidence"]))
     plant_choice = plant_choice[:max_fit]
     for name in plant_choice:
@@ -324,7 +328,7 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
         cand = CANDIDATES[name]
         z = float(evidence.set_index("candidate").loc[name, "evidence"])
         # adhesion acts only where fish touch: simulate just the runs with touching pairs
-        fit_runs = [r for r in runs if name != "adhesion" or len(base_by_run.get(r.id, baseline[0]).pairs)] or runs
+        fit_runs = [r for r in runs if not cand.needs_pairs or len(base_by_run.get(r.id, baseline[0]).pairs)] or runs
         sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
         grid: dict[float, dict[str, RunResiduals]] = {}
         values = list(cand.grid)
@@ -343,9 +347,11 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
                 break
         fits.append(fit_plant_candidate(name, z, base_by_run, grid, rng))
         timing[f"fit_{name}"] = time.perf_counter() - t1
-    droop_z = float(evidence.set_index("candidate").loc["drive_droop", "evidence"])
-    if droop_z > 0:
-        fits.append(fit_drive_droop(droop_z, drive, rng))
+    for cand in CANDIDATES.values():  # fitted without simulation: cheap, so whenever there is any evidence
+        if not cand.simulated:
+            z = float(evidence.set_index("candidate").loc[cand.name, "evidence"])
+            if z > 0:
+                fits.append(fit_drive_candidate(cand, z, drive, rng))
 
     significant = [f for f in fits if f.significant]
     winner = max(significant, key=lambda f: f.heldout_gain) if significant else None
@@ -355,10 +361,10 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
     kpis_before = [compute_kpis(_sim_run(r, s), dataset.line, dataset.kpi) for r, s in zip(runs, base_sims)]
     base_rms = {b.run_id: b.track_rms_m for b in baseline}
     kpis_after, after_rms = kpis_before, base_rms
-    if winner is not None and CANDIDATES[cause].apply is not None:
+    if winner is not None and CANDIDATES[cause].simulated:
         t1 = time.perf_counter()
         say(f"confirming {cause} with {winner.values}")
-        p = CANDIDATES[cause].params(base, *[winner.values[k] for k in PARAMETER_NAMES[cause]])
+        p = CANDIDATES[cause].params(base, *[winner.values[k] for k in CANDIDATES[cause].parameters])
         sims = resimulate_many(dataset.line, runs, [p] * len(runs), pool=pool, workers=1)
         kpis_after = [compute_kpis(_sim_run(r, s), dataset.line, dataset.kpi) for r, s in zip(runs, sims)]
         after_rms = {b.run_id: b.track_rms_m for b in residuals_of(dataset, sims)}

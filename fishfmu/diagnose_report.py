@@ -15,7 +15,7 @@ import pandas as pd  # noqa: E402
 
 from fishfmu.candidates import CANDIDATES  # noqa: E402
 from fishfmu.diagnose import MIN_GAIN, Diagnosis  # noqa: E402
-from fishfmu.evidence import SUPPORT_Z, mucus_index, rigor_index  # noqa: E402
+from fishfmu.evidence import SUPPORT_Z, RunLevelShape  # noqa: E402
 from fishfmu.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, concat_typed  # noqa: E402
 
 
@@ -91,8 +91,9 @@ def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:
         axes[1].plot(means["h"], means["lag"], "o")
         hh = np.linspace(0, max(float(means["h"].max()), 1.0), 100)
         ax2 = axes[1].twinx()
-        ax2.plot(hh, mucus_index(hh), "C1--", lw=0.8, label="mucus index")
-        ax2.plot(hh, rigor_index(hh), "C2:", lw=0.8, label="rigor index")
+        shapes = [c.evidence for c in CANDIDATES.values() if isinstance(c.evidence, RunLevelShape) and c.evidence.label]
+        for k, shape in enumerate(shapes):  # what the runs' mean lags are tested against
+            ax2.plot(hh, shape.shape(hh), f"C{k + 1}", ls=("--", ":", "-.")[k % 3], lw=0.8, label=shape.label)
         ax2.legend(fontsize=7, loc="upper right")
     axes[0].set_xlabel("heading (cos yaw: +1 head first, -1 tail first)")
     axes[0].set_ylabel("lag on a belt, simulated - measured [m]")

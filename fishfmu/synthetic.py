@@ -22,7 +22,10 @@ from plant.measured import Dataset, Run, write_dataset
 from plant.params import PlantParams
 from plant.population import FishSpec, fish_size
 
-EFFECTS = ("none", "direction_friction", "rigor_mortis", "mucus_friction", "adhesion", "drive_droop")
+from fishfmu.candidates import CANDIDATES
+
+EFFECTS = ("none", *(c.name for c in CANDIDATES.values() if c.synthetic is not None))
+"""What a synthetic dataset can hide: the candidates that say how to switch themselves on, or nothing."""
 
 
 @dataclass(frozen=True)
@@ -38,23 +41,12 @@ class Noise:
 
 def hidden_effect(effect: str, strength: float = 1.0) -> tuple[PlantParams, dict[str, float]]:
     """Plant parameters and drive parameters with one effect switched on (strength 1: clearly visible)."""
+    if effect not in EFFECTS:
+        raise ValueError(f"unknown effect '{effect}' (known: {', '.join(EFFECTS)})")
     params = PlantParams()
     drive: dict[str, float] = {}
-    ext = params.extensions
-    if effect == "direction_friction":
-        ext.direction_friction.head = 1.0 - 0.45 * strength
-        ext.direction_friction.tail = 1.0 + 0.3 * strength
-    elif effect == "rigor_mortis":
-        ext.rigor_mortis.stiffness_gain = 15.0 * strength
-        ext.rigor_mortis.limit_loss = min(0.8, 0.7 * strength)
-    elif effect == "mucus_friction":
-        ext.mucus_friction.gain = -0.5 * strength
-    elif effect == "adhesion":
-        ext.adhesion.force_n = 6.0 * strength
-    elif effect == "drive_droop":
-        drive["belt_slip"] = 4e-4 * strength
-    elif effect != "none":
-        raise ValueError(f"unknown effect '{effect}' (known: {', '.join(EFFECTS)})")
+    if effect != "none":
+        CANDIDATES[effect].synthetic(params, drive, strength)
     return params, drive
 
 

@@ -1,0 +1,164 @@
+"""The registry of candidate causes (fishfmu.candidates): fragments, the off value, the rigor formula, evidence signs.
+
+Small hand-made inputs only: no simulation, a second or two.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from plant.extensions import RigorMortis
+from plant.params import PlantParams
+
+from fishfmu.candidates import CANDIDATES, fragment, rigor_index, rigor_limit_loss
+from fishfmu.evidence import Residuals
+from fishfmu.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
+from fishfmu.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+SCENARIO = ROOT / "scenarios" / "paper_test.toml"
+
+VALUES = {  # a fitted value per parameter (exact in four digits), and what the plant (or drive) must then hold
+    "belt_friction": ({"multiplier": 1.5}, {"friction.fish_belt": lambda base: 1.5 * base.friction.fish_belt}),
+    "direction_friction": ({"head": 0.75, "tail": 1.5},  # across: the mean, (0.75 + 1.5) / 2
+                           {"extensions.direction_friction.head": 0.75, "extensions.direction_friction.tail": 1.5,
+                            "extensions.direction_friction.across": 1.125}),
+    "mucus_friction": ({"gain": -0.25}, {"extensions.mucus_friction.gain": -0.25}),
+    "rigor_mortis": ({"stiffness_gain": 3.0},  # limit loss 0.6 * 3 / (3 + 3)
+                     {"extensions.rigor_mortis.stiffness_gain": 3.0, "extensions.rigor_mortis.limit_loss": 0.3}),
+    "adhesion": ({"force_n": 2.5}, {"extensions.adhesion.force_n": 2.5}),
+    "drive_droop": ({"belt_slip": 5e-4}, {"belt_slip": 5e-4}),
+}
+
+
+def _get(obj, dotted: str):
+    for part in dotted.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
+def _flatten(table: dict, prefix: str = "") -> dict[str, object]:
+    out = {}
+    for k, v in table.items():
+        out.update(_flatten(v, f"{prefix}{k}.") if isinstance(v, dict) else {f"{prefix}{k}": v})
+    return out
+
+
+def _drive_defaults() -> dict[str, float]:
+    spec = tomllib.loads((ROOT / "fishfmu" / "fmus" / "conveyor_drive" / "variables.toml").read_text())
+    return {v["name"]: v for v in spec["variable"]}
+
+
+def test_every_candidate_has_hand_values_here():
+    assert set(VALUES) == set(CANDIDATES), "a new candidate needs its values in VALUES (and is then tested below)"
+
+
+@pytest.mark.parametrize("name", sorted(CANDIDATES))
+def test_fragment_parses_and_sets_the_parameters_in_a_scenario(name: str):
+    cand = CANDIDATES[name]
+    values, expected = VALUES[name]
+    base = load_scenario(SCENARIO).plant
+    text = fragment(name, values, base)
+    assert text.startswith(f"# fitted by fishfmu diagnose: {cand.description}\n")
+    if cand.acts_on == "drive":  # FMU parameters: commented out, to paste into each conveyor_drive instance
+        assert tomllib.loads(text) == {}
+        body = "".join(line[2:] + "\n" for line in text.splitlines() if line.startswith("# [") or " = " in line)
+        params = tomllib.loads(body)["fmu"]["parameters"]
+        assert params == pytest.approx(expected)
+        drive = _drive_defaults()
+        assert all(drive[k]["min"] <= v <= drive[k]["max"] for k, v in params.items())
+        return
+    doc = tomllib.loads(text)
+    assert list(doc) == ["plant"]
+    overrides = {f"plant.{k}": v for k, v in _flatten(doc["plant"]).items()}
+    assert set(overrides) == {f"plant.{k}" for k in expected}  # the fragment sets exactly these
+    loaded = load_scenario(SCENARIO, overrides).plant  # the fragment's tables into the scenario's [plant]
+    for key, want in expected.items():
+        want = want(base) if callable(want) else want
+        assert _get(loaded, key) == pytest.approx(want, rel=1e-4), key
+    # and what diagnose simulated with these values is what the fragment gives
+    applied = cand.params(base, *[values[k] for k in cand.parameters])
+    for key in expected:
+        assert _get(applied, key) == pytest.approx(_get(loaded, key), rel=1e-4), key
+
+
+def test_no_cause_has_a_fragment_that_says_so():
+    text = fragment("none", {}, PlantParams())
+    assert tomllib.loads(text) == {} and "no extension" in text
+
+
+@pytest.mark.parametrize("name", sorted(CANDIDATES))
+def test_the_off_value_leaves_the_defaults_unchanged(name: str):
+    cand = CANDIDATES[name]
+    default = PlantParams()
+    assert cand.params(default, cand.off).model_dump() == PlantParams().model_dump()
+    assert cand.params(default, *[cand.off] * len(cand.parameters)).model_dump() == PlantParams().model_dump()
+    assert default.model_dump() == PlantParams().model_dump()  # the base itself is never changed
+    drive = _drive_defaults()
+    assert {k: drive[k]["start"] for k in cand.drive_parameters(cand.off)} == cand.drive_parameters(cand.off)
+    assert cand.grid == tuple(sorted(cand.grid)) and cand.off not in cand.grid
+    assert all(cand.bounds[0] <= v <= cand.bounds[1] for v in (cand.off, *cand.grid))
+
+
+def test_a_strength_changes_something():
+    for cand in CANDIDATES.values():
+        v = cand.grid[-1] if cand.grid else cand.bounds[1]
+        changed = (cand.params(PlantParams(), v).model_dump() != PlantParams().model_dump()
+                   or cand.drive_parameters(v) != cand.drive_parameters(cand.off))
+        assert changed, cand.name
+
+
+def test_rigor_formula_at_two_hours_post_mortem():
+    # ((2 - 24) / 20)^2 = 1.21: the index is exp(-1.21) = 0.2981973, the same in the evidence and in the plant
+    assert rigor_index(np.array([2.0]))[0] == pytest.approx(0.29819727942988739, rel=1e-12)
+    assert RigorMortis().index(2.0) == pytest.approx(0.29819727942988739, rel=1e-12)
+    assert rigor_index(np.array([24.0]))[0] == 1.0
+    # the candidate at strength 3: stiffness x (1 + 3 R), range lost 0.6 * 3 / (3 + 3) = 0.3 at full rigor
+    assert rigor_limit_loss(3.0) == pytest.approx(0.3) and rigor_limit_loss(0.0) == 0.0
+    rigor = CANDIDATES["rigor_mortis"].params(PlantParams(), 3.0).extensions.rigor_mortis
+    stiffness, limits = rigor.joint_factors(2.0)
+    assert stiffness == pytest.approx(1.894591838, rel=1e-9)
+    assert limits == pytest.approx(0.9105408162, rel=1e-9)
+    assert math.isclose(rigor.limit_loss, 0.3)
+
+
+def _lags(lags_by_run: dict[str, list[tuple[float, float]]]) -> pd.DataFrame:
+    return typed_frame([{"run_id": run, "fish_id": f"{run}f{i}", "belt": 1, "conveyor_id": "c2", "t_start_s": 1.0,
+                         "t_end_s": 2.0, "offset_m": 0.0, "lag_m": lag, "heading": heading,
+                         "hours_post_mortem": 6.0, "length_m": 0.6, "crowded": False, "n_samples": 10}
+                        for run, fish in lags_by_run.items() for i, (heading, lag) in enumerate(fish)],
+                       BELT_RESIDUAL_DTYPES)
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_direction_evidence_follows_the_lag_of_head_first_fish(sign: float):
+    # two runs of four fish, alternately head first (+1) and tail first (-1); within each run the lag is
+    # 1 cm more for head-first fish than the run's mean, +-1 mm: slope exactly sign * 0.01 m per unit heading
+    rows = _lags({"ra": [(1.0, 0.012), (-1.0, -0.008), (1.0, 0.010), (-1.0, -0.010)],
+                  "rb": [(1.0, 0.031), (-1.0, 0.009), (1.0, 0.029), (-1.0, 0.011)]})
+    rows["lag_m"] *= sign
+    empty = Residuals(rows, typed_frame([], PAIR_RESIDUAL_DTYPES), typed_frame([], DRIVE_RESIDUAL_DTYPES))
+    ev = CANDIDATES["direction_friction"].evidence(empty, np.random.default_rng(0))
+    assert ev["n"] == 8
+    assert ev["coefficient"] == pytest.approx(sign * 0.01)
+    # residuals +-1 mm: se = sqrt(8e-6 / 7 / 8) = 3.78e-4 m; the bootstrap over the two runs sees the same slope
+    assert ev["sd"] == pytest.approx(math.sqrt(8e-6 / 7 / 8), rel=1e-6)
+    assert np.sign(ev["z"]) == sign and abs(ev["z"]) > 20
+
+
+def test_adhesion_evidence_only_when_simulated_pairs_part_sooner():
+    def pairs(dsep: list[float]) -> Residuals:
+        p = typed_frame([{"run_id": f"r{i % 2}", "leader": "a", "follower": "b", "conveyor_id": "c2", "t_s": 1.0,
+                          "separation_m": 0.1, "dsep_m": d} for i, d in enumerate(dsep)], PAIR_RESIDUAL_DTYPES)
+        return Residuals(_lags({}), p, typed_frame([], DRIVE_RESIDUAL_DTYPES))
+
+    apart = CANDIDATES["adhesion"].evidence(pairs([0.004, 0.006, 0.002, 0.008]), np.random.default_rng(0))
+    assert apart["coefficient"] == pytest.approx(0.005) and apart["z"] > 0
+    together = CANDIDATES["adhesion"].evidence(pairs([-0.004, -0.006, -0.002, -0.008]), np.random.default_rng(0))
+    assert together["coefficient"] == pytest.approx(-0.005) and together["z"] == 0.0  # one-sided: no adhesion
