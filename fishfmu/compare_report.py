@@ -48,7 +48,8 @@ def arrivals_figure(c):
     ax.plot(lim, lim, "k-", lw=0.6)
     ax.set_xlabel("measured arrival [s]")
     ax.set_ylabel("simulated arrival [s]")
-    ax.legend(fontsize=7)
+    if len(a):  # no arrival on either side: nothing to name
+        ax.legend(fontsize=7)
     return fig
 
 

@@ -25,7 +25,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, Protocol
 
 from fmpy import read_model_description
 
@@ -50,6 +50,14 @@ class FmuVariable:
     value_reference: int
     unit: str | None
     start: Any
+
+
+class DescribedFmu(Protocol):
+    """What parameter and wiring checks read of an FMU: its file and its variables (an
+    :class:`OpenedFmu` or a :class:`fishfmu.preflight.FmuDescription`)."""
+
+    path: Path
+    variables: dict[str, FmuVariable]
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ from fmpy.fmi2 import FMU2Slave
 from plant.errors import InputError, SimulationError
 from plant.validation import suggest
 
-from fishfmu.fmu_files import OpenedFmu, library_path
+from fishfmu.fmu_files import DescribedFmu, OpenedFmu, library_path
 
 FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 SETTABLE_BEFORE_INIT = ("parameter", "input")
@@ -103,7 +103,7 @@ class FmuLog:
         return one_line(worst[-1][3])
 
 
-def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any],
+def check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any],
                      scenario_file: str | Path | None = None, where: str | None = None) -> None:
     """Every parameter a scenario sets must exist, be a parameter (or input start value) and fit its type.
 
@@ -119,7 +119,7 @@ def check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any],
         raise InputError(exc.message, file=scenario_file, where=f"{where or 'fmu'}.parameters{key}") from None
 
 
-def _check_parameters(name: str, fmu: OpenedFmu, parameters: Mapping[str, Any]) -> None:
+def _check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any]) -> None:
     for key, value in parameters.items():
         var = fmu.variables.get(key)
         if var is None:

@@ -27,11 +27,11 @@ from plant.plant import LEFT, WAITING, Plant
 from plant.population import FishSpec, fish_to_frame, sample_fish
 from plant.recorder import RunRecorder, pose_record
 
-from fishfmu.fmu_files import open_fmu
+from fishfmu.fmu_files import OpenedFmu, open_fmu
 from fishfmu.interrupt import StopRequest
 from fishfmu.master import CoSimulation, setpoint_sources, signal_frame, signal_names
+from fishfmu.preflight import FmuDescription, describe, preflight
 from fishfmu.scenario import Scenario
-from fishfmu.wiring import resolve_wiring
 
 
 @dataclass
@@ -108,15 +108,13 @@ def fmu_path(instance) -> Path:
 def check_scenario(scenario: Scenario, scenario_file: str | Path | None = None) -> None:
     """Everything a run checks before it starts, without running: each FMU file opens and is valid,
     its parameters exist and fit, and the wiring resolves (raises InputError naming what is wrong)."""
-    from fishfmu.fmu_instance import check_parameters
-    from fishfmu.wiring import direct_feedthrough
-    sfile = str(scenario_file) if scenario_file else None
     with contextlib.ExitStack() as stack:
         opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
-        for i, f in enumerate(scenario.fmu):
-            check_parameters(f.name, opened[f.name], f.parameters, scenario_file, f"fmu[{i}]")
-        resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
-                       {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
+        preflight(scenario, scenario_file, _described(opened))
+
+
+def _described(opened: dict[str, OpenedFmu]) -> dict[str, FmuDescription]:
+    return {n: describe(o.path, o.model_description, o.variables) for n, o in opened.items()}
 
 
 def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
@@ -133,12 +131,7 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
-        from fishfmu.wiring import direct_feedthrough
-        wiring = resolve_wiring(scenario, {n: o.variables for n, o in opened.items()}, sfile,
-                                {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
-        from fishfmu.fmu_instance import check_parameters
-        for i, f in enumerate(scenario.fmu):
-            check_parameters(f.name, opened[f.name], f.parameters, sfile, f"fmu[{i}]")
+        wiring = preflight(scenario, sfile, _described(opened))
         plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
         recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,
                                scenario.run.comm_step_s, record_poses=record_poses)

@@ -31,7 +31,6 @@ import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -42,6 +41,7 @@ from plant.kpis import KPI_KEYS
 
 from fishfmu.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
 from fishfmu.interrupt import STOPS
+from fishfmu.preflight import FmuDescription, describe_file, preflight
 from fishfmu.scenario import Scenario, load_scenario, parse_value
 
 DEFINITION = "sweep.json"
@@ -192,44 +192,21 @@ def run_id(params: dict[str, Any], seed: int | None = None) -> str:
 # ---------------------------------------------------------------- checking points up front
 
 class FmuChecker:
-    """Checks a point's FMU parameters (names, types, declared ranges) and wiring before any run,
-    reading each FMU's modelDescription once."""
+    """Checks a point's FMU parameters and wiring before any run (:func:`fishfmu.preflight.preflight`),
+    reading each FMU's modelDescription once for all points."""
 
     def __init__(self) -> None:
-        self._described: dict[str, tuple[Any, dict[str, Any]]] = {}
-
-    def _describe(self, path: str) -> tuple[Any, dict[str, Any]]:
-        if path not in self._described:
-            from fmpy import read_model_description
-
-            from fishfmu.fmu_files import FmuVariable
-            try:
-                md = read_model_description(path)
-            except Exception as exc:
-                raise InputError(f"cannot read the FMU's modelDescription: {exc}", file=path) from None
-            variables = {v.name: FmuVariable(v.name, v.causality, v.type, v.variability, v.valueReference, v.unit,
-                                             v.start) for v in md.modelVariables}
-            ranges = {v.name: (v.min, v.max) for v in md.modelVariables}
-            self._described[path] = (md, {"variables": variables, "ranges": ranges})
-        return self._described[path]
+        self._described: dict[str, FmuDescription] = {}
 
     def check(self, scenario: Scenario, scenario_file: str) -> None:
-        from fishfmu.fmu_instance import check_parameters
         from fishfmu.runner import fmu_path
-        from fishfmu.wiring import direct_feedthrough, resolve_wiring
-        variables, feedthrough = {}, {}
+        fmus = {}
         for f in scenario.fmu:
             path = str(fmu_path(f))
-            md, info = self._describe(path)
-            check_parameters(f.name, SimpleNamespace(path=path, variables=info["variables"]), f.parameters)
-            for key, value in f.parameters.items():
-                lo, hi = info["ranges"].get(key, (None, None))
-                if isinstance(value, (int, float)) and not isinstance(value, bool) and (
-                        (lo is not None and value < float(lo)) or (hi is not None and value > float(hi))):
-                    raise InputError(f"{key} = {value} is outside its declared range [{lo}, {hi}]",
-                                     file=scenario_file, where=f"fmu.{f.name}.parameters.{key}")
-            variables[f.name], feedthrough[f.name] = info["variables"], direct_feedthrough(md)
-        resolve_wiring(scenario, variables, scenario_file, feedthrough)
+            if path not in self._described:
+                self._described[path] = describe_file(path)
+            fmus[f.name] = self._described[path]
+        preflight(scenario, scenario_file, fmus)
 
 
 def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) -> Scenario:

@@ -211,16 +211,38 @@ def test_builtin_drive_given_an_out_of_range_setpoint_at_t0_names_it(tmp_path: P
     assert (out / "report.html").is_file()
 
 
-def test_fmu_refusing_a_parameter_while_initialised_fails_the_run_with_outputs(faulty_fmu: Path,
-                                                                              tmp_path: Path) -> None:
+def test_parameter_outside_its_declared_range_is_bad_input_before_the_fmu_sees_it(faulty_fmu: Path,
+                                                                                  tmp_path: Path) -> None:
     overrides = faulty_overrides(faulty_fmu, 7, "in-process")  # fault is declared in [0, 5]
     scenario = write_scenario(tmp_path / "init.toml", overrides)
     out = tmp_path / "out"
     code, err = cli("run", str(scenario), "--out", str(out), "--no-report", cwd=tmp_path)
-    assert code == 3, err
-    expected = "FMU 'drive_c1': setInteger returned error: \"fmi2SetInteger: 'fault' = 7 is outside its range [0, 5]\""
-    one_line(err, "simulation failed: at t = 0.000 s: ", expected)
-    assert_failed_run_written(out, expected)
+    assert code == 2, err
+    one_line(err, f"error: {scenario}: fmu[0].parameters.fault: ", "fault = 7 is outside the range [0, 5]",
+             "FMU 'drive_c1'")
+    assert not out.exists()
+
+
+def test_fmu_failing_while_initialised_fails_the_run_with_outputs(faulty_fmu: Path, tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """An FMU that refuses to initialise (any reason its own: here made so) is a failed run at t = 0,
+    written like any failed run; the run's files hold the line as it was at t = 0."""
+    from plant.errors import SimulationError
+
+    from fishfmu import runner
+    from fishfmu.outputs import write_outputs
+    from fishfmu.scenario import load_scenario
+
+    message = "FMU 'drive_c1': exitInitializationMode returned error: \"motor not configured\""
+
+    def refuse(*_args, **_kwargs):
+        raise SimulationError(message, 0.0)
+
+    monkeypatch.setattr(runner, "_instantiate", refuse)
+    result = runner.run_scenario(load_scenario(PAPER, faulty_overrides(faulty_fmu, 0, "in-process")))
+    assert result.status == "failed" and message in result.error and result.t_end_s == 0.0
+    write_outputs(result, tmp_path / "out", report=False)
+    assert_failed_run_written(tmp_path / "out", message)
 
 
 # ---------------------------------------------------------------- 3. NaN and infinity
