@@ -2,7 +2,7 @@
 
     python -m fishfmu.diagnose_bench --seeds 5 --json bench-results/diagnose_bench.json
 
-Each effect (and none) is simulated on the test line and run design of tests/test_diagnose.py with
+Each effect (and none) is simulated on the small line and run design of ``fishfmu.synthetic`` (that of tests/test_diagnose.py) with
 a different seed per repetition (different fish, drops, noise), diagnosed without being told, and
 the named cause recorded; the result is a confusion table and the accuracy per effect.
 """
@@ -17,27 +17,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from plant.line import KpiSettings, Line
 from plant.measured import read_dataset
 
 from fishfmu.diagnose import diagnose
-from fishfmu.synthetic import EFFECTS, make_dataset
-
-LINE = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
-    {"id": "c1", "x_start_m": 0.0, "length_m": 1.2, "width_m": 0.5, "z_top_m": 0.0},
-    {"id": "c2", "x_start_m": 1.21, "length_m": 1.0, "width_m": 0.5, "z_top_m": -0.02},
-    {"id": "c3", "x_start_m": 2.22, "length_m": 1.0, "width_m": 0.5, "z_top_m": -0.04}],
-    "photoeyes": [{"id": "pe1", "x_m": 1.1, "z_m": 0.015}, {"id": "pe2", "x_m": 2.12, "z_m": -0.005},
-                  {"id": "pe3", "x_m": 3.12, "z_m": -0.025}]})
-KPI = KpiSettings(outfeed_photoeye="pe3")
-SPEEDS = [0.3, 0.7, 1.2]
-RUNS = [(h, "sparse", 2) for h in (1.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 72.0)] + \
-       [(h, "pairs", 4) for h in (12.0, 20.0, 30.0, 40.0, 48.0, 66.0)]
-"""Fish alone at eight ages (what friction effects show in), and touching pairs in six runs (what adhesion
-shows in).  The held-out gain's interval is a bootstrap over the runs that carry the signal: with four
-pair runs its lower end was the worst run's gain, 0.0 on one machine and just above on another (a
-verdict decided by rounding); with six it is clear of zero by a margin the tests assert."""
-
+from fishfmu.synthetic import EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
 
 def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: float = 1.0, workers: int = 2) -> pd.DataFrame:
     rows = []
@@ -45,7 +28,8 @@ def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: fl
         for effect in effects:
             with tempfile.TemporaryDirectory() as tmp:
                 t0 = time.perf_counter()
-                path = make_dataset(Path(tmp) / "data", effect, LINE, KPI, RUNS, SPEEDS, seed=seed, strength=strength)
+                path = make_dataset(Path(tmp) / "data", effect, SMALL_LINE, SMALL_KPI, SMALL_RUNS, SMALL_SPEEDS,
+                                    seed=seed, strength=strength)
                 d = diagnose(read_dataset(path), workers=workers, seed=seed)
                 fit = next((f for f in d.fits if f.name == d.cause), None)
                 rows.append({"effect": effect, "seed": seed, "cause": d.cause, "correct": d.cause == effect,

@@ -15,15 +15,14 @@ import pytest
 from plant.measured import read_dataset
 
 from fishfmu.diagnose import diagnose
-from fishfmu.diagnose_bench import KPI, LINE, RUNS, SPEEDS  # the small line and run design, in one place
 from fishfmu.diagnose_report import write_diagnosis
-from fishfmu.synthetic import make_dataset
+from fishfmu.synthetic import SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
 
 
 @pytest.mark.parametrize("effect", ["none", "direction_friction", "mucus_friction", "rigor_mortis", "adhesion",
                                     "drive_droop"])
 def test_diagnose_names_the_hidden_effect_with_a_held_out_gain(effect: str, tmp_path: Path):
-    path = make_dataset(tmp_path / "data", effect, LINE, KPI, RUNS, SPEEDS, seed=11)
+    path = make_dataset(tmp_path / "data", effect, SMALL_LINE, SMALL_KPI, SMALL_RUNS, SMALL_SPEEDS, seed=11)
     dataset = read_dataset(path)  # through the readers, like any customer's data
     d = diagnose(dataset, workers=2)
     paths = write_diagnosis(d, tmp_path / "out")
