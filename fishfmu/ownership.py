@@ -449,7 +449,9 @@ def check_not_input(out: Path, inputs: Iterable[str | Path | None], what: str = 
             raise InputError(f"{what} lies inside the input folder {inp}; choose an --out outside it", file=out)
 
 
-def _create(out: Path) -> None:
+def _create(out: Path) -> bool:
+    """Make ``out`` if it is not there; True if this call made it."""
+    existed = out.is_dir()
     try:
         out.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
@@ -458,9 +460,10 @@ def _create(out: Path) -> None:
         raise os_error(exc, out, "cannot create the output folder") from None
     if not os.access(out, os.W_OK | os.X_OK):
         raise OutputError("cannot write into the output folder: permission denied", file=out)
+    return not existed
 
 
-def _start(out: Path, command: str | None, keep: State | None = None) -> None:
+def _start(out: Path, command: str | None, keep: State | None = None, created: bool = False) -> None:
     """Mark ``out`` as ours from now on (manifest with status ``writing``) and record its writes."""
     root = _abs(out)
     for r in [r for r in _SESSIONS if _within(r, root)]:
@@ -471,7 +474,7 @@ def _start(out: Path, command: str | None, keep: State | None = None) -> None:
         _write_manifest(out, state)
         (out / JOURNAL).unlink(missing_ok=True)  # folded into the manifest just written
     except OutputError:
-        if keep is None and not any(out.iterdir()):
+        if created and not any(out.iterdir()):  # a folder of the user's stays, even empty
             out.rmdir()
         raise
     _open_session(root, None, command)
@@ -491,8 +494,7 @@ def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Pat
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", file=out)
     if not out.exists():
-        _create(out)
-        _start(out, command)
+        _start(out, command, created=_create(out))
         return out
     try:
         entries = [n for n in os.listdir(out)]
@@ -512,8 +514,7 @@ def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Pat
                 _remove_ours(out, found, state)
             except OSError as exc:
                 raise os_error(exc, out, "cannot remove the earlier result") from None
-    _create(out)
-    _start(out, command)
+    _start(out, command, created=_create(out))
     return out
 
 
@@ -543,16 +544,14 @@ def open_resumable(out: str | Path, inputs: Iterable[str | Path | None] = (), co
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", file=out)
     if not out.exists():
-        _create(out)
-        _start(out, command)
+        _start(out, command, created=_create(out))
         return out
     state = load_state(out)
     if [n for n in os.listdir(out) if not is_internal(n)]:
         found_scan = scan(out, state)
         if found_scan.foreign:
             raise _refuse_foreign(out, found_scan.foreign)
-    _create(out)
-    _start(out, command, keep=state if state.present else None)
+    _start(out, command, keep=state if state.present else None, created=_create(out))
     return out
 
 
