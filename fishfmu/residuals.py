@@ -4,7 +4,7 @@ From a measured run and its re-simulation (same fish, drops, belt speeds):
 
 - **track errors**: the simulated mid-point interpolated at each measured sample, minus the
   measured one (along the line ``ex_m``, across ``ey_m``, heading ``eyaw_rad``);
-- **belt residuals** (one row per fish and belt it rode alone on): the mean along-line error
+- **belt residuals** (one row per fish and belt it rode alone on): the median along-line error
   while the fish lay wholly on that belt, and its change since the previous belt (``lag_m``).
   The change across a transfer is what friction decides (a fish slips until it has caught up
   with the faster belt), so it is the quantity in which friction effects show; the row carries
@@ -109,7 +109,7 @@ def _crowding(tracks: pd.DataFrame, fid: str, t0: float, t1: float, radius_m: fl
 
 
 def belt_residuals(run: Run, errors: pd.DataFrame, line: Line) -> pd.DataFrame:
-    """One row per fish and belt it lay wholly on: mean along-line error there, change since the last belt."""
+    """One row per fish and belt it lay wholly on: median along-line error there (robust to a tracker's outliers), change since the last belt."""
     fish = run.fish.set_index("fish_id")
     rows = []
     for fid, e in errors.groupby("fish_id", sort=False):
