@@ -32,7 +32,7 @@ import numpy as np
 from plant.extensions import MucusFriction, RigorMortis
 from plant.params import PlantParams
 
-from fishfmu.evidence import DriveSlope, HeadingSlope, PairSeparation, RunLevelShape, constant
+from fishfmu.evidence_base import DriveSlope, HeadingSlope, PairSeparation, RunLevelShape, constant
 
 _RIGOR = RigorMortis()
 _MUCUS = MucusFriction()

@@ -212,7 +212,7 @@ def mark_partial(out_dir: Path | None, signum: int, info: dict[str, Any] | None 
     if not isinstance(info, dict) or info.get("status") == "partial":
         return
     info.update(status="partial", stopped_by=signal.Signals(signum).name)
-    from fishfmu.outputs import write_run_info
+    from fishfmu.atomic import write_run_info
     with contextlib.suppress(OSError):
         write_run_info(out_dir, **info)
 

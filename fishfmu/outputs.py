@@ -15,26 +15,22 @@ writer here records what it writes there before the file appears under its name.
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import platform
 import shutil
-import tempfile
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 from xml.etree import ElementTree as ET
 
 import numpy as np
 
-from plant.errors import InputError
 from plant.measured import write_dataset
 
 from fishfmu import ownership
-from fishfmu.runner import ExpectResult, RunResult
+from fishfmu.atomic import (MARKER, json_safe, write_bytes_atomic, write_json_atomic,  # noqa: F401 (re-exported)
+                            write_run_info, write_text_atomic)
+from fishfmu.results import ExpectResult, RunResult
 from fishfmu.scenario import resolved_toml
-
-MARKER = "run_info.json"
 
 
 def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Path | None] = (),
@@ -42,53 +38,6 @@ def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Pat
     """Create ``out``; refuse a folder with foreign files, an input in it, or an earlier run unless
     ``overwrite`` (see :func:`fishfmu.ownership.prepare_out_dir`)."""
     return ownership.prepare_out_dir(out, overwrite, inputs, command)
-
-
-def write_text_atomic(path: Path, text: str) -> None:
-    write_bytes_atomic(path, text.encode("utf-8"))
-
-
-def _file_mode() -> int:
-    umask = os.umask(0)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
-_FILE_MODE = _file_mode()
-
-
-def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """Write under a temporary name, record it in the folder's manifest, rename into place.
-    An OS error (read-only, disk full, not a folder) is an :class:`~fishfmu.ownership.OutputError`."""
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
-    except OSError as exc:
-        raise ownership.os_error(exc, path) from None
-    try:
-        ownership.note_pending(tmp, path, data)
-        with os.fdopen(fd, "wb") as fh:
-            os.fchmod(fh.fileno(), _FILE_MODE)  # mkstemp makes 0600; an output is as readable as any file
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException as exc:
-        try:
-            Path(tmp).unlink(missing_ok=True)
-        except OSError:
-            pass
-        if isinstance(exc, OSError):
-            raise ownership.os_error(exc, path) from None
-        raise
-
-
-def write_run_info(out: Path, /, status: str, **fields: Any) -> None:
-    """Write ``out/run_info.json``: ``status`` and ``fields`` (made JSON-safe, see :func:`json_safe`).
-    The one writer of that file, for every command (run, run --seeds, sweep, compare, diagnose) and
-    for :func:`fishfmu.interrupt.mark_partial`."""
-    write_json_atomic(Path(out) / MARKER, json_safe({"status": status, **fields}))
 
 
 def mark_running(out: Path, scenario_file: str | Path | None = None) -> None:
@@ -108,10 +57,6 @@ def discard_if_unused(out: Path) -> None:
         pass
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
-    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
-
-
 def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
     """kpis.json: the KPIs as plain numbers, the expect bounds with their outcome, the run's status
     and the simulated time it reached (nothing from the wall clock: the same run, the same bytes)."""
@@ -121,27 +66,6 @@ def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
     doc["t_end_s"] = round(result.t_end_s, 6)
     doc["expect"] = {e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok} for e in result.expect}
     return json_safe(doc)
-
-
-def json_safe(x: Any) -> Any:
-    """JSON-safe: NaN/inf -> None, numpy scalars -> Python, tuples -> lists, keys -> str.  Every JSON
-    document fishfmu writes from computed numbers goes through this (:func:`write_json_atomic` itself
-    refuses NaN, so a value that escaped it is a bug that shows).
-
-    >>> json_safe({1: (np.float64("nan"), np.int64(3), np.bool_(True), 0.5)})
-    {'1': [None, 3, True, 0.5]}
-    """
-    if isinstance(x, dict):
-        return {str(k): json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [json_safe(v) for v in x]
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (float, np.floating)):
-        return float(x) if math.isfinite(float(x)) else None
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 _clean = json_safe  # the former name (fishfmu.diagnose_report imports it)

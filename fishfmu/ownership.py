@@ -37,6 +37,7 @@ import errno
 import hashlib
 import json
 import os
+import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -131,7 +132,6 @@ def load_state(folder: Path) -> State:
 
 
 def _write_manifest(folder: Path, state: State) -> None:
-    from fishfmu.outputs import write_bytes_atomic
     head = {"fishfmu_manifest": FORMAT, "status": state.status, "command": state.command}
     lines = [f" {json.dumps(k)}: {json.dumps(v)}," for k, v in head.items()]
     lines.append(' "files": {' + ",".join(f"\n  {json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(state.files.items()))
@@ -317,6 +317,44 @@ def note_pending(tmp: str | Path | None, final: str | Path, data: bytes | None =
         size, sha = _sha256_file(Path(tmp))
         ops.append({"f": rel, "size": size, "sha256": sha})
     _journal(s, ops)
+
+
+# ---------------------------------------------------------------- the atomic writer
+
+def _file_mode() -> int:
+    umask = os.umask(0)
+    os.umask(umask)
+    return 0o666 & ~umask
+
+
+_FILE_MODE = _file_mode()
+
+
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """Write under a temporary name, record it in the folder's manifest, rename into place.
+    An OS error (read-only, disk full, not a folder) is an :class:`OutputError`."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+    except OSError as exc:
+        raise os_error(exc, path) from None
+    try:
+        note_pending(tmp, path, data)
+        with os.fdopen(fd, "wb") as fh:
+            os.fchmod(fh.fileno(), _FILE_MODE)  # mkstemp makes 0600; an output is as readable as any file
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException as exc:
+        try:
+            Path(tmp).unlink(missing_ok=True)
+        except OSError:
+            pass
+        if isinstance(exc, OSError):
+            raise os_error(exc, path) from None
+        raise
 
 
 def note_temp(path: str | Path) -> None:

@@ -19,7 +19,7 @@ import numpy as np  # noqa: E402
 from plant.kpis import singulation_table  # noqa: E402
 from plant.passages import belt_speed_fn, passages  # noqa: E402
 
-from fishfmu.runner import RunResult  # noqa: E402
+from fishfmu.results import RunResult  # noqa: E402
 
 
 def _png(fig) -> bytes:
@@ -79,7 +79,7 @@ def gap_figure(result: RunResult):
 
 
 def write_report(result: RunResult, out: Path) -> Path:
-    from fishfmu.outputs import write_bytes_atomic, write_text_atomic
+    from fishfmu.atomic import write_bytes_atomic, write_text_atomic
     figures = {"belts.png": belt_figure(result), "fish_x.png": fish_figure(result), "outfeed_gaps.png": gap_figure(result)}
     blobs = {}
     for name, fig in figures.items():

@@ -13,82 +13,25 @@ from __future__ import annotations
 import contextlib
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from plant.errors import SimulationError
 from plant.kpis import compute_kpis
-from plant.measured import Dataset, Run
-from plant.plant import LEFT, WAITING, Plant
+from plant.measured import Run
+from plant.plant import Plant
 from plant.population import FishSpec, fish_to_frame, sample_fish
 from plant.recorder import RunRecorder, pose_record
+from plant.simulate import run_loop
 
 from fishfmu.fmu_files import OpenedFmu, open_fmu
 from fishfmu.interrupt import StopRequest
 from fishfmu.master import CoSimulation, setpoint_sources, signal_frame, signal_names
 from fishfmu.preflight import FmuDescription, describe, preflight
+from fishfmu.results import ExpectResult, RunResult  # noqa: F401 (re-exported)
 from fishfmu.scenario import Scenario
-
-
-@dataclass
-class ExpectResult:
-    kpi: str
-    value: float | None
-    min: float | None
-    max: float | None
-
-    @property
-    def ok(self) -> bool:
-        if self.value is None:
-            return False
-        return (self.min is None or self.value >= self.min) and (self.max is None or self.value <= self.max)
-
-    @property
-    def message(self) -> str:
-        if self.value is None:
-            return f"{self.kpi} is undefined in this run"
-        if self.min is not None and self.value < self.min:
-            return f"{self.kpi} = {self.value:.4g} is below the minimum {self.min:g} by {self.min - self.value:.4g}"
-        if self.max is not None and self.value > self.max:
-            return f"{self.kpi} = {self.value:.4g} is above the maximum {self.max:g} by {self.value - self.max:.4g}"
-        return f"{self.kpi} = {self.value:.4g} within [{self.min}, {self.max}]"
-
-
-@dataclass
-class RunResult:
-    """Everything a run produced; ``status`` is ``ok``, ``failed`` (then ``error`` says why) or
-    ``partial`` (stopped on request, e.g. by Ctrl-C: ``error`` says when and why)."""
-
-    scenario: Scenario
-    fish: list[FishSpec]
-    run: Run
-    kpis: dict[str, Any]
-    signals: pd.DataFrame
-    expect: list[ExpectResult]
-    status: str
-    error: str | None
-    t_end_s: float
-    wall_s: float
-    timings_s: dict[str, float] = field(default_factory=dict)
-    drop_adjustments: list[Any] = field(default_factory=list)
-    poses: dict[str, np.ndarray] | None = None
-    """Body poses at 25 Hz and body outlines (see :func:`plant.recorder.pose_record`), when asked for."""
-    energy_watch: dict[str, float] = field(default_factory=dict)
-    """The energy watch's largest rise without a source (:mod:`plant.health`): J, and as a fraction
-    of the allowed reserve (a blow-up is reported at 1)."""
-
-    @property
-    def expect_ok(self) -> bool:
-        return all(e.ok for e in self.expect)
-
-    def dataset(self) -> Dataset:
-        """The run as a one-run dataset in the measured-data format."""
-        return Dataset(name=self.scenario.run.name, description="simulated by fishfmu", line=self.scenario.line,
-                       kpi=self.scenario.kpi, runs=[self.run])
 
 
 def scenario_fish(scenario: Scenario) -> list[FishSpec]:
@@ -213,22 +156,11 @@ class _Stopped(Exception):
 
 def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float, float], None] | None,
           stop: StopRequest | None = None) -> None:
-    n = int(round(scenario.run.duration_s / scenario.run.comm_step_s))
-    clear_since: float | None = None
-    plant = cosim.plant
-    for k in range(n):
+    def check_stop() -> None:
         if stop is not None and stop.requested:
             raise _Stopped(f"interrupted by {stop.signal_name} at t = {cosim.t_s:.3f} s, before the end "
                            f"({scenario.run.duration_s:g} s)")
-        cosim.step()
-        if on_progress is not None and k % 50 == 0:
-            on_progress(cosim.t_s, scenario.run.duration_s)
-        if scenario.run.stop_when_clear and len(plant.fish_specs):
-            if np.all(plant.status == LEFT):
-                clear_since = cosim.t_s if clear_since is None else clear_since
-                if cosim.t_s - clear_since >= 1.0 - 1e-9:
-                    break
-            elif np.any(plant.status == WAITING):
-                clear_since = None
-    if on_progress is not None:
-        on_progress(cosim.t_s, cosim.t_s)
+
+    run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.status, scenario.run.duration_s,
+             scenario.run.comm_step_s, stop_when_clear=scenario.run.stop_when_clear, clear_margin_s=1.0,
+             before_step=check_stop, on_progress=on_progress)

@@ -46,6 +46,42 @@ class SimulatedRun:
         return self.t_end_s / self.wall_s if self.wall_s > 0 else float("inf")
 
 
+def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callable[[], np.ndarray],
+             duration_s: float, dt_s: float, stop_when_clear: bool = True, clear_margin_s: float = 1.0,
+             before_step: Callable[[], None] | None = None,
+             on_progress: Callable[[float, float], None] | None = None) -> int:
+    """The run loop of both the plant alone (:func:`simulate_plant`) and the co-simulation
+    (fishfmu.runner): ``step()`` up to ``round(duration_s / dt_s)`` times; with ``stop_when_clear``
+    (and any fish) stop ``clear_margin_s`` after every fish has left the line (``status()`` all
+    LEFT; the wait starts over while a fish is still WAITING to be dropped).  ``t_s()`` is the time
+    after the last step.  ``before_step()`` is called before each step and stops the run by raising
+    (a stop request); ``on_progress(t, duration_s)`` after every 50th step from the first, and
+    ``on_progress(t, t)`` at the end.  Returns the number of steps taken."""
+    n_steps = int(round(duration_s / dt_s))
+    clear_since: float | None = None
+    steps = 0
+    for k in range(n_steps):
+        if before_step is not None:
+            before_step()
+        step()
+        steps += 1
+        t = t_s()
+        if on_progress is not None and k % 50 == 0:
+            on_progress(t, duration_s)
+        if stop_when_clear:
+            st = status()
+            if len(st):
+                if np.all(st == FishStatus.LEFT):
+                    clear_since = t if clear_since is None else clear_since
+                    if t - clear_since >= clear_margin_s - 1e-9:
+                        break
+                elif np.any(st == FishStatus.WAITING):
+                    clear_since = None
+    if on_progress is not None:
+        on_progress(t_s(), t_s())
+    return steps
+
+
 def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, duration_s: float,
                    params: PlantParams | None = None, comm_step_s: float = 0.01, stop_when_clear: bool = True,
                    clear_margin_s: float = 1.0, joint_factors: list[tuple[float, float]] | None = None,
@@ -59,23 +95,18 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
                       record_poses=record_poses)
     body_poses = plant.body_poses if record_poses else None
     speed_fn = belt_speeds if callable(belt_speeds) else (lambda t, s=dict(belt_speeds): s)
-    n_steps = int(round(duration_s / comm_step_s))
-    clear_since: float | None = None
-    t0 = time.perf_counter()
-    for _ in range(n_steps):
+
+    def step() -> None:
         speeds = speed_fn(plant.t_s)
         out = plant.step(speeds)
         energy.check(plant.state, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(plant.t_s, plant.fish_state, out.photoeyes, speeds, out.belt_speed_mps, body_poses)
         if on_step is not None:
             on_step(plant)
-        if stop_when_clear and len(fish):
-            if np.all(plant.status == FishStatus.LEFT):
-                clear_since = plant.t_s if clear_since is None else clear_since
-                if plant.t_s - clear_since >= clear_margin_s - 1e-9:
-                    break
-            elif np.any(plant.status == FishStatus.WAITING):
-                clear_since = None
+
+    t0 = time.perf_counter()
+    run_loop(step, lambda: plant.t_s, lambda: plant.status, duration_s, comm_step_s,
+             stop_when_clear=stop_when_clear, clear_margin_s=clear_margin_s)
     wall = time.perf_counter() - t0
     tables = rec.tables()
     return SimulatedRun(fish_to_frame(fish), tables["tracks"], tables["photoeyes"], tables["belts"],
