@@ -123,7 +123,7 @@ def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:
 
 
 def write_diagnosis(d: Diagnosis, out: Path) -> dict[str, Path]:
-    from fishfmu.outputs import write_json_atomic, write_text_atomic
+    from fishfmu.atomic import json_safe, write_json_atomic, write_text_atomic
     doc = diagnosis_document(d)
     paths = {"json": out / "diagnosis.json", "fragment": out / "fragment.toml", "evidence": out / "evidence.csv",
              "report": out / "report.html"}
@@ -147,10 +147,5 @@ def write_diagnosis(d: Diagnosis, out: Path) -> dict[str, Path]:
 <p>Timing: {', '.join(f'{k} {v:.0f} s' for k, v in d.timing_s.items())}</p></body></html>
 """
     write_text_atomic(paths["report"], page)
-    write_json_atomic(paths["json"], _clean(doc))
+    write_json_atomic(paths["json"], json_safe(doc))
     return paths
-
-
-def _clean(x):
-    from fishfmu.outputs import _clean as clean
-    return clean(x)

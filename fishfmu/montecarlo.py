@@ -22,7 +22,7 @@ import pandas as pd
 from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
 from plant.kpis import KPI_KEYS, SHOWN_KPI_KEYS
 
-from fishfmu.runner import ExpectResult
+from fishfmu.results import ExpectResult
 from fishfmu.scenario import load_scenario
 from fishfmu.sweep import SweepResult, make_spec, run_sweep
 from fishfmu.terminal import console as literal_console, labelled, outcome

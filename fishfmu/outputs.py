@@ -68,7 +68,6 @@ def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
     return json_safe(doc)
 
 
-_clean = json_safe  # the former name (fishfmu.diagnose_report imports it)
 
 
 def write_outputs(result: RunResult, out: Path, partial: bool = False, report: bool = True) -> dict[str, Path]:
