@@ -38,12 +38,12 @@ def build_fmus(
                                                          "(repeatable; needs a single FMU name)."),
 ) -> None:
     """Build the built-in FMUs as standalone .fmu files (Linux binary and C sources inside)."""
-    from fishfmu.fmu_build import BUILTIN_FMUS, FmuBuildError, build_fmu
-    from fishfmu.scenario import parse_assignments
+    from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
+    from fishfmu.scenario.schema import parse_assignments
     defaults = parse_assignments(param, "--param")
     if defaults and len(names or BUILTIN_FMUS) != 1:
         raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
-    from fishfmu.ownership import check_single_file_target, record_written
+    from fishfmu.output.ownership import check_single_file_target, record_written
     for name in names or BUILTIN_FMUS:  # an existing .fmu is replaced only if fishfmu wrote it
         check_single_file_target(out / f"{name}.fmu")
     for name in names or BUILTIN_FMUS:
@@ -58,7 +58,7 @@ def build_fmus(
 
 def _run_inputs(scenario: Path, sc, junit: Path | None) -> list:
     """The files a run reads (never written over); checks ``--junit`` against them and for ownership."""
-    from fishfmu.ownership import check_single_file_target
+    from fishfmu.output.ownership import check_single_file_target
     inputs = [scenario, *(f.path for f in sc.fmu if f.path)]
     if junit is not None:
         check_single_file_target(junit, inputs)
@@ -101,20 +101,20 @@ def run(
     scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
-    from fishfmu.interrupt import register_output, stop_on_signals
-    from fishfmu.outputs import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir, write_junit,
+    from fishfmu.cosim.interrupt import register_output, stop_on_signals
+    from fishfmu.output.run_folder import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir, write_junit,
                                  write_outputs)
-    from fishfmu.runner import check_scenario, run_scenario
-    from fishfmu.scenario import load_scenario, parse_assignments
+    from fishfmu.cosim.runner import check_scenario, run_scenario
+    from fishfmu.scenario.schema import load_scenario, parse_assignments
 
     overrides = parse_assignments(set_)
     if seed is not None:
         overrides["run.seed"] = seed
-    if seeds > 1:  # Monte-Carlo over seeds: fishfmu.montecarlo
+    if seeds > 1:  # Monte-Carlo over seeds: fishfmu.batch.seeds
         if replay:
             raise InputError("--replay shows one run; drop it or run without --seeds")
-        from fishfmu.montecarlo import run_seeds_command
-        from fishfmu.sweep import check_size
+        from fishfmu.batch.seeds import run_seeds_command
+        from fishfmu.batch.sweep import check_size
         check_size(1, seeds)  # before anything is written
         sc = load_scenario(scenario, overrides)
         check_scenario(sc, scenario)
@@ -147,7 +147,7 @@ def run(
             raise
         write_outputs(result, out_dir, report=report)
     if replay:
-        from fishfmu.replay import write_replay
+        from fishfmu.output.replay import write_replay
         console.print(f"replay: {write_replay(out_dir)}")
     if junit is not None:
         write_junit(junit, **junit_args_of_run(result, str(scenario)))
@@ -178,15 +178,15 @@ def sweep(
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Re-run failed runs when resuming."),
 ) -> None:
     """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
-    from fishfmu.sweep import make_spec, parse_param, run_sweep
-    from fishfmu.sweep_report import print_summary
-    from fishfmu.scenario import parse_assignments
+    from fishfmu.batch.sweep import make_spec, parse_param, run_sweep
+    from fishfmu.batch.sweep_report import print_summary
+    from fishfmu.scenario.schema import parse_assignments
     fixed = parse_assignments(set_)
     params = dict(parse_param(p) for p in param)
     if len(params) != len(param):
         raise InputError("a key is given twice with --param")
     spec = make_spec(scenario, params, seeds, fixed)
-    from fishfmu.interrupt import register_output
+    from fishfmu.cosim.interrupt import register_output
     register_output(out, {"command": "sweep"})
     result = run_sweep(spec, out, scheduler=scheduler, workers=workers, threads_per_worker=threads_per_worker,
                        progress=_show_progress(), max_runs=max_runs, retry_failed=retry_failed)
@@ -217,7 +217,7 @@ def bench(
 
     from rich.table import Table
 
-    from fishfmu.bench import per_fish_cost, plot, records_json, run_bench
+    from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
     try:
         counts = [int(x) for x in fish.split(",") if x.strip()]
     except ValueError:
@@ -237,7 +237,7 @@ def bench(
                       f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
         err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
 
-    from fishfmu.ownership import check_single_file_target, note_temp, replace_into
+    from fishfmu.output.ownership import check_single_file_target, note_temp, replace_into
     for target in (json_file, plot_file):  # before measuring: an existing file is replaced only if ours
         if target is not None:
             check_single_file_target(target)
@@ -247,7 +247,7 @@ def bench(
     console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
                   "measured counts)")
     if json_file is not None:
-        from fishfmu.outputs import write_text_atomic
+        from fishfmu.output.run_folder import write_text_atomic
         write_text_atomic(json_file, json.dumps(records_json(records), indent=2) + "\n")
     if plot_file is not None:
         tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
@@ -262,8 +262,8 @@ def replay_cmd(
     out: Path | None = typer.Option(None, "--out", help="HTML file to write (default: RUN_DIR/replay.html)."),
 ) -> None:
     """Write a run as one HTML page that replays it in 3D in a browser (offline, from the file)."""
-    from fishfmu.ownership import check_single_file_target
-    from fishfmu.replay import write_replay
+    from fishfmu.output.ownership import check_single_file_target
+    from fishfmu.output.replay import write_replay
     check_single_file_target(out if out is not None else run_dir / "replay.html",
                              [run_dir / "run", run_dir / "poses.npz", run_dir / "scenario.resolved.toml"])
     print(write_replay(run_dir, out))
@@ -275,7 +275,7 @@ def _dataset_and_params(dataset: Path, scenario: Path | None):
     ds = read_dataset(dataset)
     if scenario is None:
         return ds, PlantParams(), None
-    from fishfmu.scenario import load_scenario
+    from fishfmu.scenario.schema import load_scenario
     sc = load_scenario(scenario)
     drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
     return ds, sc.plant, (drives[0] if drives else None)
@@ -291,11 +291,11 @@ def compare(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Re-simulate every measured run and show what the simulation gets wrong (KPIs, arrivals, tracks, belts)."""
-    from fishfmu.compare import compare_dataset, write_comparison
-    from fishfmu.outputs import prepare_out_dir, write_run_info
+    from fishfmu.analysis.compare import compare_dataset, write_comparison
+    from fishfmu.output.run_folder import prepare_out_dir, write_run_info
     ds, params, drive = _dataset_and_params(dataset, scenario)
     out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "compare")
-    from fishfmu.interrupt import current, register_output
+    from fishfmu.cosim.interrupt import current, register_output
     register_output(out_dir, {"command": "compare", "dataset": str(dataset)})  # a signal: run_info.json says partial
     c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
     paths = write_comparison(c, out_dir)
@@ -330,12 +330,12 @@ def diagnose_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Name the cause of what the simulation gets wrong, fit it, and measure the gain on held-out runs."""
-    from fishfmu.diagnose import diagnose
-    from fishfmu.diagnose_report import decision_text, write_diagnosis
-    from fishfmu.outputs import prepare_out_dir, write_run_info
+    from fishfmu.analysis.diagnose import diagnose
+    from fishfmu.analysis.diagnose_report import decision_text, write_diagnosis
+    from fishfmu.output.run_folder import prepare_out_dir, write_run_info
     ds, params, _ = _dataset_and_params(dataset, scenario)
     out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "diagnose")
-    from fishfmu.interrupt import register_output
+    from fishfmu.cosim.interrupt import register_output
     register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
     try:
         d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text))
@@ -351,7 +351,7 @@ def diagnose_cmd(
 
 def main() -> None:
     """Entry point: turn our own errors into one clear line and the matching exit code."""
-    from fishfmu.interrupt import Interrupted, mark_partial, session
+    from fishfmu.cosim.interrupt import Interrupted, mark_partial, session
     try:
         code = 0
         with session() as s:  # SIGINT/SIGTERM: workers stopped, temporary folder removed, exit 130/143
@@ -370,7 +370,7 @@ def main() -> None:
         print_error("simulation failed", exc)
         sys.exit(EXIT_SIMULATION_FAILED)
     except OSError as exc:  # an output location that cannot be written (disk full, read-only): not a bug
-        from fishfmu.ownership import os_error
+        from fishfmu.output.ownership import os_error
         print_error("error", os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error"))
         sys.exit(EXIT_BAD_INPUT)
     except RuntimeError as exc:  # Path.resolve() on a symbolic link loop (Python < 3.13): bad input, not a bug

@@ -411,7 +411,7 @@ def _check_times(run_id: str, *tables: tuple[pd.DataFrame, Path]) -> None:
                           (f" by more than {CLOCK_SLACK_S:g} s", "what a run records must lie within its drive log"))
             _refuse(path, i, c, f"{c} = {t[i]:g} s is after the end of the drive log{slack} (belts.csv ends at "
                                 f"t_s = {log_end:g} s): {why}")
-    # what a re-simulation covers (fishfmu.resim.run_duration_s): the last drop, track sample or interval end
+    # what a re-simulation covers (fishfmu.analysis.resim.run_duration_s): the last drop, track sample or interval end
     for df, path, c in ((fish, fish_file, "drop_t_s"), (tracks, tracks_file, "t_s"), (pe, pe_file, "t_off_s")):
         i = _first(df[c] + 1.0 > MAX_RESIM_S)
         if i is not None:

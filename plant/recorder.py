@@ -105,7 +105,7 @@ class RunRecorder:
 
 def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | None:
     """The recorder's body poses plus what is needed to draw the bodies (the arrays of a run folder's
-    poses.npz, see fishfmu.replay); None unless the recorder keeps poses.
+    poses.npz, see fishfmu.output.replay); None unless the recorder keeps poses.
 
     ``body_fish`` (B,) fish index of each body, ``fish_id`` (N,), ``section_body``/``section_x``/
     ``section_half_height``/``section_half_width`` (S,): each body's outline as cross-sections along

@@ -2,7 +2,7 @@
 
 Used to test the physics, to re-simulate measured runs with their logged belt speeds, and as
 the inner loop of the co-simulation's plant.  The co-simulation master has its own loop
-(fishfmu.master) but records through the same :class:`plant.recorder.RunRecorder`.
+(fishfmu.cosim.master) but records through the same :class:`plant.recorder.RunRecorder`.
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callabl
              before_step: Callable[[], None] | None = None,
              on_progress: Callable[[float, float], None] | None = None) -> int:
     """The run loop of both the plant alone (:func:`simulate_plant`) and the co-simulation
-    (fishfmu.runner): ``step()`` up to ``round(duration_s / dt_s)`` times; with ``stop_when_clear``
+    (fishfmu.cosim.runner): ``step()`` up to ``round(duration_s / dt_s)`` times; with ``stop_when_clear``
     (and any fish) stop ``clear_margin_s`` after every fish has left the line (``status()`` all
     LEFT; the wait starts over while a fish is still WAITING to be dropped).  ``t_s()`` is the time
     after the last step.  ``before_step()`` is called before each step and stops the run by raising

@@ -27,7 +27,7 @@ class Strict(pydantic.BaseModel):
 
     A field is documented by ``Field(description=...)`` or by a docstring line under it
     (``use_attribute_docstrings``; a description given in ``Field`` wins); either way it shows in
-    docs/scenario-reference.md (:mod:`fishfmu.scenario_reference`).  Validation is the same."""
+    docs/scenario-reference.md (:mod:`fishfmu.scenario.reference`).  Validation is the same."""
 
     model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
                                        use_attribute_docstrings=True)

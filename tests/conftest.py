@@ -10,7 +10,7 @@ import pytest
 @pytest.fixture(scope="session")
 def builtin_fmus() -> dict[str, Path]:
     """The built-in FMUs, built once into the FMU cache ($FISHFMU_CACHE or ~/.cache/fishfmu/fmus)."""
-    from fishfmu.fmu_build import BUILTIN_FMUS, builtin_fmu
+    from fishfmu.fmu.build import BUILTIN_FMUS, builtin_fmu
     return {name: builtin_fmu(name) for name in BUILTIN_FMUS}
 
 
@@ -33,7 +33,7 @@ def faulty_fmu() -> Path:
     import shutil
     import tempfile
 
-    from fishfmu.fmu_build import build_fmu, cache_dir, source_digest
+    from fishfmu.fmu.build import build_fmu, cache_dir, source_digest
     final = cache_dir() / ("test-" + source_digest("faulty_drive", FAULTY_FMU_SOURCES)) / "faulty_drive.fmu"
     if not final.is_file():
         final.parent.parent.mkdir(parents=True, exist_ok=True)

@@ -80,8 +80,8 @@ def test_find_cycle_finds_a_cycle():
 
 def test_the_graph_sees_function_level_imports():
     graph = import_graph()
-    assert "fishfmu.fmu_build" in graph["fishfmu.runner"]  # imported inside fmu_path()
-    assert "plant.simulate" in graph["fishfmu.runner"]
+    assert "fishfmu.fmu.build" in graph["fishfmu.cosim.runner"]  # imported inside fmu_path()
+    assert "plant.simulate" in graph["fishfmu.cosim.runner"]
 
 
 def test_no_import_cycle():

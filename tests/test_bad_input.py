@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from fishfmu.scenario import set_dotted
+from fishfmu.scenario.schema import set_dotted
 from tests.test_measured import BAD_INPUTS as BAD_DATASETS
 from tests.test_measured import _edit_toml, small_dataset  # noqa: F401 (a fixture, used by name)
 
@@ -343,12 +343,12 @@ def test_the_fishfmu_process_prints_one_line_and_no_traceback(args, expected: st
 
 
 def test_a_bug_is_reported_in_one_line_with_exit_4(sandbox: Path, capsys, monkeypatch):
-    import fishfmu.scenario
+    import fishfmu.scenario.schema
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(fishfmu.scenario, "load_scenario", broken)
+    monkeypatch.setattr(fishfmu.scenario.schema, "load_scenario", broken)
     code, err = run_main(sandbox, capsys, monkeypatch, "run", str(PAPER), "--out", "out")
     assert code == 4 and "Traceback" not in err
     lines = err.strip().splitlines()

@@ -1,4 +1,4 @@
-"""The registry of candidate causes (fishfmu.candidates): fragments, the off value, the rigor formula, evidence signs.
+"""The registry of candidate causes (fishfmu.analysis.candidates): fragments, the off value, the rigor formula, evidence signs.
 
 Small hand-made inputs only: no simulation, a second or two.
 """
@@ -16,10 +16,10 @@ import pytest
 from plant.extensions import RigorMortis
 from plant.params import PlantParams
 
-from fishfmu.candidates import CANDIDATES, fragment, rigor_index, rigor_limit_loss
-from fishfmu.evidence import Residuals
-from fishfmu.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
-from fishfmu.scenario import load_scenario
+from fishfmu.analysis.candidates import CANDIDATES, fragment, rigor_index, rigor_limit_loss
+from fishfmu.analysis.evidence import Residuals
+from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
+from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "paper_test.toml"
@@ -51,7 +51,7 @@ def _flatten(table: dict, prefix: str = "") -> dict[str, object]:
 
 
 def _drive_defaults() -> dict[str, float]:
-    spec = tomllib.loads((ROOT / "fishfmu" / "fmus" / "conveyor_drive" / "variables.toml").read_text())
+    spec = tomllib.loads((ROOT / "fishfmu" / "fmu" / "sources" / "conveyor_drive" / "variables.toml").read_text())
     return {v["name"]: v for v in spec["variable"]}
 
 

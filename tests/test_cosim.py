@@ -16,9 +16,9 @@ import pytest
 from plant.kpis import compute_kpis
 from plant.measured import read_dataset
 
-from fishfmu.outputs import prepare_out_dir, write_outputs
-from fishfmu.runner import run_scenario
-from fishfmu.scenario import load_scenario
+from fishfmu.output.run_folder import prepare_out_dir, write_outputs
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"
@@ -165,7 +165,7 @@ def test_gap_control_scenario_holds_belts_when_a_gap_is_short():
 
 
 def test_user_fmu_scenario_runs_a_drive_given_by_path(tmp_path: Path):
-    from fishfmu.fmu_build import build_fmu
+    from fishfmu.fmu.build import build_fmu
     fmu = build_fmu("conveyor_drive", tmp_path, {"rated_power": 370.0, "gear_ratio": 10.0, "ramp_acceleration": 0.5})
     sc = load_scenario(ROOT / "scenarios" / "user_fmu.toml", {**SHORT, "fmu[1].path": str(fmu)})
     result = run_scenario(sc)

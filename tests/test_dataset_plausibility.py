@@ -36,15 +36,15 @@ def fishfmu(capsys: pytest.CaptureFixture, monkeypatch: pytest.MonkeyPatch, *arg
 
 def fail_run(monkeypatch: pytest.MonkeyPatch, run_id: str) -> None:
     """Re-simulating ``run_id`` blows up (in this process: the commands run with --workers 1)."""
-    import fishfmu.resim
-    real = fishfmu.resim.resimulate
+    import fishfmu.analysis.resim
+    real = fishfmu.analysis.resim.resimulate
 
     def resimulate(line, run, *args, **kwargs):
         if run.id == run_id:
             raise SimulationError("numerical blow-up: fish 'f02' moves at 31.0 m/s", 2.35)
         return real(line, run, *args, **kwargs)
 
-    monkeypatch.setattr(fishfmu.resim, "resimulate", resimulate)
+    monkeypatch.setattr(fishfmu.analysis.resim, "resimulate", resimulate)
 
 
 # ------------------------------------------------------------------------- a failed re-simulation
@@ -79,7 +79,7 @@ def test_diagnose_stops_after_the_baseline_naming_the_failed_run(small_dataset: 
 
 
 def test_compare_dataset_reports_the_failure_through_the_python_api(small_dataset: Path, monkeypatch):  # noqa: F811
-    from fishfmu.compare import compare_dataset
+    from fishfmu.analysis.compare import compare_dataset
     fail_run(monkeypatch, "r1")
     ds = read_dataset(small_dataset)
     ds.runs = ds.runs[:1]  # only the failing run: nothing is simulated
@@ -89,7 +89,7 @@ def test_compare_dataset_reports_the_failure_through_the_python_api(small_datase
 
 
 def test_resimulate_refuses_a_run_made_in_code_beyond_the_limits(small_dataset: Path):  # noqa: F811
-    from fishfmu.resim import resimulate
+    from fishfmu.analysis.resim import resimulate
     ds = read_dataset(small_dataset)
     run = ds.run("r1")
     with pytest.raises(InputError, match=rf"run 'r1': .* more than the limit of {MAX_RESIM_S:g} s"):
@@ -103,8 +103,8 @@ def test_resimulate_refuses_a_run_made_in_code_beyond_the_limits(small_dataset: 
 def test_belt_evidence_on_rows_concatenated_with_an_empty_table():
     """pandas 3 keeps an empty table's object dtype in a concat: ``~`` on the 'crowded' column then gave
     -1/-2 (bitwise on Python bools) and a KeyError (issue 13). The tables are typed now."""
-    from fishfmu.evidence import belt_evidence
-    from fishfmu.residuals import BELT_RESIDUAL_DTYPES, alone, concat_typed, typed_frame
+    from fishfmu.analysis.evidence import belt_evidence
+    from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, alone, concat_typed, typed_frame
     rng = np.random.default_rng(0)
     rows = typed_frame([{"run_id": f"r{k % 3}", "fish_id": f"f{k}", "belt": 1, "conveyor_id": "c2", "t_start_s": 1.0,
                          "t_end_s": 2.0, "offset_m": 0.0, "lag_m": float(rng.normal(0.0, 0.01)),
@@ -161,7 +161,7 @@ CORRUPT_POSES = {
 
 @pytest.mark.parametrize("case", list(CORRUPT_POSES))
 def test_a_corrupt_poses_npz_is_bad_input_naming_the_file(case: str, small_dataset: Path, tmp_path: Path):  # noqa: F811
-    from fishfmu.replay import read_poses, scene
+    from fishfmu.output.replay import read_poses, scene
     run_dir = _run_dir(small_dataset, tmp_path)
     read_poses(run_dir / "poses.npz")  # the valid one reads
     corrupt, expected = CORRUPT_POSES[case]

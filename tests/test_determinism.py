@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from fishfmu.outputs import prepare_out_dir, write_outputs
-from fishfmu.runner import run_scenario
-from fishfmu.scenario import load_scenario, parse_value
+from fishfmu.output.run_folder import prepare_out_dir, write_outputs
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import load_scenario, parse_value
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"

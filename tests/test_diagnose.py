@@ -2,7 +2,7 @@
 degrade it, must be diagnosed as that effect (or none), with a gain on held-out runs.
 
 The analysis is not told the effect; each case takes under a minute on 2 cores (see
-``python -m fishfmu.diagnose_bench`` for the larger benchmark over many seeds).
+``python -m fishfmu.bench.diagnose`` for the larger benchmark over many seeds).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import pytest
 
 from plant.measured import read_dataset
 
-from fishfmu.diagnose import diagnose
-from fishfmu.diagnose_report import write_diagnosis
-from fishfmu.synthetic import SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
+from fishfmu.analysis.diagnose import diagnose
+from fishfmu.analysis.diagnose_report import write_diagnosis
+from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
 
 
 @pytest.mark.parametrize("effect", ["none", "direction_friction", "mucus_friction", "rigor_mortis", "adhesion",

@@ -24,8 +24,8 @@ from plant.measured import read_dataset
 from plant.plant import Plant
 from tests.plant_helpers import fish, straight_line
 
-from fishfmu.runner import run_scenario
-from fishfmu.scenario import load_scenario
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"
@@ -67,7 +67,7 @@ def test_failing_fmu_in_process_stops_the_run_naming_fmu_time_and_status(faulty_
 
 def _worker_processes() -> list[psutil.Process]:
     return [p for p in psutil.Process().children(recursive=True)
-            if "fishfmu.fmu_worker" in " ".join(p.cmdline())]
+            if "fishfmu.fmu.worker" in " ".join(p.cmdline())]
 
 
 @pytest.mark.parametrize("fault", [1, 2, 3, 4], ids=["error", "fatal", "hang", "crash"])
@@ -102,7 +102,7 @@ def write_scenario(path: Path, overrides: dict) -> Path:
 
     import tomli_w
 
-    from fishfmu.scenario import set_dotted
+    from fishfmu.scenario.schema import set_dotted
     data = tomllib.loads(PAPER.read_text())
     for key, value in overrides.items():
         set_dotted(data, key, value)
@@ -201,7 +201,7 @@ def test_energy_watch_stays_far_from_its_reserve_in_the_shipped_scenarios(name: 
                                                                           builtin_fmus) -> None:
     overrides: dict = {"run.seed": seed}
     if name == "user_fmu":
-        from fishfmu.fmu_build import build_fmu
+        from fishfmu.fmu.build import build_fmu
         overrides["fmu[1].path"] = str(build_fmu("conveyor_drive", tmp_path, {"rated_power": 370.0,
                                                                              "gear_ratio": 10.0,
                                                                              "ramp_acceleration": 0.5}))

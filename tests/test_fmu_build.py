@@ -16,9 +16,9 @@ from fmpy import read_model_description
 from fmpy.validation import validate_fmu
 from typer.testing import CliRunner
 
-from fishfmu import fmu_build
+from fishfmu.fmu import build as fmu_build
 from fishfmu.cli import app
-from fishfmu.fmu_build import BUILTIN_FMUS, build_fmu, fmu_guid, source_digest
+from fishfmu.fmu.build import BUILTIN_FMUS, build_fmu, fmu_guid, source_digest
 from tests.fmu_helpers import start_slave
 
 
@@ -98,7 +98,7 @@ def test_guid_is_stable_and_follows_the_sources(tmp_path: Path, monkeypatch: pyt
 
 def test_cache_is_filled_once_by_two_processes_at_once(tmp_path: Path) -> None:
     env = {**os.environ, "FISHFMU_CACHE": str(tmp_path / "cache")}
-    code = "from fishfmu.fmu_build import builtin_fmu; print(builtin_fmu('singulation_controller'))"
+    code = "from fishfmu.fmu.build import builtin_fmu; print(builtin_fmu('singulation_controller'))"
     procs = [subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True, cwd=Path(__file__).parents[1]) for _ in range(2)]
     results = [proc.communicate(timeout=300) for proc in procs]

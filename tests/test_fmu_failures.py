@@ -28,7 +28,7 @@ from plant.errors import InputError
 from plant.measured import read_dataset
 from tests.test_faults import PAPER, faulty_overrides, write_scenario
 
-from fishfmu.fmu_files import open_fmu
+from fishfmu.fmu.archive import open_fmu
 
 
 
@@ -141,8 +141,8 @@ def test_library_is_checked_again_right_before_loading(tmp_path: Path, builtin_f
     import copy
     import dataclasses
 
-    from fishfmu.fmu_instance import FmuInstance
-    from fishfmu.fmu_worker import WorkerFmu
+    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.worker import WorkerFmu
     evil, marker = evil_library
     with open_fmu(builtin_fmus["conveyor_drive"]) as fmu:
         binary = fmu.unzip_dir / "binaries" / "linux64" / "conveyor_drive.so"
@@ -229,9 +229,9 @@ def test_fmu_failing_while_initialised_fails_the_run_with_outputs(faulty_fmu: Pa
     written like any failed run; the run's files hold the line as it was at t = 0."""
     from plant.errors import SimulationError
 
-    from fishfmu import runner
-    from fishfmu.outputs import write_outputs
-    from fishfmu.scenario import load_scenario
+    from fishfmu.cosim import runner
+    from fishfmu.output.run_folder import write_outputs
+    from fishfmu.scenario.schema import load_scenario
 
     message = "FMU 'drive_c1': exitInitializationMode returned error: \"motor not configured\""
 
@@ -295,7 +295,7 @@ def test_folder_or_fifo_as_fmu_says_what_it_is_and_never_blocks(tmp_path: Path) 
 # ---------------------------------------------------------------- 5. the FMU's log in the error
 
 def test_log_message_is_one_line_and_bounded() -> None:
-    from fishfmu.fmu_instance import LOG_LINES, LOG_MESSAGE_CHARS, FmuLog
+    from fishfmu.fmu.instance import LOG_LINES, LOG_MESSAGE_CHARS, FmuLog
     log = FmuLog()
     for k in range(3 * LOG_LINES):
         log.add(0, b"logEvents", f"step {k}".encode())
@@ -313,8 +313,8 @@ def test_log_message_is_one_line_and_bounded() -> None:
 # ---------------------------------------------------------------- 6. Booleans and Strings
 
 def test_booleans_come_out_of_an_fmu_as_bool_in_process_and_in_a_worker(builtin_fmus) -> None:
-    from fishfmu.fmu_instance import FmuInstance
-    from fishfmu.fmu_worker import WorkerFmu
+    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.worker import WorkerFmu
     with open_fmu(builtin_fmus["singulation_controller"]) as fmu:
         for instance in (FmuInstance("c", fmu, {}), WorkerFmu("c", fmu, {})):
             try:
@@ -329,8 +329,8 @@ def test_booleans_come_out_of_an_fmu_as_bool_in_process_and_in_a_worker(builtin_
 
 def test_strings_pass_as_str_and_booleans_as_bool(builtin_fmus) -> None:
     """fmpy's getString gives bytes and getBoolean C ints; an FMU instance gives str and bool."""
-    from fishfmu.fmu_files import FmuVariable
-    from fishfmu.fmu_instance import FmuInstance
+    from fishfmu.fmu.archive import FmuVariable
+    from fishfmu.fmu.instance import FmuInstance
 
     class Slave:  # stands in for fmpy's FMU2Slave
         def __init__(self) -> None:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from fishfmu.fmu_files import OpenedFmu, open_fmu, require_variables
+from fishfmu.fmu.archive import OpenedFmu, open_fmu, require_variables
 from plant.errors import InputError
 
 

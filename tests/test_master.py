@@ -13,9 +13,9 @@ import pytest
 from plant.errors import InputError, SimulationError
 from plant.plant import PlantOutputs
 
-from fishfmu.master import CoSimulation
-from fishfmu.scenario import Event
-from fishfmu.wiring import PLANT, Connection, Port, Wiring, _topological, direct_feedthrough
+from fishfmu.cosim.master import CoSimulation
+from fishfmu.scenario.schema import Event
+from fishfmu.scenario.wiring import PLANT, Connection, Port, Wiring, _topological, direct_feedthrough
 
 DT = 0.25
 

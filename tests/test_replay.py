@@ -19,11 +19,11 @@ from plant.measured import read_dataset
 from plant.state import FishStatus
 
 from fishfmu.cli import app
-from fishfmu.outputs import prepare_out_dir, write_outputs
-from fishfmu.replay import (belt_travel, decode_ints, encode_ints, hold_hidden, read_header, unpack,
+from fishfmu.output.run_folder import prepare_out_dir, write_outputs
+from fishfmu.output.replay import (belt_travel, decode_ints, encode_ints, hold_hidden, read_header, unpack,
                             write_replay)
-from fishfmu.runner import run_scenario
-from fishfmu.scenario import load_scenario
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import load_scenario
 
 from tests.chromium import CHROMIUM, Browser
 

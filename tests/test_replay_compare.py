@@ -21,9 +21,9 @@ from plant.line import KpiSettings
 from plant.measured import Dataset, Run, read_dataset, write_dataset
 from plant.simulate import simulate_plant
 
-from fishfmu.compare import compare_dataset, write_comparison
-from fishfmu.replay import read_header, unpack
-from fishfmu.resim import resimulate
+from fishfmu.analysis.compare import compare_dataset, write_comparison
+from fishfmu.output.replay import read_header, unpack
+from fishfmu.analysis.resim import resimulate
 
 from tests.chromium import CHROMIUM, Browser
 from tests.plant_helpers import fish, straight_line

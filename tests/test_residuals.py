@@ -1,4 +1,4 @@
-"""Fast tests of fishfmu.residuals on small hand-made frames (issue 14).
+"""Fast tests of fishfmu.analysis.residuals on small hand-made frames (issue 14).
 
 Every frame here has a few rows built in the test; the expected values are worked out by hand in
 the comments.  The slow hidden-effect tests cover the same functions end to end.
@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from fishfmu.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
+from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed, drive_residuals,
                                drive_residuals_averaged, pair_residuals, track_errors, typed_frame)
 from plant.line import Line

@@ -8,7 +8,7 @@ import pytest
 
 from plant.errors import InputError
 
-from fishfmu.scenario import load_scenario, parse_value, resolved_toml
+from fishfmu.scenario.schema import load_scenario, parse_value, resolved_toml
 
 SCENARIOS = Path(__file__).parents[1] / "scenarios"
 PAPER = SCENARIOS / "paper_test.toml"

@@ -23,7 +23,7 @@ from hypothesis import strategies as st
 
 from plant.errors import InputError
 
-from fishfmu.scenario import Scenario, load_scenario
+from fishfmu.scenario.schema import Scenario, load_scenario
 
 ROOT = Path(__file__).parents[1]
 SHIPPED = {p.name: tomllib.loads(p.read_text()) for p in sorted((ROOT / "scenarios").glob("*.toml"))}
@@ -67,8 +67,8 @@ def _loads_or_input_error(path: Path, overrides: dict[str, Any] | None = None) -
 @pytest.fixture(scope="module")
 def builtin_variables(builtin_fmus: dict[str, Path]):
     """Variables and direct-feedthrough outputs of each built-in FMU (opened once)."""
-    from fishfmu.fmu_files import open_fmu
-    from fishfmu.wiring import direct_feedthrough
+    from fishfmu.fmu.archive import open_fmu
+    from fishfmu.scenario.wiring import direct_feedthrough
     out = {}
     for name, path in builtin_fmus.items():
         with open_fmu(path) as fmu:
@@ -77,7 +77,7 @@ def builtin_variables(builtin_fmus: dict[str, Path]):
 
 
 def _wires_or_input_error(sc: Scenario, path: Path, builtin_variables) -> None:
-    from fishfmu.wiring import resolve_wiring
+    from fishfmu.scenario.wiring import resolve_wiring
     if any(f.builtin is None for f in sc.fmu):
         return  # FMUs by path: their files are the FMU corpus's business (test_bad_input)
     variables = {f.name: builtin_variables[f.builtin][0] for f in sc.fmu}

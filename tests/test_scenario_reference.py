@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from fishfmu.scenario_reference import COMMAND, scenario_reference
+from fishfmu.scenario.reference import COMMAND, scenario_reference
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = sorted((ROOT / "scenarios").glob("*.toml"))

@@ -16,8 +16,8 @@ import pytest
 from plant.kpis import KPI_KEYS, KPIS, SHOWN_KPI_KEYS, kpi_keys, kpis_from_passages
 from plant.validation import suggest
 
-from fishfmu.outputs import MARKER, json_safe, junit_args_of_run, write_junit, write_run_info
-from fishfmu.runner import ExpectResult
+from fishfmu.output.run_folder import MARKER, json_safe, junit_args_of_run, write_junit, write_run_info
+from fishfmu.cosim.runner import ExpectResult
 
 
 # ----------------------------------------------------------------------------- KPI keys
@@ -32,7 +32,9 @@ def test_kpi_keys_are_what_the_computation_returns_in_its_order() -> None:
 
 
 def test_every_list_of_kpis_comes_from_plant_kpis() -> None:
-    from fishfmu import compare, scenario, sweep, sweep_report
+    from fishfmu.analysis import compare
+    from fishfmu.batch import sweep, sweep_report
+    from fishfmu.scenario import schema as scenario
     assert scenario.KPI_KEYS is KPI_KEYS and sweep.KPI_KEYS is KPI_KEYS
     assert sorted(SHOWN_KPI_KEYS) == sorted(KPI_KEYS)
     assert SHOWN_KPI_KEYS[-3:] == ("gap_min_m", "gap_p10_m", "gap_median_m")  # by quantile, for a person
@@ -108,7 +110,7 @@ def test_json_safe() -> None:
 
 
 def test_run_info_is_written_json_safe_and_kept_by_mark_partial(tmp_path) -> None:
-    from fishfmu.interrupt import mark_partial
+    from fishfmu.cosim.interrupt import mark_partial
     write_run_info(tmp_path, "running", command="sweep", n_done=np.int64(4), wall_s=float("nan"))
     assert json.loads((tmp_path / MARKER).read_text()) == {"status": "running", "command": "sweep", "n_done": 4,
                                                            "wall_s": None}

@@ -16,10 +16,10 @@ import pytest
 
 from plant.errors import InputError
 
-from fishfmu.engine import scalar_kpis
-from fishfmu.scenario import KPI_KEYS
-from fishfmu.stats import mean_ci, summarise, wilson_interval
-from fishfmu.sweep import make_spec, run_sweep
+from fishfmu.batch.engine import scalar_kpis
+from fishfmu.scenario.schema import KPI_KEYS
+from fishfmu.batch.stats import mean_ci, summarise, wilson_interval
+from fishfmu.batch.sweep import make_spec, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"
@@ -45,8 +45,8 @@ def cluster(tmp_path_factory: pytest.TempPathFactory, builtin_fmus: dict[str, Pa
 
 
 def test_sweep_on_cluster_gives_the_same_kpis_as_runs_one_by_one(cluster, tmp_path: Path) -> None:
-    from fishfmu.runner import run_scenario
-    from fishfmu.scenario import load_scenario
+    from fishfmu.cosim.runner import run_scenario
+    from fishfmu.scenario.schema import load_scenario
     params = {"fmu[0].parameters.speed_1": [0.35, 0.45], "fish.length_mean_m": [0.55, 0.65]}
     spec = make_spec(PAPER, params, 2, SMALL)
     res = run_sweep(spec, tmp_path / "sweep", scheduler=cluster.address)
@@ -111,7 +111,7 @@ def test_worker_without_fmu_cache_gets_the_clients_fmus_and_does_not_compile(clu
                                                                              builtin_fmus: dict[str, Path]) -> None:
     from distributed import Client
 
-    from fishfmu.fmu_build import source_digest
+    from fishfmu.fmu.build import source_digest
     with Client(cluster.address) as client:  # the workers' cmake is the fake one: a build would be seen
         assert set(client.run(shutil.which, "cmake").values()) == {str(cluster.marker.parent / "cmake")}
     res = run_sweep(make_spec(PAPER, {}, 2, SHORT), tmp_path / "sweep", scheduler=cluster.address, plots=False)
@@ -175,7 +175,7 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
 
 @pytest.mark.bench
 def test_bench_runs_per_minute_with_one_and_two_workers(tmp_path: Path) -> None:
-    from fishfmu.sweep_bench import bench
+    from fishfmu.bench.sweep import bench
     doc = bench(PAPER, n_runs=4, workers=(1, 2), fixed=SMALL)
     (tmp_path / "sweep_bench.json").write_text(json.dumps(doc, indent=2))
     one, two = doc["results"]

@@ -8,9 +8,9 @@ import pytest
 
 from plant.errors import InputError
 
-from fishfmu.fmu_files import FmuVariable
-from fishfmu.scenario import load_scenario
-from fishfmu.wiring import resolve_wiring
+from fishfmu.fmu.archive import FmuVariable
+from fishfmu.scenario.schema import load_scenario
+from fishfmu.scenario.wiring import resolve_wiring
 
 PAPER = Path(__file__).parents[1] / "scenarios" / "paper_test.toml"
 

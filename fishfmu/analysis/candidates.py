@@ -1,0 +1,229 @@
+"""The candidate causes ``fishfmu diagnose`` can name: a registry, one entry per cause.
+
+Each entry (a :class:`Candidate`) is everything the diagnosis knows about a cause: the parameters
+it fits and their values to try, how it sets them in the plant parameters (or the drive FMUs'),
+which test of the baseline residuals is its evidence (:mod:`fishfmu.analysis.evidence`), which residuals
+each parameter is fitted on, and how :mod:`fishfmu.analysis.synthetic` hides it in a test dataset.  The
+scenario fragment of a fitted value is written from what the entry sets, so the two cannot
+disagree.  Adding a cause is adding an entry to :data:`CANDIDATES`; its order is the order of the
+evidence table before sorting (and so of ties).
+
+The identifiers are the ones ``diagnosis.json`` reports as ``cause``:
+
+================== ====================================================================================
+``belt_friction``  the fish-belt friction coefficient is off (a calibration, not a new effect)
+``direction_friction`` friction depends on the direction a fish slips: head first, tail first, across
+``mucus_friction`` friction on belts changes with hours post mortem
+``rigor_mortis``   joints stiffen and their range shrinks with rigor (hours post mortem)
+``adhesion``       touching fish stick together
+``drive_droop``    the belts slow down under load more than the drive model says (belt creep)
+``none``           no candidate explains the data clearly better than noise
+================== ====================================================================================
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from plant.extensions import MucusFriction, RigorMortis
+from plant.params import PlantParams
+
+from fishfmu.analysis.evidence_base import DriveSlope, HeadingSlope, PairSeparation, RunLevelShape, constant
+
+_RIGOR = RigorMortis()
+_MUCUS = MucusFriction()
+
+
+def rigor_index(hours: np.ndarray) -> np.ndarray:
+    """How far rigor has set in (0..1, 1 at its peak) at the plant's default onset and duration."""
+    return np.exp(-(((np.asarray(hours, dtype=float) - _RIGOR.peak_h) / _RIGOR.width_h) ** 2))
+
+
+def mucus_index(hours: np.ndarray) -> np.ndarray:
+    """How far the mucus has dried (0 fresh, towards 1) at the plant's default time constant."""
+    return 1.0 - np.exp(-np.asarray(hours, dtype=float) / _MUCUS.time_constant_h)
+
+
+def rigor_limit_loss(stiffness_gain: float) -> float:
+    """One strength for both effects of rigor: the fraction of joint range lost at full rigor that goes with
+    a stiffness of (1 + ``stiffness_gain``) x the soft one."""
+    return 0.6 * stiffness_gain / (stiffness_gain + 3.0)
+
+
+# ---------------------------------------------------------------- what each candidate sets (fitted values)
+def _belt_friction(p: PlantParams, multiplier: float) -> None:
+    p.friction.fish_belt = p.friction.fish_belt * multiplier
+
+
+def _direction(p: PlantParams, head: float, tail: float) -> None:
+    d = p.extensions.direction_friction
+    d.head, d.tail = head, tail
+    d.across = 0.5 * (d.head + d.tail)
+
+
+def _mucus(p: PlantParams, gain: float) -> None:
+    p.extensions.mucus_friction.gain = gain
+
+
+def _rigor(p: PlantParams, stiffness_gain: float) -> None:
+    p.extensions.rigor_mortis.stiffness_gain = stiffness_gain
+    p.extensions.rigor_mortis.limit_loss = rigor_limit_loss(stiffness_gain)
+
+
+def _adhesion(p: PlantParams, force_n: float) -> None:
+    p.extensions.adhesion.force_n = force_n
+
+
+def _belt_slip(drive: dict[str, float], belt_slip: float) -> None:
+    drive["belt_slip"] = belt_slip
+
+
+# ---------------------------------------------------------------- the hidden effects of synthetic datasets
+# (strength 1: clearly visible; deliberately not the fitted family itself, e.g. rigor's range loss)
+def _hide_direction(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.direction_friction.head = 1.0 - 0.45 * s
+    p.extensions.direction_friction.tail = 1.0 + 0.3 * s
+
+
+def _hide_mucus(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.mucus_friction.gain = -0.5 * s
+
+
+def _hide_rigor(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.rigor_mortis.stiffness_gain = 15.0 * s
+    p.extensions.rigor_mortis.limit_loss = min(0.8, 0.7 * s)
+
+
+def _hide_adhesion(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.adhesion.force_n = 6.0 * s
+
+
+def _hide_droop(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    drive["belt_slip"] = 4e-4 * s
+
+
+Group = Literal["head_first", "tail_first", "pairs"] | None
+"""Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.diagnose.RunResiduals.squares`):
+None all (lags of fish alone and pairs), ``head_first`` / ``tail_first`` lags of fish riding that way,
+``pairs`` the extra separation of close pairs."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One candidate cause (see the module docstring)."""
+
+    name: str
+    description: str
+    parameters: tuple[str, ...]
+    """Names of the fitted values (``diagnosis.json``'s ``parameters``), in the order ``apply`` takes them."""
+    unit: str
+    off: float
+    """The parameter value with the effect switched off."""
+    grid: tuple[float, ...]
+    """Values simulated when fitting (besides ``off``); the fit interpolates between them.  A single value
+    sets every parameter.  Empty: fitted without simulation (drive candidates, from the drive residuals)."""
+    bounds: tuple[float, float]
+    acts_on: Literal["plant", "drive"]
+    """Plant candidates are fitted by re-simulating the runs; drive candidates from the drive residuals."""
+    apply: Callable[..., None]
+    """``apply(target, *values)``: writes the values into a PlantParams (plant) or a dict of parameters of
+    every conveyor_drive FMU (drive)."""
+    writes: tuple[str, ...]
+    """What ``apply`` writes: dotted paths in ``[plant]`` (plant) or drive FMU parameter names (drive); the
+    scenario fragment is these, read back after ``apply``."""
+    evidence: Callable
+    """Its test of the baseline residuals (one of :mod:`fishfmu.analysis.evidence`'s), ``(Residuals, rng) -> dict``."""
+    groups: tuple[Group, ...] = (None,)
+    """The residuals each parameter is fitted on (one per parameter)."""
+    synthetic: Callable[[PlantParams, dict[str, float], float], None] | None = None
+    """``synthetic(params, drive, strength)`` switches the effect on for a synthetic dataset (None: not one
+    of :data:`fishfmu.analysis.synthetic.EFFECTS`)."""
+
+    def __post_init__(self) -> None:
+        if len(self.groups) != len(self.parameters):
+            raise ValueError(f"candidate {self.name}: one fitting group per parameter")
+
+    @property
+    def simulated(self) -> bool:
+        return self.acts_on == "plant"
+
+    @property
+    def needs_pairs(self) -> bool:
+        """Fitted on close pairs only: simulating runs without touching fish tells nothing."""
+        return all(g == "pairs" for g in self.groups)
+
+    def _values(self, values: Sequence[float]) -> tuple[float, ...]:
+        values = tuple(values)
+        if len(values) == 1:
+            return values * len(self.parameters)
+        if len(values) != len(self.parameters):
+            raise ValueError(f"candidate {self.name}: values for {', '.join(self.parameters)}, got {len(values)}")
+        return values
+
+    def params(self, base: PlantParams, *values: float) -> PlantParams:
+        """A copy of ``base`` with the values set (unchanged for a drive candidate)."""
+        p = base.model_copy(deep=True)
+        if self.acts_on == "plant":
+            self.apply(p, *self._values(values))
+        return p
+
+    def drive_parameters(self, *values: float) -> dict[str, float]:
+        """Parameters of every conveyor_drive FMU with the values set (empty for a plant candidate)."""
+        drive: dict[str, float] = {}
+        if self.acts_on == "drive":
+            self.apply(drive, *self._values(values))
+        return drive
+
+    def fragment(self, values: dict[str, float], base: PlantParams) -> str:
+        """The fitted values as a scenario fragment (TOML) a user can keep."""
+        head = f"# fitted by fishfmu diagnose: {self.description}\n"
+        v = [values[k] for k in self.parameters]
+        if self.acts_on == "drive":
+            drive = self.drive_parameters(*v)
+            return head + "# in each conveyor_drive FMU instance:\n# [fmu.parameters]\n" + "".join(
+                f"# {k} = {drive[k]:.4g}\n" for k in self.writes)
+        p = self.params(base, *v)
+        tables: dict[str, list[str]] = {}
+        for path in self.writes:
+            *table, key = path.split(".")
+            obj = p
+            for part in path.split("."):
+                obj = getattr(obj, part)
+            tables.setdefault(".".join(["plant", *table]), []).append(f"{key} = {obj:.4g}\n")
+        return head + "".join(f"[{t}]\n" + "".join(lines) for t, lines in tables.items())
+
+
+CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
+    Candidate("belt_friction", "fish-belt friction coefficient (multiplier of the model's)", ("multiplier",), "x",
+              1.0, (0.7, 0.85, 1.15, 1.35), (0.3, 3.0), "plant", _belt_friction, ("friction.fish_belt",),
+              RunLevelShape(constant, varies=False)),
+    Candidate("direction_friction", "friction multipliers when slipping head first / tail first", ("head", "tail"),
+              "x", 1.0, (0.6, 0.8, 1.25, 1.6), (0.21, 2.9), "plant", _direction,
+              ("extensions.direction_friction.head", "extensions.direction_friction.tail",
+               "extensions.direction_friction.across"),
+              HeadingSlope(), groups=("tail_first", "head_first"),  # tail-first fish slip head first at a transfer
+              synthetic=_hide_direction),
+    Candidate("mucus_friction", "relative change of belt friction once the mucus has dried", ("gain",), "",
+              0.0, (-0.4, -0.2, 0.2, 0.4), (-0.8, 2.0), "plant", _mucus, ("extensions.mucus_friction.gain",),
+              RunLevelShape(mucus_index, label="mucus index"), synthetic=_hide_mucus),
+    Candidate("rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it)",
+              ("stiffness_gain",), "x", 0.0, (2.0, 5.0, 12.0), (0.0, 50.0), "plant", _rigor,
+              ("extensions.rigor_mortis.stiffness_gain", "extensions.rigor_mortis.limit_loss"),
+              RunLevelShape(rigor_index, label="rigor index"), synthetic=_hide_rigor),
+    Candidate("adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N",
+              0.0, (1.0, 3.0, 8.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
+              PairSeparation(), groups=("pairs",), synthetic=_hide_adhesion),
+    Candidate("drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N",
+              0.0, (), (0.0, 0.01), "drive", _belt_slip, ("belt_slip",), DriveSlope(), synthetic=_hide_droop),
+)}
+
+
+def fragment(name: str, values: dict[str, float], base: PlantParams) -> str:
+    """The fitted extension as a scenario fragment (TOML) a user can keep ("none": says there is none)."""
+    if name not in CANDIDATES:
+        return "# no extension: no candidate explains the data clearly better than noise\n"
+    return CANDIDATES[name].fragment(values, base)

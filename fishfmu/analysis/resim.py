@@ -1,0 +1,232 @@
+"""Re-simulating measured runs: the same line, fish, drops and belt speeds as measured.
+
+A measured run (contracts/measured-data.md) says which fish were dropped where and when and how
+fast each belt ran; :func:`resimulate` runs the plant with exactly that (belt surfaces follow the
+logged ``speed_mps``), so that what differs between the simulated and the measured run is the
+fish physics.  The side a fish lands on is not measured: it is drawn from a seed made of the run
+id, so every re-simulation of a run (with any model variant) uses the same draw.
+
+:func:`drive_check` runs the conveyor-drive FMU alone on the logged setpoints and the belt loads
+of the re-simulation, to compare the drive model with the logged belt speeds.
+
+Runs are independent: :func:`resimulate_many` spreads them over worker processes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from plant.errors import InputError
+from plant.line import Line
+from plant.measured import MAX_RESIM_S, Run
+from plant.params import PlantParams
+from plant.population import fish_from_frame
+from plant.simulate import SimulatedRun, simulate_plant
+
+
+@dataclass
+class Resim:
+    """One re-simulated run: the simulated tables (measured-data format) and the belt loads."""
+
+    run_id: str
+    sim: SimulatedRun
+    loads: pd.DataFrame
+    """t_s, conveyor_id, load_force_n, load_mass_kg at every communication step."""
+    error: str | None = None
+
+
+def run_seed(run_id: str, seed: int = 0) -> int:
+    return int.from_bytes(hashlib.sha256(f"{run_id}:{seed}".encode()).digest()[:4], "little")
+
+
+def belt_speed_function(belts: pd.DataFrame, conveyor_ids: list[str]):
+    """Belt speeds at time t, linearly interpolated from the drive log (held before/after it)."""
+    tables = {}
+    for cid in conveyor_ids:
+        b = belts[belts["conveyor_id"] == cid]
+        tables[cid] = (b["t_s"].to_numpy(float), b["speed_mps"].to_numpy(float)) if len(b) else (np.array([0.0]),
+                                                                                                 np.array([0.0]))
+
+    def speeds(t: float) -> dict[str, float]:
+        return {cid: float(np.interp(t, ts, vs)) for cid, (ts, vs) in tables.items()}
+
+    return speeds
+
+
+def run_duration_s(run: Run) -> float:
+    """Long enough for everything the run measured, plus a little."""
+    ends = [float(run.fish["drop_t_s"].max())]
+    if len(run.tracks):
+        ends.append(float(run.tracks["t_s"].max()))
+    if len(run.photoeyes):
+        ends.append(float(run.photoeyes["t_off_s"].max()))
+    return max(ends) + 1.0
+
+
+def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: int = 0,
+               duration_s: float | None = None, record_poses: bool = False) -> Resim:
+    """The plant with the run's fish, drops and logged belt speeds.  ``record_poses``: also keep every
+    body's pose at 25 Hz in ``sim.poses`` (for a 3D replay of the comparison; off by default, since
+    diagnose re-simulates each run many times)."""
+    params = params or PlantParams()
+    duration_s = duration_s or run_duration_s(run)
+    if not duration_s <= MAX_RESIM_S:  # the reader refuses such runs; this guards runs made in code
+        raise InputError(f"run '{run.id}': re-simulating it would take {duration_s:g} s of simulated time, more than "
+                         f"the limit of {MAX_RESIM_S:g} s per re-simulation")
+    unlogged = sorted({c.id for c in line.conveyors} - set(run.belts["conveyor_id"].unique()))
+    if unlogged:
+        raise InputError(f"run '{run.id}': no belt speeds logged for conveyor(s) {', '.join(unlogged)}: every "
+                         "conveyor of the line must be in belts.csv")
+    rng = np.random.default_rng(run_seed(run.id, seed))
+    fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
+    speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
+    loads: list[tuple] = []
+
+    def log_loads(plant) -> None:
+        out = plant.state.outputs
+        for cid in plant.conveyor_ids:
+            loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
+
+    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params,
+                         stop_when_clear=True, on_step=log_loads, record_poses=record_poses)
+    return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
+
+
+def not_resimulated(run: Run, error: str) -> Resim:
+    """A run whose re-simulation failed or did not happen: empty tables and the reason."""
+    empty = SimulatedRun(run.fish, run.tracks.iloc[0:0], run.photoeyes.iloc[0:0], run.belts.iloc[0:0], 0.0, 0.0)
+    return Resim(run.id, empty, pd.DataFrame(columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]), error)
+
+
+def _task(args: tuple) -> Resim:
+    line, run, params, seed, record_poses = args
+    from plant.errors import SimulationError
+    try:
+        return resimulate(line, run, params, seed, record_poses=record_poses)
+    except SimulationError as exc:
+        return not_resimulated(run, str(exc))
+
+
+def _ignore_sigint() -> None:
+    """Pool workers leave Ctrl-C (sent to the whole process group) to the parent, which stops them."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
+    """Worker processes to keep for several :func:`resimulate_many` calls (each new process pays for
+    importing Exudyn); None when one process is asked for.  End it with :func:`stop_pool` (which,
+    unlike ``shutdown``, does not wait for re-simulations still running)."""
+    workers = max(1, workers or os.cpu_count() or 1)
+    if workers == 1:
+        return None
+    import multiprocessing
+    return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_ignore_sigint)
+
+
+def stop_pool(pool: ProcessPoolExecutor | None, grace_s: float = 2.0) -> None:
+    """Cancel what has not started, terminate the worker processes (a running re-simulation is not
+    waited for) and shut the pool down; its processes are gone when this returns."""
+    if pool is None:
+        return
+    procs = list((getattr(pool, "_processes", None) or {}).values())  # no public way before Python 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(grace_s)
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+
+
+def _cost(run: Run) -> float:
+    """Rough cost of re-simulating a run (fish x seconds), to start the longest first."""
+    return len(run.fish) * run_duration_s(run)
+
+
+def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
+                    seed: int = 0, pool: ProcessPoolExecutor | None = None,
+                    record_poses: bool = False) -> list[Resim]:
+    """Re-simulate runs (each with its own parameters) in parallel processes, results in input order.
+
+    With ``pool`` (from :func:`resim_pool`) its processes are used; otherwise a pool of ``workers``
+    lives for this call.  The longest runs start first, so that workers finish together.
+    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
+    tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
+    from fishfmu.cosim.interrupt import STOPS, deferred_signals
+    done: list[Resim | None] = [None] * len(tasks)
+    if pool is None:
+        workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+        if workers == 1 or len(tasks) == 1:
+            try:
+                for i, t in enumerate(tasks):
+                    done[i] = _task(t)
+            except STOPS as exc:
+                exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
+                raise
+            return done  # type: ignore[return-value]
+        own = resim_pool(workers)
+        try:
+            result = resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses)
+        except BaseException:
+            stop_pool(own)  # a signal or an error: no worker outlives the call, none is waited for
+            raise
+        own.shutdown()
+        return result
+    order = sorted(range(len(tasks)), key=lambda i: -_cost(tasks[i][1]))
+    futures = {}
+    try:
+        with deferred_signals():  # the pool starts its processes here: they must not see a Ctrl-C while starting
+            futures.update({i: pool.submit(_task, tasks[i]) for i in order})
+        for i in range(len(tasks)):
+            done[i] = futures[i].result()
+    except STOPS as exc:
+        for i, f in futures.items():
+            f.cancel()
+            if done[i] is None and f.done() and not f.cancelled() and f.exception() is None:
+                done[i] = f.result()
+        exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
+        raise
+    return done  # type: ignore[return-value]
+
+
+def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:
+    """The built-in drive FMU on this belt's logged setpoints and simulated loads.
+
+    Returns t_s, setpoint_mps, measured_mps, model_mps, load_force_n at the drive-log times.
+    """
+    from fishfmu.fmu.build import builtin_fmu
+    from fishfmu.fmu.archive import open_fmu
+    from fishfmu.fmu.instance import FmuInstance
+    b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
+    if len(b) < 2:
+        return pd.DataFrame({c: pd.Series(dtype=float)
+                             for c in ("t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n")})
+    t = b["t_s"].to_numpy(float)
+    sp = b["setpoint_mps"].to_numpy(float)
+    measured = b["speed_mps"].to_numpy(float)
+    ld = loads[loads["conveyor_id"] == conveyor_id]
+    force = np.interp(t, ld["t_s"].to_numpy(float), ld["load_force_n"].to_numpy(float)) if len(ld) else np.zeros_like(t)
+    params = {"initial_belt_speed": float(np.clip(measured[0], -2.0, 2.0)), **(drive_parameters or {})}
+    model = np.empty_like(t)
+    with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
+        drive = FmuInstance(f"drive_{conveyor_id}", fmu, params, start_time_s=float(t[0]))
+        try:
+            model[0] = drive.get(["belt_speed"])["belt_speed"]
+            for i in range(1, len(t)):
+                drive.set({"speed_setpoint": float(np.clip(sp[i - 1], -2.0, 2.0)), "load_force": float(force[i - 1])})
+                drive.do_step(float(t[i - 1]), float(t[i] - t[i - 1]))
+                model[i] = drive.get(["belt_speed"])["belt_speed"]
+        finally:
+            drive.terminate()
+    return pd.DataFrame({"t_s": t, "setpoint_mps": sp, "measured_mps": measured, "model_mps": model,
+                         "load_force_n": force})

@@ -1,0 +1,1 @@
+"""Many runs: Dask execution, several seeds of one scenario, parameter sweeps, and their statistics."""

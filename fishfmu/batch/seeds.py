@@ -1,0 +1,122 @@
+"""``fishfmu run SCENARIO --seeds N``: one scenario over N fish batches, KPIs as mean and CI.
+
+The N runs are a sweep without parameters (same engine, same seeds rule: ``run.seed`` .. +N-1).
+The output folder holds ``kpis.json`` (each KPI's mean as a plain number, as for a single run,
+plus ``statistics`` per KPI and ``expect``), ``run_info.json``, and the sweep itself in
+``seeds/`` (``runs.csv``, ``summary.csv``, ...).
+
+Exit code, as ``fishfmu run``: 3 when any seed's run failed, else 1 when an ``[expect]`` bound
+fails **on the mean over seeds** (not on single runs, nor on the interval), else 0.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
+from plant.kpis import KPI_KEYS, SHOWN_KPI_KEYS
+
+from fishfmu.cosim.results import ExpectResult
+from fishfmu.scenario.schema import load_scenario
+from fishfmu.batch.sweep import SweepResult, make_spec, run_sweep
+from fishfmu.terminal import console as literal_console, labelled, outcome
+
+
+@dataclass
+class SeedsResult:
+    """The statistics of one scenario over seeds, and its [expect] bounds checked on the means."""
+
+    sweep: SweepResult
+    statistics: pd.Series
+    """the sweep's single summary row (see :func:`fishfmu.batch.stats.summarise`)"""
+    expect: list[ExpectResult]
+
+    @property
+    def n_failed(self) -> int:
+        return int(self.statistics["n_failed"])
+
+    @property
+    def exit_code(self) -> int:
+        if self.sweep.interrupted:
+            return self.sweep.exit_code_interrupted  # 130 / 143: partial results
+        if self.n_failed:
+            return EXIT_SIMULATION_FAILED
+        return EXIT_OK if all(e.ok for e in self.expect) else EXIT_EXPECT_FAILED
+
+
+def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,
+              scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
+    """Run the scenario for ``n_seeds`` seeds into ``out_dir`` (already prepared) and write its KPIs."""
+    from fishfmu.output.run_folder import json_safe, write_json_atomic, write_run_info
+    sc = load_scenario(scenario, overrides)
+    spec = make_spec(scenario, {}, n_seeds, overrides)
+    t0 = time.perf_counter()
+    write_run_info(out_dir, "running", seeds=spec.seeds)  # marks the folder ours
+    sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
+    if sweep.summary.empty:
+        if sweep.interrupted:  # stopped before any run finished: nothing to average, the folder says so
+            from fishfmu.cosim.interrupt import Interrupted
+            write_run_info(out_dir, "partial", seeds=spec.seeds, n_ok=0, n_failed=0,
+                           stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name,
+                           wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
+            raise Interrupted(sweep.exit_code_interrupted - 128)
+        raise InputError("no run finished", file=scenario)
+    stats = sweep.summary.iloc[0]
+    expect = [ExpectResult(k, _mean(stats, k), b.min, b.max) for k, b in sc.expect.items()]
+    result = SeedsResult(sweep, stats, expect)
+    status = "partial" if sweep.interrupted else ("failed" if result.n_failed else "ok")
+    doc: dict[str, Any] = {k: _mean(stats, k) for k in KPI_KEYS}
+    doc.update(status=status, seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed, errors=stats["errors"],
+               statistics={k: {f: stats[f"{k}_{f}"] for f in ("n", "n_undefined", "mean", "sd", "ci_low", "ci_high")}
+                           for k in KPI_KEYS},
+               singulation_rate_pooled={f: stats.get(f"singulation_rate_{f}") for f in ("pooled", "wilson_low",
+                                                                                        "wilson_high")},
+               expect={e.kpi: {"value": e.value, "min": e.min, "max": e.max, "ok": e.ok, "on": "mean over seeds"}
+                       for e in expect})
+    write_json_atomic(out_dir / "kpis.json", json_safe(doc))
+    write_run_info(out_dir, status, seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed,
+                   stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name if sweep.interrupted else None,
+                   wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
+    return result
+
+
+def _mean(stats: pd.Series, kpi: str) -> float | None:
+    v = stats.get(f"{kpi}_mean")
+    return None if v is None or v != v else float(v)
+
+
+def write_junit_means(result: SeedsResult, path: Path, scenario_file: str) -> None:
+    """Each [expect] bound, checked on the mean over seeds, as a JUnit test case."""
+    from fishfmu.output.run_folder import write_junit
+    write_junit(path, f"fishfmu:{Path(scenario_file).stem}:seeds", "fishfmu.seeds", result.expect, on="mean",
+                error=(f"{result.n_failed} runs failed", str(result.statistics["errors"])) if result.n_failed else None)
+
+
+def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, junit: Path | None,
+                      scheduler: str | None, workers: int | None, progress: bool) -> int:
+    """What ``fishfmu run --seeds N`` does after preparing the folder; returns the exit code."""
+    result = run_seeds(scenario, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers, progress=progress)
+    from fishfmu.batch.sweep_report import print_statistics
+    console = literal_console()
+    seeds = result.sweep.runs["seed"]
+    print_statistics(result.statistics, SHOWN_KPI_KEYS, console,
+                     f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
+                     f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), "
+                     f"{result.sweep.wall_s:.0f} s")
+    if result.n_failed:
+        console.print(labelled("failed runs:", result.statistics['errors'], "red"))
+    for e in result.expect:
+        console.print(outcome(e.ok, "mean " + e.message))
+    if junit is not None:
+        write_junit_means(result, junit, str(scenario))
+    if result.sweep.interrupted:
+        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.exit_code_interrupted - 128).name}; the "
+                               "statistics cover the runs that finished (run_info.json: partial)", "yellow"))
+    console.print(f"outputs: {out_dir}")
+    return result.exit_code

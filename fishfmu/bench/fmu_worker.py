@@ -1,0 +1,131 @@
+"""What running FMUs in worker processes costs per communication step.
+
+    python -m fishfmu.bench.fmu_worker                     # paper scenario's 5 FMUs, no fish, 2000 steps x 3
+    python -m fishfmu.bench.fmu_worker --with-fish         # also the whole paper test, in-process vs worker
+
+The same scenario runs with ``run.fmu_process = "in-process"`` and ``"worker"``.  Every FMU call
+(``set``, ``do_step``, ``get``) is timed, so the cost of isolation is measured directly: the time
+the master spends in FMU calls per step, worker minus in-process, for all FMUs and per FMU, plus the
+start-up (one interpreter per FMU).  Without fish the plant costs little, so the wall time per step
+shows the same difference.  ``--with-fish`` runs the paper test as shipped (18 fish) in both modes
+to put the cost next to a real plant step.  Results go to ``bench-results/fmu_worker_bench.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import time
+from pathlib import Path
+from typing import Any
+
+NO_FISH = {"fish.count": 1, "fish.first_drop_s": 3600.0, "run.stop_when_clear": False, "expect": {}}
+
+
+class _Timed:
+    """An FMU (in-process or worker) whose calls add their wall time to a clock; ``clock[1]`` is the
+    clock's value at the first step (what came before is start-up: instantiation, initial outputs)."""
+
+    def __init__(self, fmu, clock: list) -> None:
+        self._fmu, self._clock = fmu, clock
+        self.name = fmu.name
+
+    def _timed(self, fn, *args):
+        t0 = time.perf_counter()
+        try:
+            return fn(*args)
+        finally:
+            self._clock[0] += time.perf_counter() - t0
+
+    def set(self, values):
+        return self._timed(self._fmu.set, values)
+
+    def do_step(self, t_s, dt_s):
+        if self._clock[1] is None:
+            self._clock[1] = self._clock[0]
+        return self._timed(self._fmu.do_step, t_s, dt_s)
+
+    def get(self, names):
+        return self._timed(self._fmu.get, names)
+
+    def terminate(self):
+        return self._fmu.terminate()
+
+
+def measure(scenario: str | Path, process: str, overrides: dict[str, Any]) -> dict[str, float]:
+    """One run: wall time per step, FMU-call time per step, set-up time."""
+    import fishfmu.cosim.runner as runner
+    from fishfmu.scenario.schema import load_scenario
+    sc = load_scenario(scenario, {**overrides, "run.fmu_process": process})
+    clock: list = [0.0, None]
+    original = runner._instantiate
+
+    def instantiate(*args, **kwargs):
+        return {n: _Timed(f, clock) for n, f in original(*args, **kwargs).items()}
+
+    runner._instantiate = instantiate
+    try:
+        t0 = time.perf_counter()
+        result = runner.run_scenario(sc)
+        total = time.perf_counter() - t0
+    finally:
+        runner._instantiate = original
+    if result.status != "ok":
+        raise RuntimeError(f"benchmark run failed: {result.error}")
+    steps = round(result.t_end_s / sc.run.comm_step_s)
+    return {"steps": steps, "fmus": len(sc.fmu), "wall_ms_per_step": 1e3 * result.wall_s / steps,
+            "fmu_ms_per_step": 1e3 * (clock[0] - (clock[1] or 0.0)) / steps, "setup_s": result.timings_s["setup"], "total_s": total}
+
+
+def bench(scenario: str | Path = "scenarios/paper_test.toml", steps: int = 2000, repeats: int = 3,
+          with_fish: bool = False) -> dict[str, Any]:
+    overrides = {**NO_FISH, "run.duration_s": steps * 0.01, "run.comm_step_s": 0.01}
+    runs: dict[str, list[dict[str, float]]] = {"in-process": [], "worker": []}
+    load_before = os.getloadavg()[0]
+    for _ in range(repeats):
+        for process in runs:  # interleaved, so that a change of machine load hits both alike
+            runs[process].append(measure(scenario, process, overrides))
+    med = {p: {k: statistics.median(r[k] for r in rs) for k in rs[0]} for p, rs in runs.items()}
+    n_fmus = med["worker"]["fmus"]
+    cost = med["worker"]["fmu_ms_per_step"] - med["in-process"]["fmu_ms_per_step"]
+    doc: dict[str, Any] = {
+        "scenario": str(scenario), "steps": steps, "repeats": repeats, "fmus": n_fmus,
+        "in_process": med["in-process"], "worker": med["worker"], "runs": runs,
+        "isolation_ms_per_step": round(cost, 4), "isolation_ms_per_fmu_step": round(cost / n_fmus, 4),
+        "wall_difference_ms_per_step": round(med["worker"]["wall_ms_per_step"] - med["in-process"]["wall_ms_per_step"], 4),
+        "worker_setup_s": round(med["worker"]["setup_s"] - med["in-process"]["setup_s"], 3),
+        "cores": os.cpu_count(), "machine": platform.processor() or platform.machine(),
+        "python": platform.python_version(), "load_average_before": round(load_before, 2),
+        "load_average_after": round(os.getloadavg()[0], 2)}
+    if with_fish:
+        doc["paper_test"] = {p: measure(scenario, p, {}) for p in ("in-process", "worker")}
+    return doc
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="scenarios/paper_test.toml")
+    ap.add_argument("--steps", type=int, default=2000, help="communication steps per run (no fish)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--with-fish", action="store_true", help="also the scenario as shipped, in both modes")
+    ap.add_argument("--out", type=Path, default=Path("bench-results/fmu_worker_bench.json"))
+    args = ap.parse_args()
+    doc = bench(args.scenario, args.steps, args.repeats, args.with_fish)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=2) + "\n")
+    ip, w = doc["in_process"], doc["worker"]
+    print(f"{doc['fmus']} FMUs, {doc['steps']} steps, median of {doc['repeats']}: FMU calls "
+          f"{ip['fmu_ms_per_step']:.3f} ms/step in-process, {w['fmu_ms_per_step']:.3f} ms/step in workers: isolation "
+          f"costs {doc['isolation_ms_per_step']:.3f} ms per step ({doc['isolation_ms_per_fmu_step']:.3f} ms per FMU "
+          f"and step), start-up {doc['worker_setup_s']:.2f} s")
+    for p, r in doc.get("paper_test", {}).items():
+        print(f"paper test as shipped, {p}: {r['wall_ms_per_step']:.2f} ms/step ({r['steps']} steps, "
+              f"FMU calls {r['fmu_ms_per_step']:.3f} ms/step)")
+    print(f"written: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

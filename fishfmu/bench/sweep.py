@@ -1,0 +1,67 @@
+"""Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers.
+
+    python -m fishfmu.bench.sweep --runs 8 --workers 1 2          # paper scenario, seeds 1-8
+
+Each setting runs the same seeds into a fresh folder; the wall time counts everything a user waits
+for (cluster start, FMU transfer, runs, tables), so it is ``runs / wall time``.  Results go to
+``bench-results/sweep_bench.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+from fishfmu.batch.sweep import make_spec, run_sweep
+
+
+def bench(scenario: str | Path = "scenarios/paper_test.toml", n_runs: int = 8, workers: tuple[int, ...] = (1, 2),
+          fixed: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Runs per minute for each worker count (same scenario, same seeds)."""
+    spec = make_spec(scenario, {}, n_runs, fixed or {})
+    results = []
+    for w in workers:
+        with tempfile.TemporaryDirectory(prefix="fishfmu-bench-") as tmp:
+            load_before = os.getloadavg()[0]
+            t0 = time.perf_counter()
+            res = run_sweep(spec, Path(tmp) / "sweep", workers=w, plots=False)
+            wall_s = time.perf_counter() - t0
+        runs = res.runs
+        results.append({
+            "workers": w, "runs": len(runs), "failed": int((runs["status"] != "ok").sum()),
+            "wall_s": round(wall_s, 2), "runs_per_min": round(60.0 * len(runs) / wall_s, 2),
+            "task_s_mean": round(float(runs["task_s"].mean()), 2),
+            "sim_s_mean": round(float(runs["t_end_s"].mean()), 2),
+            "load_average_before": round(load_before, 2), "load_average_after": round(os.getloadavg()[0], 2)})
+    return {"scenario": str(scenario), "fixed": fixed or {}, "seeds": spec.seeds, "cores": os.cpu_count(),
+            "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
+            "results": results}
+
+
+def main() -> None:
+    from fishfmu.scenario.schema import parse_value
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="scenarios/paper_test.toml")
+    ap.add_argument("--runs", type=int, default=8, help="seeds per setting")
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--set", action="append", default=[], help="KEY=VALUE override")
+    ap.add_argument("--out", type=Path, default=Path("bench-results/sweep_bench.json"))
+    args = ap.parse_args()
+    fixed = {k.strip(): parse_value(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
+    doc = bench(args.scenario, args.runs, tuple(args.workers), fixed)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(doc, indent=2) + "\n")
+    for r in doc["results"]:
+        print(f"{r['workers']} worker(s): {r['runs']} runs in {r['wall_s']:.1f} s = {r['runs_per_min']:.2f} runs/min "
+              f"(mean {r['task_s_mean']:.1f} s per run, {r['failed']} failed)")
+    print(f"written: {args.out}")
+
+
+if __name__ == "__main__":
+    main()

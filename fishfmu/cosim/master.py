@@ -1,0 +1,211 @@
+"""The co-simulation master: fixed communication step, FMUs and plant stepped in a defined order.
+
+One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step`):
+
+1. apply the scenario's events due at t (override, bias or reset a variable);
+2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
+   its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
+3. set the belt speeds from their sources and step the plant; check that the fish gained no
+   energy without a source (:mod:`plant.health`: a blow-up stops the run within this step);
+4. record every connected signal at t + dt (and the run in the measured-data format).
+
+An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
+one-step FMU under Gauss-Seidel, the others use its end-of-step outputs for the whole block, and
+they are held until its next step.
+
+**Values between components** keep the type of their variable: Real as float, Integer as int,
+Boolean as bool, String as str (decoded from UTF-8), in-process and with FMUs in worker
+processes alike.  ``signals.csv`` (:meth:`CoSimulation.signal_frame`, written by pandas) holds
+numbers as numbers, Booleans as ``True``/``False`` (pandas reads them back as bool) and strings as
+text.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import pandas as pd
+
+from plant.errors import SimulationError
+from plant.health import EnergyWatch
+from plant.plant import Plant
+from plant.state import PlantOutputs
+from plant.recorder import RunRecorder
+
+from fishfmu.scenario.schema import Event
+from fishfmu.scenario.wiring import PLANT, Connection, Wiring
+
+
+class FmuLike(Protocol):
+    name: str
+
+    def set(self, values: dict[str, Any]) -> None: ...
+    def get(self, names: list[str]) -> dict[str, Any]: ...
+    def do_step(self, t_s: float, dt_s: float) -> None: ...
+    def terminate(self) -> None: ...
+
+
+@dataclass
+class CoSimulation:
+    """State of a running co-simulation; step it with :meth:`step`."""
+
+    plant: Plant
+    fmus: dict[str, FmuLike]
+    step_multiples: dict[str, int]
+    wiring: Wiring
+    events: list[Event]
+    comm_step_s: float
+    jacobi: bool = False
+    recorder: RunRecorder | None = None
+    setpoint_sources: dict[str, str] = field(default_factory=dict)
+    """Per conveyor, the variable recorded as its setpoint in belts.csv."""
+    values: dict[str, Any] = field(default_factory=dict)
+    overrides: dict[str, tuple[str, Any]] = field(default_factory=dict)
+    signals: list[tuple] = field(default_factory=list)
+    signal_names: list[str] = field(default_factory=list)
+    steps: int = 0
+
+    def __post_init__(self) -> None:
+        self._inputs_of = {name: self.wiring.into(name) for name in list(self.fmus) + [PLANT]}
+        self._outputs_of = {name: sorted({c.source.variable for c in self.wiring.connections
+                                          if c.source.component == name}) for name in self.fmus}
+        self._events = sorted(self.events, key=lambda e: e.t_s)
+        self._next_event = 0
+        self.signal_names = signal_names(self.wiring)
+        self._feeding = {c.target.key: c for c in self.wiring.connections}
+        self._sent: dict[str, Any] = {}
+        self.energy_watch = EnergyWatch()
+        self._constants_of = {name: [(key, key.partition(".")[2], v) for key, v in self.wiring.constants.items()
+                                     if key.partition(".")[0] == name] for name in self.fmus}
+        # initial values: FMU outputs after initialisation, the plant at rest
+        for name, fmu in self.fmus.items():
+            for var, v in fmu.get(self._outputs_of[name]).items():
+                self.values[f"{name}.{var}"] = v
+        for port, v in self._plant_outputs_at_rest().items():
+            self.values[f"{PLANT}.{port}"] = v
+
+    def _plant_outputs_at_rest(self) -> dict[str, Any]:
+        return PlantOutputs.at_rest(self.plant.conveyor_ids, self.plant.photoeye_ids).port_values()
+
+    @property
+    def t_s(self) -> float:
+        return self.steps * self.comm_step_s
+
+    # ---- the step ----------------------------------------------------------------------------
+    def step(self) -> None:
+        t, dt = self.t_s, self.comm_step_s
+        self._apply_events(t)
+        held = dict(self.values) if self.jacobi else self.values
+        for name in self.wiring.order:
+            m = self.step_multiples.get(name, 1)
+            if self.steps % m == 0:
+                self._step_fmu(name, held, t, m * dt)
+        speeds = {}
+        for c in self.plant.conveyor_ids:
+            speeds[c] = float(self._input_value(f"{PLANT}.{c}.speed", held))
+        out = self.plant.step(speeds)
+        self.energy_watch.check(self.plant.state, dt)
+        for port, v in out.port_values().items():
+            self.values[f"{PLANT}.{port}"] = v
+        self.steps += 1
+        self._record(speeds, out)
+
+    def _step_fmu(self, name: str, held: dict[str, Any], t: float, dt: float) -> None:
+        fmu = self.fmus[name]
+        inputs = {}
+        for c in self._inputs_of[name]:
+            inputs[c.target.variable] = self._sent[c.target.key] = self._transmit(c, held)
+        for key, var, value in self._constants_of[name]:
+            inputs[var] = self._sent[key] = self._with_event(key, value)
+        fmu.set(inputs)
+        fmu.do_step(t, dt)
+        for var, v in fmu.get(self._outputs_of[name]).items():
+            if isinstance(v, float) and not np.isfinite(v):
+                raise SimulationError(f"FMU '{name}': output '{var}' is {v}", t + dt)
+            self.values[f"{name}.{var}"] = v
+
+    def _input_value(self, key: str, held: dict[str, Any]) -> Any:
+        if key in self._feeding:
+            value = self._transmit(self._feeding[key], held)
+        else:
+            value = self._with_event(key, self.wiring.constants[key])
+        self._sent[key] = value
+        return value
+
+    def _transmit(self, c: Connection, held: dict[str, Any]) -> Any:
+        if not self.overrides:
+            return held[c.source.key]
+        value = self._with_event(c.source.key, held[c.source.key])
+        return self._with_event(c.target.key, value)
+
+    def _with_event(self, key: str, value: Any) -> Any:
+        ov = self.overrides.get(key)
+        if ov is None:
+            return value
+        action, v = ov
+        if action == "override":
+            return type(value)(v) if isinstance(value, (bool, int, float)) else v
+        return value + v  # bias
+
+    def _apply_events(self, t: float) -> None:
+        while self._next_event < len(self._events) and self._events[self._next_event].t_s <= t + 1e-9:
+            ev = self._events[self._next_event]
+            if ev.action == "reset":
+                self.overrides.pop(ev.target, None)
+            else:
+                self.overrides[ev.target] = (ev.action, ev.value)
+            self._next_event += 1
+
+    # ---- recording ---------------------------------------------------------------------------
+    def _record(self, speeds: dict[str, float], out) -> None:
+        """Inputs as they were sent this step, outputs as they are now (before any event on them)."""
+        sent, values = self._sent, self.values
+        self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
+        if self.recorder is not None:
+            setpoints = {c: float(values.get(self.setpoint_sources.get(c, ""), speeds[c])) for c in speeds}
+            self.recorder.record(self.t_s, self.plant.fish_state, out.photoeyes, setpoints, speeds,
+                                 self.plant.body_poses)
+
+    def signal_frame(self) -> pd.DataFrame:
+        """Every recorded signal per step (see the module's docstring for the types)."""
+        return signal_frame(self.signals, self.signal_names)
+
+    def terminate(self) -> None:
+        for fmu in self.fmus.values():
+            fmu.terminate()
+
+
+def signal_names(wiring: Wiring) -> list[str]:
+    """The recorded signals: both ends of each connection in order, then the constant inputs."""
+    names: list[str] = []
+    for c in wiring.connections:
+        for key in (c.source.key, c.target.key):
+            if key not in names:
+                names.append(key)
+    names += [k for k in wiring.constants if k not in names]
+    return names
+
+
+def signal_frame(rows: list[tuple], names: list[str]) -> pd.DataFrame:
+    """``t_s`` and the signals ``names``; with no rows (a run that failed in its first step) an empty
+    table with those columns."""
+    return pd.DataFrame(rows, columns=["t_s", *names])
+
+
+def setpoint_sources(wiring: Wiring, conveyor_ids: list[str],
+                     setpoint_name: Callable[[str], bool] = lambda v: "setpoint" in v) -> dict[str, str]:
+    """Per conveyor, the value to log as its setpoint: the input of its drive whose name says setpoint."""
+    out: dict[str, str] = {}
+    for cid in conveyor_ids:
+        feed = next((c for c in wiring.connections if c.target.key == f"{PLANT}.{cid}.speed"), None)
+        if feed is None or feed.source.component == PLANT:
+            continue
+        drive = feed.source.component
+        sp = next((c for c in wiring.connections if c.target.component == drive and setpoint_name(c.target.variable)),
+                  None)
+        if sp is not None:
+            out[cid] = sp.source.key
+    return out

@@ -1,0 +1,289 @@
+"""One FMU instance in this process: fmpy's FMU2Slave, with typed batch access and clear errors.
+
+The master talks to every FMU through the same four calls (``set``, ``do_step``, ``get``,
+``terminate``), so an FMU running in a worker process (:mod:`fishfmu.fmu.worker`) can stand in
+for this one.  Every failure of the FMU (a status of error, fatal or discard from any call) is
+raised as :class:`plant.errors.SimulationError` naming the FMU, the call, the status and the time.
+A binary that cannot be loaded (wrong platform, missing libraries) is bad input
+(:class:`plant.errors.InputError` naming the file).  After a status of fatal, no further call
+is made to the FMU (FMI 2.0: its state is undefined), not even terminate or freeInstance.
+
+**The FMU's log.** Every instance gets a logger callback that keeps the last
+:data:`LOG_LINES` messages (nothing is printed); when a call fails, the last message of status
+warning, error or fatal that the FMU logged during that call is appended to the error, on one
+line and at most :data:`LOG_MESSAGE_CHARS` characters: ``FMU 'drive_c1': setReal returned error:
+"fmi2SetReal: 'speed_setpoint' = 9 is outside its range [-2, 2]"``.
+
+**Values.** ``get`` gives Real as float, Integer and Enumeration as int, Boolean as bool and
+String as str (fmpy gives C ints and UTF-8 bytes); ``set`` takes the same.
+
+**The library loaded** is ``binaries/linux64/<modelIdentifier>.so`` inside the unpacked archive,
+checked by :func:`fishfmu.fmu.archive.library_path` right before loading and passed to fmpy by
+its full path.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import re
+from collections import deque
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+from fmpy.fmi2 import FMU2Slave
+
+from plant.errors import InputError, SimulationError
+from plant.validation import suggest
+
+from fishfmu.fmu.archive import DescribedFmu, OpenedFmu, library_path
+
+FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
+SETTABLE_BEFORE_INIT = ("parameter", "input")
+LOG_LINES = 20
+"""Log messages kept per FMU instance (the newest)."""
+LOG_MESSAGE_CHARS = 300
+"""Longest FMU log message quoted in an error (longer ones are cut, ending in ...)."""
+_WHITESPACE = re.compile(r"\s+")
+
+
+def one_line(text: str, limit: int = LOG_MESSAGE_CHARS) -> str:
+    """``text`` with every run of whitespace (newlines included) as one space, cut to ``limit`` characters.
+
+    >>> one_line("setpoint 9 m/s\\n  out of range")
+    'setpoint 9 m/s out of range'
+    >>> one_line("x" * 10, limit=6)
+    'xxx...'
+    """
+    text = _WHITESPACE.sub(" ", text).strip()
+    return text if len(text) <= limit else text[:limit - 3] + "..."
+
+
+_LOGS: dict[int, "FmuLog"] = {}
+"""The log of each live instance in this process, by the componentEnvironment its FMU passes back.
+
+fmpy's native logger proxy (which formats the FMU's printf-style messages) keeps one Python
+logger for the whole process, so every instance has the same logger, :func:`_dispatch_log_message`,
+and a componentEnvironment of its own that says whose message it is."""
+_LOG_KEYS = itertools.count(1)
+_LOGGER: Any = None
+
+
+def _dispatch_log_message(env: int | None, instance: bytes | None, status: int, category: bytes | None,
+                          message: bytes | None) -> None:
+    try:
+        log = _LOGS.get(env or 0)
+        if log is not None:
+            log.add(status, category, message)
+    except Exception:  # an exception must not cross into the FMU's C code
+        pass
+
+
+class FmuLog:
+    """The newest log messages of one FMU instance: (sequence number, status, category, message)."""
+
+    def __init__(self, max_lines: int = LOG_LINES) -> None:
+        self.lines: deque[tuple[int, int, str, str]] = deque(maxlen=max_lines)
+        self.count = 0
+
+    def add(self, status: int, category: bytes | str | None, message: bytes | str | None) -> None:
+        def text(b: bytes | str | None) -> str:
+            return b.decode("utf-8", "replace") if isinstance(b, bytes) else (b or "")
+        self.count += 1
+        self.lines.append((self.count, int(status), text(category), text(message)))
+
+    def last_problem(self, since: int = 0) -> str | None:
+        """The last message of status warning or worse logged after message number ``since``
+        (errors and fatal ones first), as one line; None if there is none."""
+        recent = [line for line in self.lines if line[0] > since and line[1] >= 1 and line[3].strip()]
+        if not recent:
+            return None
+        worst = [line for line in recent if line[1] >= 3] or recent
+        return one_line(worst[-1][3])
+
+
+def check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any],
+                     scenario_file: str | Path | None = None, where: str | None = None) -> None:
+    """Every parameter a scenario sets must exist, be a parameter (or input start value) and fit its type.
+
+    The error names ``scenario_file`` and the key ``<where>.<parameter>`` (e.g. ``fmu[0].parameters``)
+    when given, else the FMU file and ``fmu.<name>.parameters``.
+    """
+    try:
+        _check_parameters(name, fmu, parameters)
+    except InputError as exc:
+        if scenario_file is None:
+            raise
+        key = (exc.where or "").rpartition(".parameters")[2]
+        raise InputError(exc.message, file=scenario_file, where=f"{where or 'fmu'}.parameters{key}") from None
+
+
+def _check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any]) -> None:
+    for key, value in parameters.items():
+        var = fmu.variables.get(key)
+        if var is None:
+            raise InputError(f"FMU '{name}' has no variable '{key}'{suggest(key, fmu.variables)}", file=fmu.path,
+                             where=f"fmu.{name}.parameters.{key}")
+        if var.causality not in SETTABLE_BEFORE_INIT:
+            raise InputError(f"'{key}' of FMU '{name}' is an {var.causality}, not a parameter: it cannot be set",
+                             file=fmu.path, where=f"fmu.{name}.parameters.{key}")
+        ok = {"Real": isinstance(value, (int, float)) and not isinstance(value, bool),
+              "Integer": isinstance(value, int) and not isinstance(value, bool),
+              "Enumeration": isinstance(value, int) and not isinstance(value, bool),
+              "Boolean": isinstance(value, bool),
+              "String": isinstance(value, str)}.get(var.type, False)
+        if not ok:
+            raise InputError(f"'{key}' of FMU '{name}' is {var.type}; got {value!r}",
+                             file=fmu.path, where=f"fmu.{name}.parameters.{key}")
+
+
+class FmuInstance:
+    """An instantiated, initialised FMU; ``set``/``get`` take variable names."""
+
+    def __init__(self, name: str, fmu: OpenedFmu, parameters: Mapping[str, Any], start_time_s: float = 0.0) -> None:
+        check_parameters(name, fmu, parameters)
+        self.name = name
+        self.variables = fmu.variables
+        self._ref_cache: dict[tuple[str, ...], dict[str, list[tuple[str, int]]]] = {}
+        md = fmu.model_description
+        self._time = start_time_s
+        self._fatal = False
+        self.log = FmuLog()
+        binary = library_path(fmu)  # inside the unpacked archive, checked right before loading
+        cwd = os.getcwd()
+        try:
+            self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
+                                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name,
+                                    libraryPath=str(binary))
+        except Exception as exc:  # fmpy: "Failed to load shared library ..." (dlopen's reason) or a missing function
+            reason = str(exc)
+            for root in {str(Path(fmu.unzip_dir).resolve()), str(fmu.unzip_dir)}:
+                reason = reason.replace(root + os.sep, "")
+            reason = one_line(reason, 2 * LOG_MESSAGE_CHARS)
+            raise InputError(f"FMU '{name}': its binary cannot be loaded on this machine: {reason}",
+                             file=fmu.path) from None
+        finally:
+            os.chdir(cwd)  # fmpy changes into the binary's folder to load it and stays there if that fails
+        self._callbacks = self._logging_callbacks()  # kept alive as long as the instance
+        try:
+            self._call("instantiate", self._slave.instantiate, loggingOn=False, callbacks=self._callbacks)
+        except BaseException:
+            _LOGS.pop(self._log_key, None)
+            raise
+        self._instantiated = True
+        try:
+            self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
+            self._call("enterInitializationMode", self._slave.enterInitializationMode)
+            self.set(parameters)
+            self._call("exitInitializationMode", self._slave.exitInitializationMode)
+        except BaseException:
+            self.terminate()  # nobody else holds this instance yet
+            raise
+
+    def _logging_callbacks(self) -> Any:
+        """fmpy's callback functions whose logger keeps this instance's messages in ``self.log``."""
+        from ctypes import c_void_p
+
+        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
+                               fmi2CallbackLoggerTYPE)
+        from fmpy.fmi2 import calloc, free
+        global _LOGGER
+        if _LOGGER is None:
+            _LOGGER = fmi2CallbackLoggerTYPE(_dispatch_log_message)
+        self._log_key = next(_LOG_KEYS)
+        _LOGS[self._log_key] = self.log
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = _LOGGER
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
+        callbacks.componentEnvironment = c_void_p(self._log_key)
+        try:  # fmpy's native proxy formats the FMU's printf-style message before it reaches Python
+            from ctypes import byref
+
+            from fmpy.logging import addLoggerProxy
+            addLoggerProxy(byref(callbacks))
+        except Exception:  # no proxy: messages with format arguments arrive unformatted
+            pass
+        return callbacks
+
+    def _call(self, what: str, fn, *args: Any, **kwargs: Any) -> Any:
+        since = self.log.count
+        try:
+            return fn(*args, **kwargs)
+        except Exception as exc:  # fmpy raises FMICallException (with .status) or OSError from the library
+            status = getattr(exc, "status", None)
+            if status == 4:
+                self._fatal = True
+            text = FMI2_STATUS.get(status, str(status)) if status is not None else type(exc).__name__
+            detail = "" if status is not None else f" ({one_line(str(exc))})"
+            said = self.log.last_problem(since)
+            if said:
+                detail += f': "{said}"'
+            raise SimulationError(f"FMU '{self.name}': {what} returned {text}{detail}", self._time) from None
+
+    def _refs(self, names: Iterable[str]) -> dict[str, list[tuple[str, int]]]:
+        key = tuple(names)
+        cached = self._ref_cache.get(key)
+        if cached is not None:
+            return cached
+        by_type: dict[str, list[tuple[str, int]]] = {}
+        for n in key:
+            v = self.variables[n]
+            t = "Integer" if v.type == "Enumeration" else v.type
+            by_type.setdefault(t, []).append((n, v.value_reference))
+        self._ref_cache[key] = by_type
+        return by_type
+
+    def set(self, values: Mapping[str, Any]) -> None:
+        for t, refs in self._refs(values).items():
+            vrs = [vr for _, vr in refs]
+            vals = [values[n] for n, _ in refs]
+            if t == "Real":
+                self._call("setReal", self._slave.setReal, vrs, [float(v) for v in vals])
+            elif t == "Integer":
+                self._call("setInteger", self._slave.setInteger, vrs, [int(v) for v in vals])
+            elif t == "Boolean":
+                self._call("setBoolean", self._slave.setBoolean, vrs, [bool(v) for v in vals])
+            elif t == "String":
+                self._call("setString", self._slave.setString, vrs,
+                           [v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in vals])
+
+    def get(self, names: Iterable[str]) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for t, refs in self._refs(names).items():
+            vrs = [vr for _, vr in refs]
+            getter = {"Real": self._slave.getReal, "Integer": self._slave.getInteger,
+                      "Boolean": self._slave.getBoolean, "String": self._slave.getString}[t]
+            vals = self._call(f"get{t}", getter, vrs)
+            if t == "Boolean":
+                vals = [bool(v) for v in vals]
+            elif t == "String":
+                vals = [v.decode("utf-8", "replace") if isinstance(v, bytes) else ("" if v is None else str(v))
+                        for v in vals]
+            out.update({n: v for (n, _), v in zip(refs, vals)})
+        return out
+
+    def do_step(self, t_s: float, dt_s: float) -> None:
+        self._time = t_s
+        self._call("doStep", self._slave.doStep, currentCommunicationPoint=t_s, communicationStepSize=dt_s)
+        self._time = t_s + dt_s
+
+    def terminate(self) -> None:
+        """End and free the instance; safe to call twice and after a failure."""
+        if not getattr(self, "_instantiated", False):
+            _LOGS.pop(getattr(self, "_log_key", 0), None)
+            return
+        self._instantiated = False
+        if self._fatal:
+            _LOGS.pop(self._log_key, None)
+            return  # FMI 2.0: after fmi2Fatal no function of the FMU may be called
+        try:
+            self._slave.terminate()
+        except Exception:
+            pass
+        try:
+            self._slave.freeInstance()
+        except Exception:
+            pass
+        _LOGS.pop(self._log_key, None)

@@ -1,0 +1,59 @@
+"""The atomic writers every command uses: a file is written under a temporary name, recorded in
+its folder's manifest (:mod:`fishfmu.output.ownership`, where the byte writer lives) and renamed into place,
+so a crash or an interrupt never leaves a half-written file under its final name.
+
+A module of its own, below :mod:`fishfmu.output.run_folder` (which re-exports all of it), so that what only
+needs to write a file (the report, :func:`fishfmu.cosim.interrupt.mark_partial`) does not import the run's
+output writer and, through it, the runner.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fishfmu.output.ownership import write_bytes_atomic
+
+__all__ = ["MARKER", "json_safe", "write_bytes_atomic", "write_json_atomic", "write_run_info", "write_text_atomic"]
+
+MARKER = "run_info.json"
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    write_bytes_atomic(path, text.encode("utf-8"))
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def json_safe(x: Any) -> Any:
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python, tuples -> lists, keys -> str.  Every JSON
+    document fishfmu writes from computed numbers goes through this (:func:`write_json_atomic` itself
+    refuses NaN, so a value that escaped it is a bug that shows).
+
+    >>> json_safe({1: (np.float64("nan"), np.int64(3), np.bool_(True), 0.5)})
+    {'1': [None, 3, True, 0.5]}
+    """
+    if isinstance(x, dict):
+        return {str(k): json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_safe(v) for v in x]
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(float(x)) else None
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def write_run_info(out: Path, /, status: str, **fields: Any) -> None:
+    """Write ``out/run_info.json``: ``status`` and ``fields`` (made JSON-safe, see :func:`json_safe`).
+    The one writer of that file, for every command (run, run --seeds, sweep, compare, diagnose) and
+    for :func:`fishfmu.cosim.interrupt.mark_partial`."""
+    write_json_atomic(Path(out) / MARKER, json_safe({"status": status, **fields}))

@@ -1,0 +1,288 @@
+"""Scenario files: the schema, loading with clear errors, overrides, and the resolved form.
+
+A scenario is one TOML file (see ``scenarios/``).  Its tables:
+
+========== =====================================================================================
+``[run]``   duration, seed, communication step, coupling scheme, when to stop
+``[line]``  the line, exactly as in contracts/measured-data.md (:class:`plant.line.Line`)
+``[fish]``  the batch (:class:`plant.population.PopulationSpec`)
+``[plant]`` physical and numerical plant parameters (:class:`plant.params.PlantParams`), optional
+``[[fmu]]`` FMU instances: a built-in one by name or any FMI 2.0 co-simulation ``.fmu`` by path,
+            with parameter start values and a step multiple
+``[wiring]`` ``connections``: ``"source -> target"`` pairs between FMU variables and
+            ``plant.<id>.<signal>`` ports; ``inputs``: constants for inputs left unconnected
+            (e.g. ``"plant.c1.speed" = 0.3``)
+``[[event]]`` timed events: at ``t_s`` override, bias or reset a variable (as libcosim's scenarios)
+``[kpi]``   which photo-eye counts fish out, the gap a singulated fish needs
+``[expect]`` KPI bounds for CI: ``singulation_rate = { min = 0.4 }``
+========== =====================================================================================
+
+Everything is validated by the pydantic models below: a bad file raises
+:class:`plant.errors.InputError` naming the file, the dotted key and what is wrong.  FMU
+variables and plant ports are checked separately when the FMUs are opened
+(:mod:`fishfmu.scenario.wiring`).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import tomli_w
+from pydantic import AfterValidator, Field, field_validator, model_validator
+
+from plant.errors import InputError
+from plant.kpis import KPI_KEYS
+from plant.line import KpiSettings, Line
+from plant.params import PlantParams
+from plant.population import PopulationSpec
+from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
+
+Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
+
+
+def _finite(value: Any) -> Any:
+    """A value handed to an FMU must not be NaN or infinite (TOML and ``--set`` allow ``nan``, ``inf``)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ValueError("must be a finite number: NaN and infinity cannot be given to an FMU")
+    return value
+
+
+FmuValue = Annotated[float | int | bool | str, AfterValidator(_finite)]
+"""A parameter value for an FMU: finite numbers, booleans, strings."""
+CONNECTION_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*->\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*$")
+
+
+class RunSettings(Strict):
+    """How long, with which seed and communication step, and how the components are coupled."""
+
+    name: str = Field("run", min_length=1, max_length=80, pattern=r"^[\w\-. ]+$", description=(
+        "names the run in the KPI table, the report, the JUnit suite and the recorded run; the default "
+        "output folder is named after the scenario file instead"))
+    duration_s: float = Field(60.0, gt=0.0, le=24 * 3600.0, description=(
+        "simulated time; the run ends earlier with stop_when_clear"))
+    seed: int = Field(1, ge=0, le=2**32 - 1, description=(
+        "seed of the random draws (fish sizes and drops, with fish.seed_offset): the same seed gives the "
+        "same run; --seed overrides it"))
+    comm_step_s: float = Field(0.01, ge=0.001, le=0.1, description=(
+        "base communication step of the master; a whole multiple of plant.numerics.step_s"))
+    coupling: Literal["gauss-seidel", "jacobi"] = Field("gauss-seidel", description=(
+        "gauss-seidel: components stepped in dependency order, each seeing the values its sources produced "
+        "this step (the plant last); jacobi: every component sees the values of the previous step"))
+    stop_when_clear: bool = Field(True, description="end the run one second after the last fish has left the line")
+    fmu_process: Literal["in-process", "worker"] = Field("in-process", description=(
+        "worker: run each FMU in a separate process, so that a crashing or hanging FMU cannot take the "
+        "run down (costs time per step)"))
+    fmu_step_timeout_s: float = Field(10.0, gt=0.0, le=3600.0, description="worker mode: longest a doStep may take")
+
+
+class FmuInstance(Strict):
+    """One FMU instance: ``builtin`` (a name from ``fishfmu build-fmus``) or ``path`` to a ``.fmu``."""
+
+    name: Name = Field(description=(
+        "instance name, used as '<name>.<variable>' in [wiring] and [[event]]; unique, and not 'plant'"))
+    builtin: Literal["conveyor_drive", "singulation_controller"] | None = Field(None, description=(
+        "an FMU fishfmu builds (conveyor_drive: a gearmotor on an inverter driving a belt; "
+        "singulation_controller: PLC-style speed profile, gap control and jam detection); give this or path"))
+    path: str | None = Field(None, description=(
+        "an FMI 2.0 co-simulation .fmu file, relative to the scenario file; give this or builtin"))
+    step_multiple: int = Field(1, ge=1, le=10000, description="the FMU steps every this many base steps")
+    parameters: dict[str, FmuValue] = Field(default_factory=dict, description=(
+        "start values of the FMU's parameters by variable name, checked against its modelDescription; "
+        "finite numbers, booleans or strings"))
+
+    @model_validator(mode="after")
+    def _one_source(self) -> "FmuInstance":
+        if (self.builtin is None) == (self.path is None):
+            raise ValueAtKey("path", f"FMU '{self.name}': give exactly one of 'builtin' or 'path'")
+        return self
+
+
+class Event(Strict):
+    """At ``t_s``: ``override`` a variable's value, ``bias`` it (add), or ``reset`` it to normal."""
+
+    t_s: float = Field(ge=0.0, description="simulation time; applied at the first communication step at or after it")
+    target: str = Field(description="'<fmu>.<variable>' or 'plant.<id>.<signal>'")
+    action: Literal["override", "bias", "reset"] = Field(description=(
+        "override: the variable takes value; bias: value is added to it; reset: back to its own value"))
+    value: Annotated[float | bool | None, AfterValidator(_finite)] = Field(None, description=(
+        "the value to set or add; needed by override and bias, finite"))
+
+    @model_validator(mode="after")
+    def _value_needed(self) -> "Event":
+        if self.action != "reset" and self.value is None:
+            raise ValueAtKey("value", f"event '{self.action}' of '{self.target}' needs a value")
+        if "." not in self.target:
+            raise ValueAtKey("target", f"event target '{self.target}' must be '<fmu>.<variable>' or 'plant.<id>.<signal>'")
+        return self
+
+
+class WiringSpec(Strict):
+    """Connections between FMU variables and plant ports, and constants for unconnected inputs."""
+
+    connections: list[str] = Field(default_factory=list, max_length=2000, description=(
+        "'source.variable -> target.variable' pairs between FMU variables and plant ports "
+        "('plant.<id>.<signal>'), checked against each modelDescription and the plant's ports "
+        "(names, causality, types)"))
+    inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict, description=(
+        "constants for inputs left unconnected, by '<fmu>.<variable>' or 'plant.<id>.<signal>' "
+        "(e.g. \"plant.c1.speed\" = 0.3)"))
+
+    @field_validator("connections")
+    @classmethod
+    def _connections_parse(cls, value: list[str]) -> list[str]:
+        for i, c in enumerate(value):
+            if not CONNECTION_RE.match(c):
+                raise ValueError(f"connections[{i}] = '{c}' is not of the form 'source.variable -> target.variable'")
+        return value
+
+
+class Bound(Strict):
+    """A bound on one KPI for CI: ``min``, ``max`` or both; a run outside it exits with 1."""
+
+    min: float | None = Field(None, description="the KPI must be at least this")
+    max: float | None = Field(None, description="the KPI must be at most this")
+
+    @model_validator(mode="after")
+    def _some(self) -> "Bound":
+        if self.min is None and self.max is None:
+            raise ValueAtKey("min", "give min, max or both")
+        if self.min is not None and self.max is not None and self.min > self.max:
+            raise ValueAtKey("min", f"min ({self.min}) is above max ({self.max})")
+        return self
+
+
+class Scenario(Strict):
+    """A whole scenario file."""
+
+    run: RunSettings = Field(default_factory=RunSettings)
+    line: Line
+    fish: PopulationSpec = Field(default_factory=PopulationSpec)
+    plant: PlantParams = Field(default_factory=PlantParams)
+    fmu: list[FmuInstance] = Field(default_factory=list, max_length=64)
+    wiring: WiringSpec = Field(default_factory=WiringSpec)
+    event: list[Event] = Field(default_factory=list, max_length=10000)
+    kpi: KpiSettings
+    expect: dict[str, Bound] = Field(default_factory=dict, description=(
+        "bounds by KPI (contracts/kpis.md): " + ", ".join(KPI_KEYS)))
+
+    @field_validator("expect")
+    @classmethod
+    def _expect_keys(cls, value: dict[str, Bound]) -> dict[str, Bound]:
+        for k in value:
+            if k not in KPI_KEYS:
+                raise ValueError(f"unknown KPI '{k}'{suggest(k, KPI_KEYS, allowed='KPIs')}")
+        return value
+
+    @model_validator(mode="after")
+    def _cross_checks(self) -> "Scenario":
+        self.kpi.check_against(self.line)
+        names = [f.name for f in self.fmu]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueAtKey("fmu", f"FMU names must be unique; repeated: {', '.join(dup)}")
+        if "plant" in names:
+            raise ValueAtKey(f"fmu[{names.index('plant')}].name", "'plant' is reserved for the plant's ports; rename the FMU")
+        n_base = self.run.comm_step_s / self.plant.numerics.step_s
+        if abs(n_base - round(n_base)) > 1e-6:
+            raise ValueAtKey("run.comm_step_s", f"{self.run.comm_step_s} s must be a whole multiple of "
+                             f"plant.numerics.step_s ({self.plant.numerics.step_s})")
+        longest = self.fish.length_max_m
+        if self.line.conveyors[0].length_m < longest:
+            raise ValueAtKey("fish.length_max_m", f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
+                             f"is shorter than the longest fish (fish.length_max_m = {longest} m)")
+        for i, c in enumerate(self.line.conveyors):
+            if c.length_m < longest:
+                raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
+                                 f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
+        return self
+
+    def connection_pairs(self) -> list[tuple[str, str, str, str]]:
+        """(source component, source variable, target component, target variable) per connection."""
+        out = []
+        for c in self.wiring.connections:
+            m = CONNECTION_RE.match(c)
+            assert m is not None
+            out.append((m.group(1), m.group(2), m.group(3), m.group(4)))
+        return out
+
+
+def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
+    """Read, apply ``overrides`` (dotted keys, e.g. ``{"fish.count": 30}``) and validate a scenario file.
+
+    Relative FMU paths are made absolute against the scenario's folder.
+    """
+    path = Path(path)
+    data = read_toml(path)
+    for key, value in (overrides or {}).items():
+        set_dotted(data, key, value, file=path)
+    for i, f in enumerate(data.get("fmu", []) or []):
+        if isinstance(f, dict) and isinstance(f.get("path"), str) and not Path(f["path"]).is_absolute():
+            data["fmu"][i] = dict(f, path=str((path.parent / f["path"]).resolve()))
+    return validate(Scenario, data, file=path)
+
+
+def set_dotted(data: dict[str, Any], key: str, value: Any, file: str | Path | None = None) -> None:
+    """Set ``data['a']['b'][2]['c'] = value`` for ``key = 'a.b[2].c'``, creating tables as needed."""
+    parts = re.findall(r"[^.\[\]]+|\[\d+\]", key)
+    if not parts:
+        raise InputError(f"empty key in override '{key}'", file=file)
+    node: Any = data
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if part.startswith("["):
+            idx = int(part[1:-1])
+            if not isinstance(node, list) or idx >= len(node):
+                raise InputError(f"override '{key}': no element {idx} there", file=file)
+            if last:
+                node[idx] = value
+            else:
+                node = node[idx]
+        else:
+            if not isinstance(node, dict):
+                raise InputError(f"override '{key}': '{part}' is not inside a table", file=file)
+            if last:
+                node[part] = value
+            else:
+                node = node.setdefault(part, {})
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value as TOML would read it (numbers, booleans, strings, arrays)."""
+    import tomllib
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def parse_assignments(items: list[str], option: str = "--set") -> dict[str, Any]:
+    """``KEY=VALUE`` items of a command-line option as a dict, values read as TOML would read them.
+
+    >>> parse_assignments(["fish.count=30", "run.name = a b"])
+    {'fish.count': 30, 'run.name': 'a b'}
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise InputError(f"{option} '{item}': expected KEY=VALUE")
+        out[key.strip()] = parse_value(value.strip())
+    return out
+
+
+def resolved_toml(scenario: Scenario) -> str:
+    """The scenario with every default filled in, as TOML (what a run actually used)."""
+    data = scenario.model_dump(mode="json", exclude_none=True)
+    return tomli_w.dumps(_drop_empty(copy.deepcopy(data)))
+
+
+def _drop_empty(d: Any) -> Any:
+    if isinstance(d, dict):
+        return {k: _drop_empty(v) for k, v in d.items() if v not in ({}, [])}
+    if isinstance(d, list):
+        return [_drop_empty(v) for v in d]
+    return d
