@@ -30,6 +30,17 @@ def _root() -> None:
     """Co-simulate salmon singulation lines."""
 
 
+bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
+                        help="Benchmarks: results written to a file (JSON), never asserted in tests.")
+app.add_typer(bench_app, name="bench")
+
+
+def _show_progress() -> bool:
+    return sys.stderr.isatty() and not os.environ.get("CI")
+
+
+# ---------------------------------------------------------------- build-fmus
+
 @app.command("build-fmus")
 def build_fmus(
     names: list[str] = typer.Argument(None, help="FMUs to build (default: all built-in ones)."),
@@ -38,44 +49,27 @@ def build_fmus(
                                                          "(repeatable; needs a single FMU name)."),
 ) -> None:
     """Build the built-in FMUs as standalone .fmu files (Linux binary and C sources inside)."""
-    from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
+    from fishfmu import commands
+    from fishfmu.fmu.build import FmuBuildError
     from fishfmu.scenario.schema import parse_assignments
-    defaults = parse_assignments(param, "--param")
-    if defaults and len(names or BUILTIN_FMUS) != 1:
-        raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
-    from fishfmu.output.ownership import check_single_file_target, record_written
-    for name in names or BUILTIN_FMUS:  # an existing .fmu is replaced only if fishfmu wrote it
-        check_single_file_target(out / f"{name}.fmu")
-    for name in names or BUILTIN_FMUS:
-        try:
-            fmu_path = build_fmu(name, out, defaults)
-            record_written(fmu_path)
-            print(fmu_path)
-        except FmuBuildError as exc:
-            print_error("build failed", f"{name}: {exc}")
-            raise typer.Exit(EXIT_SIMULATION_FAILED) from exc
+    try:
+        for path in commands.build_fmus(names or [], out, parse_assignments(param, "--param")):
+            print(path)
+    except FmuBuildError as exc:
+        print_error("build failed", exc)
+        raise typer.Exit(EXIT_SIMULATION_FAILED) from exc
 
 
-def _run_inputs(scenario: Path, sc, junit: Path | None) -> list:
-    """The files a run reads (never written over); checks ``--junit`` against them and for ownership."""
-    from fishfmu.output.ownership import check_single_file_target
-    inputs = [scenario, *(f.path for f in sc.fmu if f.path)]
-    if junit is not None:
-        check_single_file_target(junit, inputs)
-    return inputs
-
-
-def _show_progress() -> bool:
-    return sys.stderr.isatty() and not os.environ.get("CI")
-
+# ---------------------------------------------------------------- run
 
 def print_kpis(result, console: Console) -> None:
     """The KPIs as a table, then each [expect] bound with its outcome."""
     from rich.table import Table
+
+    from plant.kpis import SHOWN_KPI_KEYS
     table = Table(title=f"KPIs: {result.scenario.run.name} (seed {result.scenario.run.seed})")
     table.add_column("KPI")
     table.add_column("value", justify="right")
-    from plant.kpis import SHOWN_KPI_KEYS
     for key in (*SHOWN_KPI_KEYS, "method"):
         if key in result.kpis:
             v = result.kpis[key]
@@ -101,66 +95,64 @@ def run(
     scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
-    from fishfmu.cosim.interrupt import register_output, stop_on_signals
-    from fishfmu.output.run_folder import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir, write_junit,
-                                 write_outputs)
-    from fishfmu.cosim.runner import check_scenario, run_scenario
-    from fishfmu.scenario.schema import load_scenario, parse_assignments
-
+    from fishfmu import commands
+    from fishfmu.scenario.schema import parse_assignments
     overrides = parse_assignments(set_)
     if seed is not None:
         overrides["run.seed"] = seed
-    if seeds > 1:  # Monte-Carlo over seeds: fishfmu.batch.seeds
+    if seeds > 1:
         if replay:
             raise InputError("--replay shows one run; drop it or run without --seeds")
-        from fishfmu.batch.seeds import run_seeds_command
-        from fishfmu.batch.sweep import check_size
-        check_size(1, seeds)  # before anything is written
-        sc = load_scenario(scenario, overrides)
-        check_scenario(sc, scenario)
-        out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite,
-                                  _run_inputs(scenario, sc, junit), "run")
-        register_output(out_dir, {"command": "run", "seeds": seeds})  # a signal: run_info.json says partial
-        raise typer.Exit(run_seeds_command(scenario, overrides, seeds, out_dir, junit, scheduler, workers,
-                                           _show_progress()))
-    sc = load_scenario(scenario, overrides)
-    check_scenario(sc, scenario)  # FMU files, parameters, wiring: bad input before anything is written
-    out_dir = prepare_out_dir(out if out is not None else Path("out") / scenario.stem, overwrite,
-                              _run_inputs(scenario, sc, junit), "run")
-    mark_running(out_dir, scenario)
-    register_output(out_dir)
+        result, out_dir = commands.run_seeds(scenario, seeds, out, overrides, junit=junit, overwrite=overwrite,
+                                             scheduler=scheduler, workers=workers, progress=_show_progress())
+        _print_seeds(result, scenario, out_dir)
+        raise typer.Exit(result.exit_code)
     console = literal_console()
-    with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
-        try:
-            if _show_progress():
-                from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-                with Progress(TextColumn("{task.description}"), BarColumn(),
-                              TextColumn("{task.fields[t]:.1f} s simulated"), TimeElapsedColumn(),
-                              console=literal_console(stderr=True), transient=True) as bar:
-                    task = bar.add_task(sc.run.name, total=sc.run.duration_s, t=0.0)
-                    result = run_scenario(sc, scenario, record_poses=replay, stop=stop,
-                                          on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
-            else:
-                result = run_scenario(sc, scenario, record_poses=replay, stop=stop)
-        except InputError:
-            discard_if_unused(out_dir)
-            raise
-        write_outputs(result, out_dir, report=report)
-    if replay:
-        from fishfmu.output.replay import write_replay
-        console.print(f"replay: {write_replay(out_dir)}")
-    if junit is not None:
-        write_junit(junit, **junit_args_of_run(result, str(scenario)))
+    if _show_progress():
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[t]:.1f} s simulated"),
+                      TimeElapsedColumn(), console=literal_console(stderr=True), transient=True) as bar:
+            task = bar.add_task(scenario.stem, total=None, t=0.0)
+            done = commands.run(scenario, out, overrides, junit=junit, overwrite=overwrite, report=report,
+                                replay=replay,
+                                on_progress=lambda t, total: bar.update(task, completed=t, total=total, t=t))
+    else:
+        done = commands.run(scenario, out, overrides, junit=junit, overwrite=overwrite, report=report, replay=replay)
+    result = done.result
+    if done.replay is not None:
+        console.print(f"replay: {done.replay}")
     print_kpis(result, console)
-    console.print(f"outputs: {out_dir}")
+    console.print(f"outputs: {done.out_dir}")
     if result.status == "partial":
-        err_console.print(labelled("stopped:", f"{result.error}; partial results written to {out_dir}", "bold yellow"))
-        raise typer.Exit(stop.exit_code)
+        err_console.print(labelled("stopped:", f"{result.error}; partial results written to {done.out_dir}",
+                                   "bold yellow"))
+        raise typer.Exit(done.stop_exit_code)
     if result.status != "ok":
-        raise SimulationError(f"{result.error} (results so far written to {out_dir})")
+        raise SimulationError(f"{result.error} (results so far written to {done.out_dir})")
     if not result.expect_ok:
         raise typer.Exit(EXIT_EXPECT_FAILED)
 
+
+def _print_seeds(result, scenario: Path, out_dir: Path) -> None:
+    from plant.kpis import SHOWN_KPI_KEYS
+
+    from fishfmu.batch.sweep_report import print_statistics
+    console = literal_console()
+    seeds = result.sweep.runs["seed"]
+    print_statistics(result.statistics, SHOWN_KPI_KEYS, console,
+                     f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
+                     f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), {result.sweep.wall_s:.0f} s")
+    if result.n_failed:
+        console.print(labelled("failed runs:", result.statistics["errors"], "red"))
+    for e in result.expect:
+        console.print(outcome(e.ok, "mean " + e.message))
+    if result.sweep.interrupted:
+        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.exit_code_interrupted - 128).name}; the "
+                               "statistics cover the runs that finished (run_info.json: partial)", "yellow"))
+    console.print(f"outputs: {out_dir}")
+
+
+# ---------------------------------------------------------------- sweep
 
 @app.command("sweep")
 def sweep(
@@ -178,18 +170,17 @@ def sweep(
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Re-run failed runs when resuming."),
 ) -> None:
     """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
-    from fishfmu.batch.sweep import make_spec, parse_param, run_sweep
+    from fishfmu import commands
+    from fishfmu.batch.sweep import parse_param
     from fishfmu.batch.sweep_report import print_summary
     from fishfmu.scenario.schema import parse_assignments
     fixed = parse_assignments(set_)
     params = dict(parse_param(p) for p in param)
     if len(params) != len(param):
         raise InputError("a key is given twice with --param")
-    spec = make_spec(scenario, params, seeds, fixed)
-    from fishfmu.cosim.interrupt import register_output
-    register_output(out, {"command": "sweep"})
-    result = run_sweep(spec, out, scheduler=scheduler, workers=workers, threads_per_worker=threads_per_worker,
-                       progress=_show_progress(), max_runs=max_runs, retry_failed=retry_failed)
+    spec, result = commands.sweep(scenario, params, seeds, out, fixed, scheduler=scheduler, workers=workers,
+                                  threads_per_worker=threads_per_worker, progress=_show_progress(),
+                                  max_runs=max_runs, retry_failed=retry_failed)
     console = literal_console()
     if len(result.summary):
         print_summary(result.summary, list(spec.parameters), console, title=scenario.stem)
@@ -203,58 +194,7 @@ def sweep(
         raise typer.Exit(result.exit_code_interrupted)
 
 
-@app.command("bench")
-def bench(
-    fish: str = typer.Option("18,50,100,200", "--fish", help="Fish counts, comma separated."),
-    duration: float = typer.Option(5.0, "--duration", help="Simulated seconds measured after the drop."),
-    comm_step: float = typer.Option(0.01, "--comm-step", help="Communication step [s]."),
-    threads: int = typer.Option(1, "--threads", help="Exudyn threads."),
-    json_file: Path | None = typer.Option(None, "--json", help="Write the records as a JSON list here."),
-    plot_file: Path | None = typer.Option(None, "--plot", help="Write a PNG of cost against fish count here."),
-) -> None:
-    """Real-time factor of plant and co-simulation for several fish counts, where time goes, peak memory."""
-    import json
-
-    from rich.table import Table
-
-    from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
-    try:
-        counts = [int(x) for x in fish.split(",") if x.strip()]
-    except ValueError:
-        raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
-    if not counts or min(counts) < 0:
-        raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
-    console = literal_console()
-    table = Table(title=f"fishfmu bench: {duration:g} s simulated after the drop, step {comm_step:g} s, {threads} thread(s)")
-    for col in ("fish", "RTF plant", "RTF co-sim", "Exudyn", "plant py", "FMUs", "master", "recording",
-                "FMU+master+rec", "peak MB"):
-        table.add_column(col, justify="right")
-
-    def row(r) -> None:
-        w = r.wall_cosim_s
-        table.add_row(str(r.fish), f"{r.rtf_plant:.2f}", f"{r.rtf_cosim:.2f}", f"{100 * r.plant_exudyn_s / w:.0f} %",
-                      f"{100 * r.plant_python_s / w:.0f} %", f"{100 * r.fmu_s / w:.1f} %", f"{100 * r.master_s / w:.1f} %",
-                      f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
-        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
-
-    from fishfmu.output.ownership import check_single_file_target, note_temp, replace_into
-    for target in (json_file, plot_file):  # before measuring: an existing file is replaced only if ours
-        if target is not None:
-            check_single_file_target(target)
-    records = run_bench(counts, duration, comm_step, threads, on_record=row)
-    console.print(table)
-    base, per = per_fish_cost(records)
-    console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
-                  "measured counts)")
-    if json_file is not None:
-        from fishfmu.output.run_folder import write_text_atomic
-        write_text_atomic(json_file, json.dumps(records_json(records), indent=2) + "\n")
-    if plot_file is not None:
-        tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
-        note_temp(tmp)
-        plot(records, tmp)
-        replace_into(tmp, plot_file)
-
+# ---------------------------------------------------------------- replay
 
 @app.command("replay")
 def replay_cmd(
@@ -262,24 +202,11 @@ def replay_cmd(
     out: Path | None = typer.Option(None, "--out", help="HTML file to write (default: RUN_DIR/replay.html)."),
 ) -> None:
     """Write a run as one HTML page that replays it in 3D in a browser (offline, from the file)."""
-    from fishfmu.output.ownership import check_single_file_target
-    from fishfmu.output.replay import write_replay
-    check_single_file_target(out if out is not None else run_dir / "replay.html",
-                             [run_dir / "run", run_dir / "poses.npz", run_dir / "scenario.resolved.toml"])
-    print(write_replay(run_dir, out))
+    from fishfmu import commands
+    print(commands.replay(run_dir, out))
 
 
-def _dataset_and_params(dataset: Path, scenario: Path | None):
-    from plant.measured import read_dataset
-    from plant.params import PlantParams
-    ds = read_dataset(dataset)
-    if scenario is None:
-        return ds, PlantParams(), None
-    from fishfmu.scenario.schema import load_scenario
-    sc = load_scenario(scenario)
-    drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
-    return ds, sc.plant, (drives[0] if drives else None)
-
+# ---------------------------------------------------------------- compare and diagnose
 
 @app.command("compare")
 def compare(
@@ -291,33 +218,23 @@ def compare(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Re-simulate every measured run and show what the simulation gets wrong (KPIs, arrivals, tracks, belts)."""
-    from fishfmu.analysis.compare import compare_dataset, write_comparison
-    from fishfmu.output.run_folder import prepare_out_dir, write_run_info
-    ds, params, drive = _dataset_and_params(dataset, scenario)
-    out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "compare")
-    from fishfmu.cosim.interrupt import current, register_output
-    register_output(out_dir, {"command": "compare", "dataset": str(dataset)})  # a signal: run_info.json says partial
-    c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
-    paths = write_comparison(c, out_dir)
-    stopped = current() is not None and current().requested
-    failure = None if stopped else c.failure()  # a re-simulation that failed: exit 3 once the rest is written
-    write_run_info(out_dir, "partial" if stopped else "failed" if failure else "ok", command="compare",
-                   dataset=str(dataset), **({"stopped_by": current().signal_name} if stopped else {}),
-                   **({"error": failure} if failure else {}))
     from rich.table import Table
-    table = Table(title=f"{ds.name}: simulated - measured, over {len(ds.runs)} runs")
+
+    from fishfmu import commands
+    done = commands.compare(dataset, out, scenario, workers, overwrite)
+    table = Table(title=f"{done.dataset_name}: simulated - measured, over {done.n_runs} runs")
     for col in ("measure", "mean", "sd", "min", "max"):
         table.add_column(col, justify="right" if col != "measure" else "left")
-    for row in c.summary().itertuples():
+    for row in done.comparison.summary().itertuples():
         table.add_row(row.measure, *[f"{getattr(row, k):.4g}" for k in ("mean", "sd", "min", "max")])
     literal_console().print(table)
-    literal_console().print(f"report: {paths['report']}")
-    if stopped:
-        err_console.print(labelled("stopped:", f"by {current().signal_name}; runs not re-simulated are listed as "
-                                   f"failed in {out_dir / 'compare.json'}", "bold yellow"))
-        raise typer.Exit(current().exit_code)
-    if failure:
-        raise SimulationError(f"{failure} (what the other runs gave is written to {out_dir})")
+    literal_console().print(f"report: {done.paths['report']}")
+    if done.stopped_by is not None:
+        err_console.print(labelled("stopped:", f"by {done.stopped_by}; runs not re-simulated are listed as "
+                                   f"failed in {done.out_dir / 'compare.json'}", "bold yellow"))
+        raise typer.Exit(done.stop_exit_code)
+    if done.failure:
+        raise SimulationError(f"{done.failure} (what the other runs gave is written to {done.out_dir})")
 
 
 @app.command("diagnose")
@@ -330,28 +247,127 @@ def diagnose_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Name the cause of what the simulation gets wrong, fit it, and measure the gain on held-out runs."""
-    from fishfmu.analysis.diagnose import diagnose
-    from fishfmu.analysis.diagnose_report import decision_text, write_diagnosis
-    from fishfmu.output.run_folder import prepare_out_dir, write_run_info
-    ds, params, _ = _dataset_and_params(dataset, scenario)
-    out_dir = prepare_out_dir(out, overwrite, [dataset, scenario], "diagnose")
-    from fishfmu.cosim.interrupt import register_output
-    register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
-    try:
-        d = diagnose(ds, params, workers, max_fit, progress=lambda text: err_console.print(text))
-    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
-        write_run_info(out_dir, "failed", command="diagnose", dataset=str(dataset), error=str(exc))
-        raise
-    paths = write_diagnosis(d, out_dir)
-    write_run_info(out_dir, "ok", command="diagnose", dataset=str(dataset))
+    from fishfmu import commands
+    from fishfmu.analysis.diagnose_report import decision_text
+    done = commands.diagnose(dataset, out, scenario, workers, max_fit, overwrite,
+                             progress=lambda text: err_console.print(text))
+    d, paths = done.diagnosis, done.paths
     literal_console().print(labelled("cause:", d.cause, "bold"))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")
 
 
+# ---------------------------------------------------------------- benchmarks
+
+@bench_app.command("pile")
+def bench_pile(
+    fish: str = typer.Option("18,50,100,200", "--fish", help="Fish counts, comma separated."),
+    duration: float = typer.Option(5.0, "--duration", help="Simulated seconds measured after the drop."),
+    comm_step: float = typer.Option(0.01, "--comm-step", help="Communication step [s]."),
+    threads: int = typer.Option(1, "--threads", help="Exudyn threads."),
+    json_file: Path | None = typer.Option(None, "--json", help="Write the records as a JSON list here."),
+    plot_file: Path | None = typer.Option(None, "--plot", help="Write a PNG of cost against fish count here."),
+) -> None:
+    """Fish dumped in a pile: real-time factor of plant and co-simulation per fish count, stages, peak memory."""
+    from rich.table import Table
+
+    from fishfmu import commands
+    from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
+    try:
+        counts = [int(x) for x in fish.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
+    if not counts or min(counts) < 0:
+        raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
+    commands.check_targets(json_file, plot_file)
+    console = literal_console()
+    table = Table(title=f"fishfmu bench pile: {duration:g} s simulated after the drop, step {comm_step:g} s, "
+                        f"{threads} thread(s)")
+    for col in ("fish", "RTF plant", "RTF co-sim", "Exudyn", "plant py", "FMUs", "master", "recording",
+                "FMU+master+rec", "peak MB"):
+        table.add_column(col, justify="right")
+
+    def row(r) -> None:
+        w = r.wall_cosim_s
+        table.add_row(str(r.fish), f"{r.rtf_plant:.2f}", f"{r.rtf_cosim:.2f}", f"{100 * r.plant_exudyn_s / w:.0f} %",
+                      f"{100 * r.plant_python_s / w:.0f} %", f"{100 * r.fmu_s / w:.1f} %", f"{100 * r.master_s / w:.1f} %",
+                      f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
+        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
+
+    records = run_bench(counts, duration, comm_step, threads, on_record=row)
+    console.print(table)
+    base, per = per_fish_cost(records)
+    console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
+                  "measured counts)")
+    if json_file is not None:
+        commands.write_json(json_file, records_json(records))
+    if plot_file is not None:
+        from fishfmu.output.ownership import note_temp, replace_into
+        tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
+        note_temp(tmp)
+        plot(records, tmp)
+        replace_into(tmp, plot_file)
+
+
+@bench_app.command("fmu-worker")
+def bench_fmu_worker(
+    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="Communication steps per run (no fish)."),
+    repeats: int = typer.Option(3, "--repeats", min=1),
+    with_fish: bool = typer.Option(False, "--with-fish", help="Also the scenario as shipped, in both modes."),
+    json_file: Path = typer.Option(Path("bench-results/fmu_worker_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """What running each FMU in a worker process costs per communication step."""
+    from fishfmu import commands
+    from fishfmu.bench.fmu_worker import bench, summary
+    commands.check_targets(json_file)
+    doc = bench(scenario, steps, repeats, with_fish)
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+@bench_app.command("sweep")
+def bench_sweep(
+    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    runs: int = typer.Option(8, "--runs", min=1, help="Seeds per setting."),
+    workers: list[int] = typer.Option([1, 2], "--workers", help="Worker counts to measure (repeatable)."),
+    set_: list[str] = typer.Option([], "--set", help="Fixed override: --set fish.count=30 (repeatable)."),
+    json_file: Path = typer.Option(Path("bench-results/sweep_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers."""
+    from fishfmu import commands
+    from fishfmu.bench.sweep import bench, summary
+    from fishfmu.scenario.schema import parse_assignments
+    commands.check_targets(json_file)
+    doc = bench(scenario, runs, tuple(workers), parse_assignments(set_))
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+@bench_app.command("diagnose")
+def bench_diagnose(
+    seeds: int = typer.Option(5, "--seeds", min=1, help="Repetitions per hidden effect."),
+    first_seed: int = typer.Option(100, "--first-seed"),
+    strength: float = typer.Option(1.0, "--strength", help="Size of each hidden effect (1: as in the tests)."),
+    workers: int = typer.Option(2, "--workers", min=1),
+    json_file: Path = typer.Option(Path("bench-results/diagnose_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """How often diagnose names the hidden effect of a synthetic dataset, over many seeds."""
+    from fishfmu import commands
+    from fishfmu.bench.diagnose import bench, summary
+    commands.check_targets(json_file)
+    doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+def _bench_done(lines: list[str], written: Path) -> None:
+    console = literal_console()
+    for line in lines:
+        console.print(line)
+    console.print(f"written: {written}")
+
+
 def main() -> None:
     """Entry point: turn our own errors into one clear line and the matching exit code."""
-    from fishfmu.cosim.interrupt import Interrupted, mark_partial, session
+    from fishfmu.session import Interrupted, mark_partial, session
     try:
         code = 0
         with session() as s:  # SIGINT/SIGTERM: workers stopped, temporary folder removed, exit 130/143

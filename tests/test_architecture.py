@@ -80,7 +80,7 @@ def test_find_cycle_finds_a_cycle():
 
 def test_the_graph_sees_function_level_imports():
     graph = import_graph()
-    assert "fishfmu.fmu.build" in graph["fishfmu.cosim.runner"]  # imported inside fmu_path()
+    assert "fishfmu.fmu.build" in graph["fishfmu.cosim.build"]  # imported inside fmu_path()
     assert "plant.simulate" in graph["fishfmu.cosim.runner"]
 
 
@@ -93,3 +93,105 @@ def test_plant_imports_nothing_from_fishfmu():
     bad = sorted(f"{m} -> {d}" for m, deps in import_graph().items() if m.split(".")[0] == "plant"
                  for d in deps if d.split(".")[0] == "fishfmu")
     assert not bad, "plant imports fishfmu: " + ", ".join(bad)
+
+
+LAYERS = [
+    {"plant"},
+    {"fishfmu.terminal", "fishfmu.fmu"},
+    {"fishfmu.scenario"},
+    {"fishfmu.cosim"},
+    {"fishfmu.output"},
+    {"fishfmu.session"},
+    {"fishfmu.batch", "fishfmu.analysis"},
+    {"fishfmu.bench"},
+    {"fishfmu.commands"},
+    {"fishfmu.cli"},
+]
+"""Each part may import only parts of lower layers (and itself): physics, FMUs, scenario, one run,
+what a run writes, the command's process, many runs and measured data, benchmarks, commands, CLI."""
+
+
+def _part(module: str) -> str:
+    parts = module.split(".")
+    return parts[0] if parts[0] == "plant" or len(parts) == 1 else ".".join(parts[:2])
+
+
+def test_each_part_imports_only_lower_layers():
+    layer_of = {p: i for i, layer in enumerate(LAYERS) for p in layer}
+    bad = []
+    for m, deps in import_graph().items():
+        if m == "fishfmu":
+            continue
+        a = _part(m)
+        assert a in layer_of, f"{m}: part {a} has no layer in LAYERS"
+        for d in deps:
+            b = _part(d)
+            if b != a and b != "fishfmu" and layer_of[b] >= layer_of[a]:
+                bad.append(f"{m} -> {d}")
+    assert not bad, "imports against the layers: " + ", ".join(sorted(bad))
+
+
+def test_the_layer_check_sees_an_upward_import():
+    """The check above is not vacuous: the CLI does import the commands, never the other way."""
+    graph = import_graph()
+    assert "fishfmu.commands" in graph["fishfmu.cli"]
+    assert "fishfmu.cosim.runner" in graph["fishfmu.commands"]
+
+
+def test_benchmarks_are_imported_by_nothing_but_the_cli_and_not_by_tests():
+    users = sorted(m for m, deps in import_graph().items() if any(_part(d) == "fishfmu.bench" for d in deps)
+                   and _part(m) not in ("fishfmu.bench", "fishfmu.cli"))
+    assert not users, users
+    known = _modules()
+    for f in sorted((ROOT / "tests").glob("*.py")):
+        deps = _imports(f"tests.{f.stem}", f, known)
+        assert not any(_part(d) == "fishfmu.bench" for d in deps), f"{f.name} imports a benchmark"
+
+
+def _own_private_attributes(tree: ast.AST) -> set[str]:
+    """Names ``_x`` assigned as ``self._x`` (or defined as methods) in this module's classes."""
+    own = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+            own.add(node.attr)
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            own.add(node.name)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            own.add(node.target.id)
+    return own
+
+
+def private_reads_across_modules() -> list[str]:
+    """``obj._x`` where ``_x`` is not an attribute of this module's own classes, and
+    ``from module import _x``, anywhere in fishfmu/ and plant/."""
+    found = []
+    for m, path in _modules().items():
+        tree = ast.parse(path.read_text(), str(path))
+        own = _own_private_attributes(tree)
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")
+                    and node.attr not in own):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+            elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in PACKAGES:
+                found += [f"{path.relative_to(ROOT)}:{node.lineno}: from {node.module} import {a.name}"
+                          for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    return found
+
+
+def test_no_private_field_or_function_is_read_across_modules():
+    found = private_reads_across_modules()
+    assert not found, "private names read across modules: " + "; ".join(found)
+
+
+def test_the_private_read_check_sees_one(tmp_path):
+    pkg = tmp_path / "plant"
+    pkg.mkdir()
+    (pkg / "a.py").write_text("class A:\n    def __init__(self):\n        self._x = 1\n")
+    (pkg / "b.py").write_text("from plant.a import A, _hidden\n\ndef f(a):\n    return a._x\n")
+    globals()["ROOT"], saved = tmp_path, ROOT
+    try:
+        found = private_reads_across_modules()
+    finally:
+        globals()["ROOT"] = saved
+    assert any("a._x" in f for f in found) and any("_hidden" in f for f in found), found
+    assert not any(f.startswith("plant/a.py") for f in found), found

@@ -17,7 +17,7 @@ from plant.extensions import RigorMortis
 from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import CANDIDATES, fragment, rigor_index, rigor_limit_loss
-from fishfmu.analysis.evidence import Residuals
+from fishfmu.analysis.evidence_base import Residuals
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
 from fishfmu.scenario.schema import load_scenario
 

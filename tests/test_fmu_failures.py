@@ -229,7 +229,7 @@ def test_fmu_failing_while_initialised_fails_the_run_with_outputs(faulty_fmu: Pa
     written like any failed run; the run's files hold the line as it was at t = 0."""
     from plant.errors import SimulationError
 
-    from fishfmu.cosim import runner
+    from fishfmu.cosim import build, runner
     from fishfmu.output.run_folder import write_outputs
     from fishfmu.scenario.schema import load_scenario
 
@@ -238,7 +238,7 @@ def test_fmu_failing_while_initialised_fails_the_run_with_outputs(faulty_fmu: Pa
     def refuse(*_args, **_kwargs):
         raise SimulationError(message, 0.0)
 
-    monkeypatch.setattr(runner, "_instantiate", refuse)
+    monkeypatch.setattr(build, "instantiate", refuse)
     result = runner.run_scenario(load_scenario(PAPER, faulty_overrides(faulty_fmu, 0, "in-process")))
     assert result.status == "failed" and message in result.error and result.t_end_s == 0.0
     write_outputs(result, tmp_path / "out", report=False)

@@ -19,7 +19,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from fishfmu.cosim.interrupt import Interrupted, deferred_signals, session
+from fishfmu.session import Interrupted, deferred_signals, session
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = str(ROOT / "scenarios" / "paper_test.toml")

@@ -19,7 +19,8 @@ import pytest
 from plant.errors import InputError
 
 from fishfmu.output import ownership
-from fishfmu.output.run_folder import prepare_out_dir, write_json_atomic, write_text_atomic
+from fishfmu.output.run_folder import prepare_out_dir
+from fishfmu.output.atomic import write_json_atomic, write_text_atomic
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -164,7 +165,8 @@ def test_single_file_outputs_replace_only_their_own_file(tmp_path: Path, earlier
 
 CRASH = """
 import os, signal, sys
-from fishfmu.output.run_folder import prepare_out_dir, write_json_atomic, write_text_atomic
+from fishfmu.output.run_folder import prepare_out_dir
+from fishfmu.output.atomic import write_json_atomic, write_text_atomic
 out = prepare_out_dir(sys.argv[1], overwrite=False, command="compare")
 write_text_atomic(out / "kpis.csv", "run_id,x\\nr1,1\\n")
 write_json_atomic(out / "sub" / "a.json", {"a": 1})

@@ -172,12 +172,3 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
     assert kpis["statistics"]["fish_in"]["n"] == 2
     assert (tmp_path / "mc" / "seeds" / "runs.csv").is_file()
 
-
-@pytest.mark.bench
-def test_bench_runs_per_minute_with_one_and_two_workers(tmp_path: Path) -> None:
-    from fishfmu.bench.sweep import bench
-    doc = bench(PAPER, n_runs=4, workers=(1, 2), fixed=SMALL)
-    (tmp_path / "sweep_bench.json").write_text(json.dumps(doc, indent=2))
-    one, two = doc["results"]
-    assert one["failed"] == two["failed"] == 0
-    assert two["runs_per_min"] > one["runs_per_min"]

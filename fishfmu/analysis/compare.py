@@ -27,7 +27,7 @@ from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.residuals import concat_typed, drive_residuals, track_errors, typed_frame
-from fishfmu.cosim.interrupt import Interrupted
+from fishfmu.session import Interrupted
 from fishfmu.analysis.resim import Resim, drive_check, not_resimulated, resimulate_many
 
 KPI_KEYS = tuple(k for k in ALL_KPI_KEYS if k not in ("fish_in", "gap_min_m", "gap_p10_m"))
@@ -156,7 +156,7 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     from plant.measured import write_dataset
 
     from fishfmu.analysis.compare_report import write_compare_report
-    from fishfmu.output.run_folder import json_safe, write_json_atomic, write_text_atomic
+    from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
     paths = {}
     for name, df in (("kpis", c.kpis), ("arrivals", c.arrivals), ("error_measures", c.measures),
                      ("error_summary", c.summary())):

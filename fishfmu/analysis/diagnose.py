@@ -40,7 +40,8 @@ from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment
-from fishfmu.analysis.evidence import RunLevelShape, evidence_table, run_level_choice
+from fishfmu.analysis.evidence import evidence_table, run_level_choice
+from fishfmu.analysis.evidence_base import RunLevelShape
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone,
                                belt_residuals, concat_typed, drive_residuals_averaged, pair_residuals, track_errors,
                                typed_frame)

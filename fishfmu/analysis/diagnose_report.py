@@ -15,7 +15,8 @@ import pandas as pd  # noqa: E402
 
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.diagnose import MIN_GAIN, Diagnosis  # noqa: E402
-from fishfmu.analysis.evidence import SUPPORT_Z, RunLevelShape  # noqa: E402
+from fishfmu.analysis.evidence import RunLevelShape  # noqa: E402
+from fishfmu.analysis.evidence_base import SUPPORT_Z
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, concat_typed  # noqa: E402
 
 

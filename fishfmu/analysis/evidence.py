@@ -26,8 +26,7 @@ import numpy as np
 import pandas as pd
 
 from fishfmu.analysis.candidates import CANDIDATES, Candidate
-from fishfmu.analysis.evidence_base import (BOOTSTRAP, MIN_BELT_ROWS, SUPPORT_Z, DriveSlope,  # noqa: F401 (re-exported)
-                                   HeadingSlope, PairSeparation, Residuals, RunLevelShape, constant)
+from fishfmu.analysis.evidence_base import SUPPORT_Z, Residuals, RunLevelShape
 
 
 def _registry(candidates: dict[str, Candidate] | None) -> dict[str, Candidate]:

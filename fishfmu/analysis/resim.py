@@ -162,7 +162,7 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
     lives for this call.  The longest runs start first, so that workers finish together.
     ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
     tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
-    from fishfmu.cosim.interrupt import STOPS, deferred_signals
+    from fishfmu.session import STOPS, deferred_signals
     done: list[Resim | None] = [None] * len(tasks)
     if pool is None:
         workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))

@@ -100,7 +100,7 @@ def install_bundle(bundle: FmuBundle) -> dict[str, str]:
 def scalar_kpis(kpis: dict[str, Any]) -> dict[str, Any]:
     """The KPIs that fit a table cell (numbers, text, flags), JSON-safe (:func:`fishfmu.output.run_folder.json_safe`:
     NaN/inf -> None, numpy -> Python)."""
-    from fishfmu.output.run_folder import json_safe
+    from fishfmu.output.atomic import json_safe
     return {k: v for k, v in json_safe(kpis).items() if v is None or isinstance(v, (bool, int, float, str))}
 
 
@@ -157,7 +157,7 @@ def dask_client(scheduler: str | None, workers: int | None, threads_per_worker: 
         with client:
             yield client
         return
-    from fishfmu.cosim.interrupt import deferred_signals
+    from fishfmu.session import deferred_signals
     n = max(1, min(workers or os.cpu_count() or 1, n_tasks))
     with contextlib.ExitStack() as stack:
         # Dask's scratch space (dask-scratch-space) in a folder of ours, removed when the cluster is down
@@ -207,7 +207,7 @@ def execute(tasks: list[RunTask], bundle: FmuBundle, on_row: Callable[[Row], Non
             cluster_kwargs: dict[str, Any] | None = None) -> None:
     """Run every task on Dask and call ``on_row`` with each row as it finishes (in any order).
 
-    A KeyboardInterrupt (or :class:`fishfmu.cosim.interrupt.Interrupted`, a command's SIGINT/SIGTERM)
+    A KeyboardInterrupt (or :class:`fishfmu.session.Interrupted`, a command's SIGINT/SIGTERM)
     cancels what has not finished and propagates (rows already handed to ``on_row`` stay); the
     local cluster (client, scheduler, nannies, workers) is shut down and its scratch folder removed
     in any case.

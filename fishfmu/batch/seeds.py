@@ -20,12 +20,11 @@ from typing import Any
 import pandas as pd
 
 from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
-from plant.kpis import KPI_KEYS, SHOWN_KPI_KEYS
+from plant.kpis import KPI_KEYS
 
 from fishfmu.cosim.results import ExpectResult
 from fishfmu.scenario.schema import load_scenario
 from fishfmu.batch.sweep import SweepResult, make_spec, run_sweep
-from fishfmu.terminal import console as literal_console, labelled, outcome
 
 
 @dataclass
@@ -53,7 +52,7 @@ class SeedsResult:
 def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,
               scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
     """Run the scenario for ``n_seeds`` seeds into ``out_dir`` (already prepared) and write its KPIs."""
-    from fishfmu.output.run_folder import json_safe, write_json_atomic, write_run_info
+    from fishfmu.output.atomic import json_safe, write_json_atomic, write_run_info
     sc = load_scenario(scenario, overrides)
     spec = make_spec(scenario, {}, n_seeds, overrides)
     t0 = time.perf_counter()
@@ -61,7 +60,7 @@ def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out
     sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
     if sweep.summary.empty:
         if sweep.interrupted:  # stopped before any run finished: nothing to average, the folder says so
-            from fishfmu.cosim.interrupt import Interrupted
+            from fishfmu.session import Interrupted
             write_run_info(out_dir, "partial", seeds=spec.seeds, n_ok=0, n_failed=0,
                            stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name,
                            wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
@@ -96,27 +95,3 @@ def write_junit_means(result: SeedsResult, path: Path, scenario_file: str) -> No
     from fishfmu.output.run_folder import write_junit
     write_junit(path, f"fishfmu:{Path(scenario_file).stem}:seeds", "fishfmu.seeds", result.expect, on="mean",
                 error=(f"{result.n_failed} runs failed", str(result.statistics["errors"])) if result.n_failed else None)
-
-
-def run_seeds_command(scenario: Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, junit: Path | None,
-                      scheduler: str | None, workers: int | None, progress: bool) -> int:
-    """What ``fishfmu run --seeds N`` does after preparing the folder; returns the exit code."""
-    result = run_seeds(scenario, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers, progress=progress)
-    from fishfmu.batch.sweep_report import print_statistics
-    console = literal_console()
-    seeds = result.sweep.runs["seed"]
-    print_statistics(result.statistics, SHOWN_KPI_KEYS, console,
-                     f"KPIs: {scenario.stem}, seeds {seeds.min()}-{seeds.max()} "
-                     f"({int(result.statistics['n_ok'])} ok, {result.n_failed} failed), "
-                     f"{result.sweep.wall_s:.0f} s")
-    if result.n_failed:
-        console.print(labelled("failed runs:", result.statistics['errors'], "red"))
-    for e in result.expect:
-        console.print(outcome(e.ok, "mean " + e.message))
-    if junit is not None:
-        write_junit_means(result, junit, str(scenario))
-    if result.sweep.interrupted:
-        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.exit_code_interrupted - 128).name}; the "
-                               "statistics cover the runs that finished (run_info.json: partial)", "yellow"))
-    console.print(f"outputs: {out_dir}")
-    return result.exit_code

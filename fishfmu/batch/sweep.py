@@ -40,7 +40,7 @@ from plant.errors import InputError
 from plant.kpis import KPI_KEYS
 
 from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
-from fishfmu.cosim.interrupt import STOPS
+from fishfmu.session import STOPS
 from fishfmu.cosim.preflight import FmuDescription, describe_file, preflight
 from fishfmu.scenario.schema import Scenario, load_scenario, parse_value
 
@@ -199,7 +199,7 @@ class FmuChecker:
         self._described: dict[str, FmuDescription] = {}
 
     def check(self, scenario: Scenario, scenario_file: str) -> None:
-        from fishfmu.cosim.runner import fmu_path
+        from fishfmu.cosim.build import fmu_path
         fmus = {}
         for f in scenario.fmu:
             path = str(fmu_path(f))
@@ -220,7 +220,7 @@ def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) 
 
 def open_folder(out: Path, spec: SweepSpec) -> Path:
     """Create the sweep folder, or accept one holding this very sweep; refuse anything else."""
-    from fishfmu.output.run_folder import write_json_atomic
+    from fishfmu.output.atomic import write_json_atomic
     from fishfmu.output.ownership import is_internal, note_dir, open_resumable
     definition = spec.definition()
     out = open_resumable(Path(out), [spec.scenario])  # refuses a folder holding anything fishfmu did not write
@@ -248,7 +248,7 @@ def finished_rows(out: Path) -> dict[str, Row]:
 
 
 def store_row(out: Path, row: Row) -> None:
-    from fishfmu.output.run_folder import json_safe, write_json_atomic
+    from fishfmu.output.atomic import json_safe, write_json_atomic
     write_json_atomic(out / "points" / f"{row['run_id']}.json", json_safe(row))
 
 
@@ -285,12 +285,12 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
 
     ``max_runs``: run at most this many of the missing runs now (the rest on a later call).
     ``retry_failed``: also re-run failed runs (runs that crashed or raised are re-run anyway).
-    Ctrl-C (or SIGINT/SIGTERM under the command, see :func:`fishfmu.cosim.interrupt.session`) stops the
+    Ctrl-C (or SIGINT/SIGTERM under the command, see :func:`fishfmu.session.session`) stops the
     runs: what finished is kept, the tables are written from it (no plots) and ``interrupted`` is set.
     """
     t0 = time.perf_counter()
     out = open_folder(Path(out), spec)
-    from fishfmu.output.run_folder import write_run_info
+    from fishfmu.output.atomic import write_run_info
     write_run_info(out, "running", command="sweep")  # "partial" if killed
     done = finished_rows(out)
     keep = {k: r for k, r in done.items() if r["status"] == "ok" or (r["error_kind"] in FINAL_ERROR_KINDS

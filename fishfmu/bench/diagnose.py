@@ -1,6 +1,6 @@
 """Benchmark of ``diagnose`` on hidden effects: how often it names the right cause, over many seeds.
 
-    python -m fishfmu.bench.diagnose --seeds 5 --json bench-results/diagnose_bench.json
+    fishfmu bench diagnose --seeds 5 --json bench-results/diagnose_bench.json
 
 Each effect (and none) is simulated on the small line and run design of ``fishfmu.analysis.synthetic`` (that of tests/test_diagnose.py) with
 a different seed per repetition (different fish, drops, noise), diagnosed without being told, and
@@ -9,11 +9,11 @@ the named cause recorded; the result is a confusion table and the accuracy per e
 
 from __future__ import annotations
 
-import argparse
-import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -22,7 +22,9 @@ from plant.measured import read_dataset
 from fishfmu.analysis.diagnose import diagnose
 from fishfmu.analysis.synthetic import EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
 
-def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: float = 1.0, workers: int = 2) -> pd.DataFrame:
+
+def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: float = 1.0, workers: int = 2,
+              on_row: Callable[[dict], None] | None = None) -> pd.DataFrame:
     rows = []
     for seed in seeds:
         for effect in effects:
@@ -34,27 +36,23 @@ def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: fl
                 fit = next((f for f in d.fits if f.name == d.cause), None)
                 rows.append({"effect": effect, "seed": seed, "cause": d.cause, "correct": d.cause == effect,
                              "heldout_gain": fit.heldout_gain if fit else 0.0, "wall_s": time.perf_counter() - t0})
-                print(rows[-1], flush=True)
+                if on_row is not None:
+                    on_row(rows[-1])
     return pd.DataFrame(rows)
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--first-seed", type=int, default=100)
-    ap.add_argument("--strength", type=float, default=1.0)
-    ap.add_argument("--json", type=Path, default=Path("bench-results/diagnose_bench.json"))
-    args = ap.parse_args()
-    table = run_bench(list(range(args.first_seed, args.first_seed + args.seeds)), strength=args.strength)
+def bench(seeds: int = 5, first_seed: int = 100, strength: float = 1.0, workers: int = 2,
+          on_row: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """The confusion table and accuracy per effect over ``seeds`` seeds from ``first_seed``."""
+    table = run_bench(list(range(first_seed, first_seed + seeds)), strength=strength, workers=workers, on_row=on_row)
     confusion = pd.crosstab(table["effect"], table["cause"])
     accuracy = table.groupby("effect")["correct"].mean()
-    print(confusion.to_string())
-    print(accuracy.to_string())
-    args.json.parent.mkdir(parents=True, exist_ok=True)
-    args.json.write_text(json.dumps({"runs": table.to_dict(orient="records"),
-                                     "accuracy": accuracy.to_dict(), "overall": float(table["correct"].mean()),
-                                     "confusion": confusion.to_dict(), "strength": args.strength}, indent=2))
+    return {"runs": table.to_dict(orient="records"), "accuracy": accuracy.to_dict(),
+            "overall": float(table["correct"].mean()), "confusion": confusion.to_dict(), "strength": strength}
 
 
-if __name__ == "__main__":
-    main()
+def summary(doc: dict[str, Any]) -> list[str]:
+    """What the benchmark found, as lines for the console."""
+    confusion = pd.DataFrame(doc["confusion"]).fillna(0).astype(int)
+    return [confusion.to_string(), pd.Series(doc["accuracy"], name="accuracy").to_string(),
+            f"overall: {doc['overall']:.0%}"]

@@ -1,11 +1,12 @@
 """What running FMUs in worker processes costs per communication step.
 
-    python -m fishfmu.bench.fmu_worker                     # paper scenario's 5 FMUs, no fish, 2000 steps x 3
-    python -m fishfmu.bench.fmu_worker --with-fish         # also the whole paper test, in-process vs worker
+    fishfmu bench fmu-worker                  # paper scenario's 5 FMUs, no fish, 2000 steps x 3
+    fishfmu bench fmu-worker --with-fish      # also the whole paper test, in-process vs worker
 
-The same scenario runs with ``run.fmu_process = "in-process"`` and ``"worker"``.  Every FMU call
-(``set``, ``do_step``, ``get``) is timed, so the cost of isolation is measured directly: the time
-the master spends in FMU calls per step, worker minus in-process, for all FMUs and per FMU, plus the
+The same scenario runs with ``run.fmu_process = "in-process"`` and ``"worker"``.  The master's FMU
+stage (inputs set, ``do_step``, outputs read; :class:`fishfmu.cosim.master.StageClock`) is timed, so
+the cost of isolation is measured directly: the time the master spends stepping FMUs per step,
+worker minus in-process, for all FMUs and per FMU, plus the
 start-up (one interpreter per FMU).  Without fish the plant costs little, so the wall time per step
 shows the same difference.  ``--with-fish`` runs the paper test as shipped (18 fish) in both modes
 to put the cost next to a real plant step.  Results go to ``bench-results/fmu_worker_bench.json``.
@@ -13,8 +14,6 @@ to put the cost next to a real plant step.  Results go to ``bench-results/fmu_wo
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import platform
 import statistics
@@ -25,59 +24,22 @@ from typing import Any
 NO_FISH = {"fish.count": 1, "fish.first_drop_s": 3600.0, "run.stop_when_clear": False, "expect": {}}
 
 
-class _Timed:
-    """An FMU (in-process or worker) whose calls add their wall time to a clock; ``clock[1]`` is the
-    clock's value at the first step (what came before is start-up: instantiation, initial outputs)."""
-
-    def __init__(self, fmu, clock: list) -> None:
-        self._fmu, self._clock = fmu, clock
-        self.name = fmu.name
-
-    def _timed(self, fn, *args):
-        t0 = time.perf_counter()
-        try:
-            return fn(*args)
-        finally:
-            self._clock[0] += time.perf_counter() - t0
-
-    def set(self, values):
-        return self._timed(self._fmu.set, values)
-
-    def do_step(self, t_s, dt_s):
-        if self._clock[1] is None:
-            self._clock[1] = self._clock[0]
-        return self._timed(self._fmu.do_step, t_s, dt_s)
-
-    def get(self, names):
-        return self._timed(self._fmu.get, names)
-
-    def terminate(self):
-        return self._fmu.terminate()
-
-
 def measure(scenario: str | Path, process: str, overrides: dict[str, Any]) -> dict[str, float]:
-    """One run: wall time per step, FMU-call time per step, set-up time."""
-    import fishfmu.cosim.runner as runner
+    """One run: wall time per step, time in the master's FMU stage per step, set-up time."""
+    from fishfmu.cosim.master import StageClock
+    from fishfmu.cosim.runner import run_scenario
     from fishfmu.scenario.schema import load_scenario
     sc = load_scenario(scenario, {**overrides, "run.fmu_process": process})
-    clock: list = [0.0, None]
-    original = runner._instantiate
-
-    def instantiate(*args, **kwargs):
-        return {n: _Timed(f, clock) for n, f in original(*args, **kwargs).items()}
-
-    runner._instantiate = instantiate
-    try:
-        t0 = time.perf_counter()
-        result = runner.run_scenario(sc)
-        total = time.perf_counter() - t0
-    finally:
-        runner._instantiate = original
+    clock = StageClock()
+    t0 = time.perf_counter()
+    result = run_scenario(sc, clock=clock)
+    total = time.perf_counter() - t0
     if result.status != "ok":
         raise RuntimeError(f"benchmark run failed: {result.error}")
     steps = round(result.t_end_s / sc.run.comm_step_s)
     return {"steps": steps, "fmus": len(sc.fmu), "wall_ms_per_step": 1e3 * result.wall_s / steps,
-            "fmu_ms_per_step": 1e3 * (clock[0] - (clock[1] or 0.0)) / steps, "setup_s": result.timings_s["setup"], "total_s": total}
+            "fmu_ms_per_step": 1e3 * clock.totals_s["fmus"] / steps, "setup_s": result.timings_s["setup"],
+            "total_s": total}
 
 
 def bench(scenario: str | Path = "scenarios/paper_test.toml", steps: int = 2000, repeats: int = 3,
@@ -105,27 +67,14 @@ def bench(scenario: str | Path = "scenarios/paper_test.toml", steps: int = 2000,
     return doc
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="scenarios/paper_test.toml")
-    ap.add_argument("--steps", type=int, default=2000, help="communication steps per run (no fish)")
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--with-fish", action="store_true", help="also the scenario as shipped, in both modes")
-    ap.add_argument("--out", type=Path, default=Path("bench-results/fmu_worker_bench.json"))
-    args = ap.parse_args()
-    doc = bench(args.scenario, args.steps, args.repeats, args.with_fish)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=2) + "\n")
+def summary(doc: dict[str, Any]) -> list[str]:
+    """What the benchmark found, as lines for the console."""
     ip, w = doc["in_process"], doc["worker"]
-    print(f"{doc['fmus']} FMUs, {doc['steps']} steps, median of {doc['repeats']}: FMU calls "
-          f"{ip['fmu_ms_per_step']:.3f} ms/step in-process, {w['fmu_ms_per_step']:.3f} ms/step in workers: isolation "
-          f"costs {doc['isolation_ms_per_step']:.3f} ms per step ({doc['isolation_ms_per_fmu_step']:.3f} ms per FMU "
-          f"and step), start-up {doc['worker_setup_s']:.2f} s")
+    lines = [f"{doc['fmus']} FMUs, {doc['steps']} steps, median of {doc['repeats']}: FMU stage "
+             f"{ip['fmu_ms_per_step']:.3f} ms/step in-process, {w['fmu_ms_per_step']:.3f} ms/step in workers: isolation "
+             f"costs {doc['isolation_ms_per_step']:.3f} ms per step ({doc['isolation_ms_per_fmu_step']:.3f} ms per FMU "
+             f"and step), start-up {doc['worker_setup_s']:.2f} s"]
     for p, r in doc.get("paper_test", {}).items():
-        print(f"paper test as shipped, {p}: {r['wall_ms_per_step']:.2f} ms/step ({r['steps']} steps, "
-              f"FMU calls {r['fmu_ms_per_step']:.3f} ms/step)")
-    print(f"written: {args.out}")
-
-
-if __name__ == "__main__":
-    main()
+        lines.append(f"paper test as shipped, {p}: {r['wall_ms_per_step']:.2f} ms/step ({r['steps']} steps, "
+                     f"FMU stage {r['fmu_ms_per_step']:.3f} ms/step)")
+    return lines

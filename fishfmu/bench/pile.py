@@ -40,9 +40,9 @@ class BenchRecord:
     plant_python_s: float
     """Co-simulation: the plant's own work around the solver (sensors, joints, drops, rebuilds)."""
     fmu_s: float
-    """Co-simulation: in FMU calls (set inputs, doStep, get outputs)."""
+    """Co-simulation: stepping the FMUs (their inputs routed and set, doStep, outputs read)."""
     master_s: float
-    """Co-simulation: the master's own work (routing signals, events)."""
+    """Co-simulation: the master's own work outside the FMUs (events, belt speeds, energy check)."""
     recording_s: float
     """Co-simulation: recording signals, tracks and belt logs."""
     wall_cosim_s: float
@@ -78,15 +78,10 @@ def bench_scenario(n_fish: int, comm_step_s: float, threads: int):
 
 def run_case(n_fish: int, duration_s: float, comm_step_s: float, threads: int) -> BenchRecord:
     """Measure one fish count in this process (see the module docstring)."""
-    import contextlib
-
     from plant.plant import Plant
-    from fishfmu.fmu.archive import open_fmu
-    from fishfmu.fmu.instance import FmuInstance
-    from fishfmu.cosim.master import CoSimulation, setpoint_sources
-    from fishfmu.cosim.runner import fmu_path, scenario_fish
-    from fishfmu.scenario.wiring import direct_feedthrough, resolve_wiring
-    from plant.recorder import RunRecorder
+
+    from fishfmu.cosim.build import build, checked, scenario_fish
+    from fishfmu.cosim.master import StageClock
 
     sc = bench_scenario(n_fish, comm_step_s, threads)
     fish = scenario_fish(sc) if n_fish else []  # 0 fish: the cost of the line alone
@@ -104,56 +99,26 @@ def run_case(n_fish: int, duration_s: float, comm_step_s: float, threads: int) -
         plant.step(speeds)
     wall_plant = time.perf_counter() - t0
 
-    # co-simulation, with timers around each part
-    with contextlib.ExitStack() as stack:
-        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in sc.fmu}
-        wiring = resolve_wiring(sc, {n: o.variables for n, o in opened.items()}, None,
-                                {n: direct_feedthrough(o.model_description) for n, o in opened.items()})
-        plant = Plant(sc.line, fish, sc.plant, comm_step_s)
-        fmus = {f.name: FmuInstance(f.name, opened[f.name], f.parameters) for f in sc.fmu}
-        rec = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids, comm_step_s)
-        cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event, comm_step_s,
-                             recorder=rec, setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
-        stack.callback(cosim.terminate)
-        timers = {"plant": 0.0, "fmu": 0.0, "recording": 0.0}
-        _wrap(plant, "step", timers, "plant")
-        _wrap(rec, "record", timers, "recording")
-        for f in fmus.values():
-            for m in ("set", "get", "do_step"):
-                _wrap(f, m, timers, "fmu")
+    # co-simulation, built as a run builds it, its stages timed by the master's clock
+    clock = StageClock()
+    with checked(sc) as c, build(c, fish, clock=clock) as cosim:
         for _ in range(n_warm):
             cosim.step()
-        for k in timers:
-            timers[k] = 0.0
-        exu0 = plant.timings_s["exudyn"]
+        clock.reset()
+        exu0 = cosim.plant.timings_s["exudyn"]
         t0 = time.perf_counter()
         for _ in range(n_meas):
             cosim.step()
         wall_cosim = time.perf_counter() - t0
-        exudyn = plant.timings_s["exudyn"] - exu0
+        exudyn = cosim.plant.timings_s["exudyn"] - exu0
+    stages = clock.totals_s
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return BenchRecord(
         fish=n_fish, threads=threads, comm_step_s=comm_step_s, duration_s=duration_s,
         rtf_plant=duration_s / wall_plant, rtf_cosim=duration_s / wall_cosim,
-        plant_exudyn_s=exudyn, plant_python_s=timers["plant"] - exudyn, fmu_s=timers["fmu"],
-        master_s=wall_cosim - timers["plant"] - timers["fmu"] - timers["recording"], recording_s=timers["recording"],
+        plant_exudyn_s=exudyn, plant_python_s=stages["plant"] - exudyn, fmu_s=stages["fmus"],
+        master_s=stages["events"] + stages["belt_speeds"] + stages["energy_check"], recording_s=stages["record"],
         wall_cosim_s=wall_cosim, step_cost_ms=1e3 * wall_plant / n_meas, peak_rss_mb=peak_mb)
-
-
-def _wrap(obj, name: str, timers: dict[str, float] | None, key: str | None) -> None:
-    """Replace obj.name by a version that adds its wall time to timers[key]."""
-    if timers is None:
-        return
-    fn = getattr(obj, name)
-
-    def timed(*args, **kwargs):
-        t0 = time.perf_counter()
-        try:
-            return fn(*args, **kwargs)
-        finally:
-            timers[key] += time.perf_counter() - t0
-
-    setattr(obj, name, timed)
 
 
 def run_bench(fish_counts: list[int], duration_s: float = 5.0, comm_step_s: float = 0.01,

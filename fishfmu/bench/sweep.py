@@ -1,6 +1,6 @@
 """Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers.
 
-    python -m fishfmu.bench.sweep --runs 8 --workers 1 2          # paper scenario, seeds 1-8
+    fishfmu bench sweep --runs 8 --workers 1 --workers 2          # paper scenario, seeds 1-8
 
 Each setting runs the same seeds into a fresh folder; the wall time counts everything a user waits
 for (cluster start, FMU transfer, runs, tables), so it is ``runs / wall time``.  Results go to
@@ -9,8 +9,6 @@ for (cluster start, FMU transfer, runs, tables), so it is ``runs / wall time``. 
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import platform
 import tempfile
@@ -44,24 +42,7 @@ def bench(scenario: str | Path = "scenarios/paper_test.toml", n_runs: int = 8, w
             "results": results}
 
 
-def main() -> None:
-    from fishfmu.scenario.schema import parse_value
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="scenarios/paper_test.toml")
-    ap.add_argument("--runs", type=int, default=8, help="seeds per setting")
-    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--set", action="append", default=[], help="KEY=VALUE override")
-    ap.add_argument("--out", type=Path, default=Path("bench-results/sweep_bench.json"))
-    args = ap.parse_args()
-    fixed = {k.strip(): parse_value(v.strip()) for k, _, v in (s.partition("=") for s in args.set)}
-    doc = bench(args.scenario, args.runs, tuple(args.workers), fixed)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(doc, indent=2) + "\n")
-    for r in doc["results"]:
-        print(f"{r['workers']} worker(s): {r['runs']} runs in {r['wall_s']:.1f} s = {r['runs_per_min']:.2f} runs/min "
-              f"(mean {r['task_s_mean']:.1f} s per run, {r['failed']} failed)")
-    print(f"written: {args.out}")
-
-
-if __name__ == "__main__":
-    main()
+def summary(doc: dict[str, Any]) -> list[str]:
+    """What the benchmark found, as lines for the console."""
+    return [f"{r['workers']} worker(s): {r['runs']} runs in {r['wall_s']:.1f} s = {r['runs_per_min']:.2f} runs/min "
+            f"(mean {r['task_s_mean']:.1f} s per run, {r['failed']} failed)" for r in doc["results"]]

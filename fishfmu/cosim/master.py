@@ -22,6 +22,7 @@ text.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -37,6 +38,42 @@ from plant.recorder import RunRecorder
 
 from fishfmu.scenario.schema import Event
 from fishfmu.scenario.wiring import PLANT, Connection, Wiring
+
+
+STAGES = ("events", "fmus", "belt_speeds", "plant", "energy_check", "record")
+"""The stages of :meth:`CoSimulation.step`, in order."""
+
+
+class StageClock:
+    """Wall time spent in each stage of :meth:`CoSimulation.step` (``totals_s``), for benchmarks; one
+    ``perf_counter`` per stage, so that timing does not change what is timed."""
+
+    def __init__(self) -> None:
+        self.totals_s = dict.fromkeys(STAGES, 0.0)
+        self._last = 0.0
+
+    def start(self) -> None:
+        self._last = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.totals_s[stage] += now - self._last
+        self._last = now
+
+    def reset(self) -> None:
+        self.totals_s = dict.fromkeys(STAGES, 0.0)
+
+
+class _NoClock(StageClock):
+    def start(self) -> None:
+        pass
+
+    def lap(self, stage: str) -> None:
+        pass
+
+
+NO_CLOCK = _NoClock()
+"""The default: no timing."""
 
 
 class FmuLike(Protocol):
@@ -67,6 +104,7 @@ class CoSimulation:
     signals: list[tuple] = field(default_factory=list)
     signal_names: list[str] = field(default_factory=list)
     steps: int = 0
+    clock: StageClock = NO_CLOCK
 
     def __post_init__(self) -> None:
         self._inputs_of = {name: self.wiring.into(name) for name in list(self.fmus) + [PLANT]}
@@ -96,22 +134,28 @@ class CoSimulation:
 
     # ---- the step ----------------------------------------------------------------------------
     def step(self) -> None:
-        t, dt = self.t_s, self.comm_step_s
+        """One base step from t to t + dt, stage by stage (see the module's docstring)."""
+        t, dt, lap = self.t_s, self.comm_step_s, self.clock.lap
+        self.clock.start()
         self._apply_events(t)
+        lap("events")
         held = dict(self.values) if self.jacobi else self.values
         for name in self.wiring.order:
             m = self.step_multiples.get(name, 1)
             if self.steps % m == 0:
                 self._step_fmu(name, held, t, m * dt)
-        speeds = {}
-        for c in self.plant.conveyor_ids:
-            speeds[c] = float(self._input_value(f"{PLANT}.{c}.speed", held))
+        lap("fmus")
+        speeds = {c: float(self._input_value(f"{PLANT}.{c}.speed", held)) for c in self.plant.conveyor_ids}
+        lap("belt_speeds")
         out = self.plant.step(speeds)
+        lap("plant")
         self.energy_watch.check(self.plant.state, dt)
+        lap("energy_check")
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1
         self._record(speeds, out)
+        lap("record")
 
     def _step_fmu(self, name: str, held: dict[str, Any], t: float, dt: float) -> None:
         fmu = self.fmus[name]

@@ -1,4 +1,4 @@
-"""Running a scenario: build the plant and the FMUs, wire them, step the master, compute the KPIs.
+"""Running a scenario: check it, build the co-simulation, step it to the end, collect the result.
 
 >>> from fishfmu.cosim.runner import run_scenario                       # doctest: +SKIP
 >>> from fishfmu.scenario.schema import load_scenario                    # doctest: +SKIP
@@ -22,99 +22,72 @@ from plant.errors import SimulationError
 from plant.kpis import compute_kpis
 from plant.measured import Run
 from plant.plant import Plant
-from plant.population import FishSpec, fish_to_frame, sample_fish
+from plant.population import FishSpec, fish_to_frame
 from plant.recorder import RunRecorder, pose_record
 from plant.simulate import run_loop
 
-from fishfmu.fmu.archive import OpenedFmu, open_fmu
-from fishfmu.cosim.interrupt import StopRequest
-from fishfmu.cosim.master import CoSimulation, setpoint_sources, signal_frame, signal_names
-from fishfmu.cosim.preflight import FmuDescription, describe, preflight
-from fishfmu.cosim.results import ExpectResult, RunResult  # noqa: F401 (re-exported)
+from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, checked, scenario_fish
+from fishfmu.cosim.stop import StopRequest
+from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock, signal_frame, signal_names
+from fishfmu.cosim.results import ExpectResult, RunResult
 from fishfmu.scenario.schema import Scenario
-
-
-def scenario_fish(scenario: Scenario) -> list[FishSpec]:
-    """The batch of a scenario: sampled from its seed (the same seed gives the same fish)."""
-    rng = np.random.default_rng([scenario.run.seed, scenario.fish.seed_offset])
-    first = scenario.line.conveyors[0]
-    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), 0.5 * scenario.line.guide_width_m, rng)
-
-
-def fmu_path(instance) -> Path:
-    if instance.builtin is not None:
-        from fishfmu.fmu.build import builtin_fmu
-        return builtin_fmu(instance.builtin)
-    return Path(instance.path)
-
-
-def check_scenario(scenario: Scenario, scenario_file: str | Path | None = None) -> None:
-    """Everything a run checks before it starts, without running: each FMU file opens and is valid,
-    its parameters exist and fit, and the wiring resolves (raises InputError naming what is wrong)."""
-    with contextlib.ExitStack() as stack:
-        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
-        preflight(scenario, scenario_file, _described(opened))
-
-
-def _described(opened: dict[str, OpenedFmu]) -> dict[str, FmuDescription]:
-    return {n: describe(o.path, o.model_description, o.variables) for n, o in opened.items()}
 
 
 def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
                  on_progress: Callable[[float, float], None] | None = None,
                  fish: list[FishSpec] | None = None, record_poses: bool = False,
-                 stop: StopRequest | None = None) -> RunResult:
+                 stop: StopRequest | None = None, checked_scenario: CheckedScenario | None = None,
+                 clock: StageClock = NO_CLOCK) -> RunResult:
     """Run one scenario; a failure inside the run is returned as ``status = "failed"`` with what was
     recorded until then (bad input is raised as InputError before anything runs).  When ``stop`` is
-    requested (a signal, see :mod:`fishfmu.cosim.interrupt`) the run ends after the current step with
-    ``status = "partial"``."""
+    requested (a signal, see :mod:`fishfmu.cosim.stop`) the run ends after the current step with
+    ``status = "partial"``.  ``checked_scenario`` is the scenario already checked with its FMUs open
+    (:func:`fishfmu.cosim.build.checked`, as ``fishfmu run`` does before it writes anything)."""
     fish = scenario_fish(scenario) if fish is None else fish
-    sfile = str(scenario_file) if scenario_file else None
-    timings = {"setup": 0.0}
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
-        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
-        wiring = preflight(scenario, sfile, _described(opened))
-        plant = Plant(scenario.line, fish, scenario.plant, scenario.run.comm_step_s)
-        recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids,
-                               scenario.run.comm_step_s, record_poses=record_poses)
+        if checked_scenario is None:
+            checked_scenario = stack.enter_context(checked(scenario, scenario_file))
+        try:
+            cosim = stack.enter_context(build(checked_scenario, fish, record_poses, clock))
+        except BuildFailed as exc:  # an FMU failing while instantiated and initialised fails the run
+            return collect(scenario, fish, exc.plant, exc.recorder, None, "failed", str(exc),
+                           {"setup": time.perf_counter() - t0}, 0.0, signal_names(checked_scenario.wiring))
+        timings = {"setup": time.perf_counter() - t0}
+        t_run = time.perf_counter()
         status, error = "ok", None
-        cosim: CoSimulation | None = None
-        try:  # an FMU failing while it is instantiated and initialised fails the run, as in any step
-            fmus = _instantiate(scenario, opened, stack)
-            cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in scenario.fmu}, wiring,
-                                 scenario.event, scenario.run.comm_step_s, jacobi=scenario.run.coupling == "jacobi",
-                                 recorder=recorder, setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids))
+        try:
+            _loop(cosim, scenario, on_progress, stop)
         except SimulationError as exc:
             status, error = "failed", str(exc)
-        else:
-            stack.callback(cosim.terminate)
-        timings["setup"] = time.perf_counter() - t0
-        t_run = time.perf_counter()
-        if cosim is not None:
-            try:
-                _loop(cosim, scenario, on_progress, stop)
-            except SimulationError as exc:
-                status, error = "failed", str(exc)
-            except _Stopped as exc:
-                status, error = "partial", str(exc)
-        wall = time.perf_counter() - t_run
-        if cosim is None or cosim.steps == 0:
-            _record_start(recorder, plant, cosim)
-        tables = recorder.tables()
-        run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
-                  notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
-                  photoeyes=tables["photoeyes"], belts=tables["belts"])
-        kpis = compute_kpis(run, scenario.line, scenario.kpi)
-        expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
-        if cosim is None:
-            signals, t_end, worst = signal_frame([], signal_names(wiring)), 0.0, (0.0, 0.0)
-        else:
-            watch = cosim.energy_watch
-            signals, t_end, worst = cosim.signal_frame(), cosim.t_s, (watch.worst_excess_j, watch.worst_ratio)
-        return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall,
-                         timings, list(plant.drop_adjustments), pose_record(recorder, plant),
-                         {"worst_excess_j": worst[0], "worst_fraction_of_reserve": worst[1]})
+        except _Stopped as exc:
+            status, error = "partial", str(exc)
+        return collect(scenario, fish, cosim.plant, cosim.recorder, cosim, status, error, timings,
+                       time.perf_counter() - t_run)
+
+
+def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: RunRecorder,
+            cosim: CoSimulation | None, status: str, error: str | None, timings_s: dict[str, float],
+            wall_s: float, signal_columns: list[str] | None = None) -> RunResult:
+    """The result of a run from what it recorded: the run in the measured-data format, KPIs,
+    ``[expect]`` outcomes, signals, energy check.  ``cosim`` is None when the FMUs never started
+    (``signal_columns`` then names the columns of the empty signal table)."""
+    if cosim is None or cosim.steps == 0:
+        _record_start(recorder, plant, cosim)
+    tables = recorder.tables()
+    run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
+              notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
+              photoeyes=tables["photoeyes"], belts=tables["belts"])
+    kpis = compute_kpis(run, scenario.line, scenario.kpi)
+    expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
+    if cosim is None:
+        signals, t_end, worst = signal_frame([], signal_columns or []), 0.0, (0.0, 0.0)
+    else:
+        watch = cosim.energy_watch
+        signals, t_end, worst = cosim.signal_frame(), cosim.t_s, (watch.worst_excess_j, watch.worst_ratio)
+    return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall_s,
+                     timings_s, list(plant.drop_adjustments), pose_record(recorder, plant),
+                     {"worst_excess_j": worst[0], "worst_fraction_of_reserve": worst[1]})
 
 
 def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | None) -> None:
@@ -135,19 +108,6 @@ def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | Non
 
 def _number(value: Any) -> float | None:
     return None if value is None else float(value)
-
-
-def _instantiate(scenario: Scenario, opened, stack: contextlib.ExitStack) -> dict[str, Any]:
-    from fishfmu.fmu.instance import FmuInstance
-    fmus = {}
-    for f in scenario.fmu:
-        if scenario.run.fmu_process == "worker":
-            from fishfmu.fmu.worker import WorkerFmu
-            fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
-        else:
-            fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
-        stack.callback(fmus[f.name].terminate)  # also when a later one fails to start
-    return fmus
 
 
 class _Stopped(Exception):

@@ -3,7 +3,7 @@ its folder's manifest (:mod:`fishfmu.output.ownership`, where the byte writer li
 so a crash or an interrupt never leaves a half-written file under its final name.
 
 A module of its own, below :mod:`fishfmu.output.run_folder` (which re-exports all of it), so that what only
-needs to write a file (the report, :func:`fishfmu.cosim.interrupt.mark_partial`) does not import the run's
+needs to write a file (the report, :func:`fishfmu.session.mark_partial`) does not import the run's
 output writer and, through it, the runner.
 """
 
@@ -55,5 +55,5 @@ def json_safe(x: Any) -> Any:
 def write_run_info(out: Path, /, status: str, **fields: Any) -> None:
     """Write ``out/run_info.json``: ``status`` and ``fields`` (made JSON-safe, see :func:`json_safe`).
     The one writer of that file, for every command (run, run --seeds, sweep, compare, diagnose) and
-    for :func:`fishfmu.cosim.interrupt.mark_partial`."""
+    for :func:`fishfmu.session.mark_partial`."""
     write_json_atomic(Path(out) / MARKER, json_safe({"status": status, **fields}))

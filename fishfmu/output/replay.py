@@ -350,7 +350,7 @@ def render_html(header: dict[str, Any], blob: str) -> str:
 def write_page(header: dict[str, Any], blob: str, out: Path) -> Path:
     """The page, written atomically (a reader never sees half a page)."""
     html = render_html(header, blob)
-    from fishfmu.output.run_folder import write_text_atomic
+    from fishfmu.output.atomic import write_text_atomic
     write_text_atomic(out, html)  # recorded in the folder's manifest (fishfmu.output.ownership)
     return out
 

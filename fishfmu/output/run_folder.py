@@ -22,13 +22,11 @@ from pathlib import Path
 from typing import Any, Iterable, Sequence
 from xml.etree import ElementTree as ET
 
-import numpy as np
 
 from plant.measured import write_dataset
 
 from fishfmu.output import ownership
-from fishfmu.output.atomic import (MARKER, json_safe, write_bytes_atomic, write_json_atomic,  # noqa: F401 (re-exported)
-                            write_run_info, write_text_atomic)
+from fishfmu.output.atomic import MARKER, json_safe, write_json_atomic, write_run_info, write_text_atomic
 from fishfmu.cosim.results import ExpectResult, RunResult
 from fishfmu.scenario.schema import resolved_toml
 

@@ -1,0 +1,266 @@
+"""One function per ``fishfmu`` command, callable from a script as from the command line.
+
+Each does what its command does (checks the input, prepares the output folder under the rules of
+:mod:`fishfmu.output.ownership`, runs, writes) and returns what it produced; it prints nothing.
+:mod:`fishfmu.cli` parses arguments, calls one of these and prints the outcome.  Bad input raises
+InputError before anything is written; a failure inside a run is reported in the returned outcome
+(``status``) or raised as SimulationError where the command has nothing to return.
+
+>>> from fishfmu import commands                                                     # doctest: +SKIP
+>>> outcome = commands.run("scenarios/paper_test.toml", out="out/pt", overwrite=True) # doctest: +SKIP
+>>> outcome.result.kpis["singulation_rate"], outcome.out_dir                          # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from plant.errors import InputError, SimulationError
+
+from fishfmu.cosim.results import RunResult
+
+
+def default_out(scenario_file: str | Path) -> Path:
+    """Where a run goes without ``--out``: ``out/<scenario file name without .toml>``."""
+    return Path("out") / Path(scenario_file).stem
+
+
+def _run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
+    """The files a run reads (never written over); checks ``junit`` against them and for ownership."""
+    from fishfmu.output.ownership import check_single_file_target
+    inputs = [scenario_file, *(f.path for f in sc.fmu if f.path)]
+    if junit is not None:
+        check_single_file_target(junit, inputs)
+    return inputs
+
+
+# ---------------------------------------------------------------- build-fmus
+
+def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] | None = None) -> list[Path]:
+    """Build built-in FMUs (all when ``names`` is empty) as .fmu files in ``out``; ``defaults`` bakes in
+    parameter defaults (one FMU only).  Raises FmuBuildError naming the FMU that failed."""
+    from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
+    from fishfmu.output.ownership import check_single_file_target, record_written
+    names = list(names) or list(BUILTIN_FMUS)
+    if defaults and len(names) != 1:
+        raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
+    out = Path(out)
+    for name in names:  # an existing .fmu is replaced only if fishfmu wrote it
+        check_single_file_target(out / f"{name}.fmu")
+    built = []
+    for name in names:
+        try:
+            path = build_fmu(name, out, defaults or {})
+        except FmuBuildError as exc:
+            raise FmuBuildError(f"{name}: {exc}") from exc
+        record_written(path)
+        built.append(path)
+    return built
+
+
+# ---------------------------------------------------------------- run
+
+@dataclass
+class RunOutcome:
+    result: RunResult
+    out_dir: Path
+    replay: Path | None
+    """The replay page, when asked for."""
+    stop_exit_code: int | None
+    """130/143 when a signal stopped the run (``result.status == "partial"``)."""
+
+
+def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
+        junit: str | Path | None = None, overwrite: bool = False, report: bool = True, replay: bool = False,
+        on_progress: Callable[[float, float], None] | None = None) -> RunOutcome:
+    """Run a scenario into ``out`` (default ``out/<name>``): KPIs, signals, the run, report, JUnit.
+    SIGINT/SIGTERM stop it after the current step with what there is written (``status = "partial"``)."""
+    from fishfmu.cosim.build import checked
+    from fishfmu.cosim.stop import stop_on_signals
+    from fishfmu.session import register_output
+    from fishfmu.cosim.runner import run_scenario
+    from fishfmu.output.run_folder import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir,
+                                           write_junit, write_outputs)
+    from fishfmu.scenario.schema import load_scenario
+    scenario_file = Path(scenario_file)
+    junit = Path(junit) if junit is not None else None
+    sc = load_scenario(scenario_file, overrides or {})
+    # every FMU opened and checked once: bad input is found before anything is written
+    with checked(sc, scenario_file) as checked_scenario:
+        out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
+                                  _run_inputs(scenario_file, sc, junit), "run")
+        mark_running(out_dir, scenario_file)
+        register_output(out_dir)
+        with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
+            try:
+                result = run_scenario(sc, scenario_file, on_progress, record_poses=replay, stop=stop,
+                                      checked_scenario=checked_scenario)
+            except InputError:
+                discard_if_unused(out_dir)
+                raise
+            write_outputs(result, out_dir, report=report)
+    replay_path = None
+    if replay:
+        from fishfmu.output.replay import write_replay
+        replay_path = write_replay(out_dir)
+    if junit is not None:
+        write_junit(junit, **junit_args_of_run(result, str(scenario_file)))
+    return RunOutcome(result, out_dir, replay_path, stop.exit_code if result.status == "partial" else None)
+
+
+def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = None,
+              overrides: dict[str, Any] | None = None, *, junit: str | Path | None = None, overwrite: bool = False,
+              scheduler: str | None = None, workers: int | None = None, progress: bool = False):
+    """Run a scenario for ``n_seeds`` seeds on Dask into ``out``: KPIs as mean and 95 % CI, ``[expect]``
+    on the means (:class:`fishfmu.batch.seeds.SeedsResult`)."""
+    from fishfmu.batch.seeds import run_seeds as run_seeds_
+    from fishfmu.batch.seeds import write_junit_means
+    from fishfmu.batch.sweep import check_size
+    from fishfmu.cosim.build import check_scenario
+    from fishfmu.session import register_output
+    from fishfmu.output.run_folder import prepare_out_dir
+    from fishfmu.scenario.schema import load_scenario
+    scenario_file = Path(scenario_file)
+    junit = Path(junit) if junit is not None else None
+    overrides = overrides or {}
+    check_size(1, n_seeds)  # before anything is written
+    sc = load_scenario(scenario_file, overrides)
+    check_scenario(sc, scenario_file)
+    out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
+                              _run_inputs(scenario_file, sc, junit), "run")
+    register_output(out_dir, {"command": "run", "seeds": n_seeds})  # a signal: run_info.json says partial
+    result = run_seeds_(scenario_file, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers,
+                        progress=progress)
+    if junit is not None:
+        write_junit_means(result, junit, str(scenario_file))
+    return result, out_dir
+
+
+# ---------------------------------------------------------------- sweep
+
+def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, out: str | Path,
+          fixed: dict[str, Any] | None = None, **options: Any):
+    """Sweep parameters x seeds on Dask into ``out`` (resumable); ``options`` as
+    :func:`fishfmu.batch.sweep.run_sweep` takes them (scheduler, workers, max_runs, retry_failed, ...)."""
+    from fishfmu.batch.sweep import make_spec, run_sweep
+    from fishfmu.session import register_output
+    spec = make_spec(Path(scenario_file), params, seeds, fixed or {})
+    register_output(Path(out), {"command": "sweep"})
+    return spec, run_sweep(spec, Path(out), **options)
+
+
+# ---------------------------------------------------------------- replay
+
+def replay(run_dir: str | Path, out: str | Path | None = None) -> Path:
+    """Write a run (of ``fishfmu run --replay``) as one HTML page that replays it in 3D."""
+    from fishfmu.output.ownership import check_single_file_target
+    from fishfmu.output.replay import write_replay
+    run_dir = Path(run_dir)
+    check_single_file_target(Path(out) if out is not None else run_dir / "replay.html",
+                             [run_dir / "run", run_dir / "poses.npz", run_dir / "scenario.resolved.toml"])
+    return write_replay(run_dir, Path(out) if out is not None else None)
+
+
+# ---------------------------------------------------------------- compare and diagnose
+
+def _dataset_and_params(dataset: Path, scenario_file: Path | None):
+    from plant.measured import read_dataset
+    from plant.params import PlantParams
+    ds = read_dataset(dataset)
+    if scenario_file is None:
+        return ds, PlantParams(), None
+    from fishfmu.scenario.schema import load_scenario
+    sc = load_scenario(scenario_file)
+    drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
+    return ds, sc.plant, (drives[0] if drives else None)
+
+
+@dataclass
+class CompareOutcome:
+    dataset_name: str
+    n_runs: int
+    comparison: Any
+    """:class:`fishfmu.analysis.compare.Comparison`"""
+    paths: dict[str, Path]
+    out_dir: Path
+    stopped_by: str | None
+    stop_exit_code: int | None
+    failure: str | None
+    """A re-simulation that failed (the others are compared and written)."""
+
+
+def compare(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
+            workers: int | None = None, overwrite: bool = False) -> CompareOutcome:
+    """Re-simulate every measured run of ``dataset`` and write what the simulation gets wrong into ``out``."""
+    from fishfmu.analysis.compare import compare_dataset, write_comparison
+    from fishfmu.session import current, register_output
+    from fishfmu.output.run_folder import prepare_out_dir
+    from fishfmu.output.atomic import write_run_info
+    dataset = Path(dataset)
+    scenario_file = Path(scenario_file) if scenario_file is not None else None
+    ds, params, drive = _dataset_and_params(dataset, scenario_file)
+    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "compare")
+    register_output(out_dir, {"command": "compare", "dataset": str(dataset)})  # a signal: run_info.json says partial
+    c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
+    paths = write_comparison(c, out_dir)
+    session = current()
+    stopped = session is not None and session.requested
+    failure = None if stopped else c.failure()
+    write_run_info(out_dir, "partial" if stopped else "failed" if failure else "ok", command="compare",
+                   dataset=str(dataset), **({"stopped_by": session.signal_name} if stopped else {}),
+                   **({"error": failure} if failure else {}))
+    return CompareOutcome(ds.name, len(ds.runs), c, paths, out_dir, session.signal_name if stopped else None,
+                          session.exit_code if stopped else None, failure)
+
+
+@dataclass
+class DiagnoseOutcome:
+    diagnosis: Any
+    """:class:`fishfmu.analysis.diagnose.Diagnosis`"""
+    paths: dict[str, Path]
+    out_dir: Path
+
+
+def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
+             workers: int | None = None, max_fit: int = 3, overwrite: bool = False,
+             progress: Callable[[str], None] | None = None) -> DiagnoseOutcome:
+    """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
+    from fishfmu.analysis.diagnose import diagnose as diagnose_
+    from fishfmu.analysis.diagnose_report import write_diagnosis
+    from fishfmu.session import register_output
+    from fishfmu.output.run_folder import prepare_out_dir
+    from fishfmu.output.atomic import write_run_info
+    dataset = Path(dataset)
+    scenario_file = Path(scenario_file) if scenario_file is not None else None
+    ds, params, _ = _dataset_and_params(dataset, scenario_file)
+    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "diagnose")
+    register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
+    try:
+        d = diagnose_(ds, params, workers, max_fit, progress=progress)
+    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
+        write_run_info(out_dir, "failed", command="diagnose", dataset=str(dataset), error=str(exc))
+        raise
+    paths = write_diagnosis(d, out_dir)
+    write_run_info(out_dir, "ok", command="diagnose", dataset=str(dataset))
+    return DiagnoseOutcome(d, paths, out_dir)
+
+
+# ---------------------------------------------------------------- single files a command writes
+
+def check_targets(*paths: Path | None) -> None:
+    """Before measuring: each single-file output may be replaced only if fishfmu wrote it."""
+    from fishfmu.output.ownership import check_single_file_target
+    for p in paths:
+        if p is not None:
+            check_single_file_target(p)
+
+
+def write_json(path: Path, doc: Any) -> Path:
+    """A JSON document written atomically (under the folder's manifest)."""
+    from fishfmu.output.atomic import json_safe, write_text_atomic
+    write_text_atomic(path, json.dumps(json_safe(doc), indent=2) + "\n")
+    return path
