@@ -121,3 +121,43 @@ def friction_level(multiplier: float | np.ndarray) -> np.ndarray:
     """Index of the nearest friction level for a multiplier (clipped to the available range)."""
     m = np.clip(np.asarray(multiplier, dtype=float), FRICTION_LEVELS[0], FRICTION_LEVELS[-1])
     return np.rint((m - FRICTION_LEVELS[0]) / 0.01).astype(np.int64)
+
+
+# ---------------------------------------------------------------- the forces, as functions of the state
+
+def direction_friction_levels(spine_xy: np.ndarray, mid_velocity_xy: np.ndarray, belt_speed_mps: np.ndarray,
+                              mucus: np.ndarray, level_now: np.ndarray, direction: DirectionFriction,
+                              moving_above_mps: float) -> np.ndarray:
+    """Each fish's friction level from the way it slips over its belt now: ``spine_xy`` (fish, 3, 2)
+    holds its mid, head-side and tail-side spine points, ``mid_velocity_xy`` the velocity of its mid
+    body, ``belt_speed_mps`` that of the belt under it.  A fish that does not slip (slower than
+    ``moving_above_mps``) keeps ``level_now``: static friction has no direction."""
+    heading = spine_xy[:, 1] - spine_xy[:, 2]
+    heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
+    slip = mid_velocity_xy - np.stack([belt_speed_mps, np.zeros(len(belt_speed_mps))], axis=1)
+    along = np.einsum("ij,ij->i", slip, heading)
+    across = heading[:, 0] * slip[:, 1] - heading[:, 1] * slip[:, 0]
+    moving = np.hypot(along, across) > moving_above_mps
+    return np.where(moving, friction_level(mucus * direction.factor(along, across)), level_now)
+
+
+def adhesion_forces(centres: np.ndarray, radii: np.ndarray, body_of_sphere: np.ndarray, fish_of_body: np.ndarray,
+                    n_bodies: int, adhesion: Adhesion) -> np.ndarray:
+    """The attraction on each body (n_bodies, 3) [N]: ``adhesion.force_n`` per pair of spheres of
+    different fish whose surfaces are within ``adhesion.range_m``, along the line between their
+    centres, equal and opposite on the two bodies."""
+    from scipy.spatial import cKDTree
+    force = np.zeros((n_bodies, 3))
+    if len(centres) < 2:
+        return force
+    pairs = cKDTree(centres).query_pairs(2.0 * float(radii.max()) + adhesion.range_m, output_type="ndarray")
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        bi, bj = body_of_sphere[i], body_of_sphere[j]
+        d = centres[j] - centres[i]
+        dist = np.linalg.norm(d, axis=1)
+        touching = (fish_of_body[bi] != fish_of_body[bj]) & (dist < radii[i] + radii[j] + adhesion.range_m)
+        unit = d[touching] / np.maximum(dist[touching], 1e-9)[:, None]
+        np.add.at(force, bi[touching], adhesion.force_n * unit)
+        np.add.at(force, bj[touching], -adhesion.force_n * unit)
+    return force

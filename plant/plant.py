@@ -34,8 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.extensions import friction_level
-from plant.health import MAX_SPEED_MPS, check_health, floor_below  # noqa: F401 (MAX_SPEED_MPS: re-exported)
+from plant.extensions import adhesion_forces, direction_friction_levels, friction_level
+from plant.health import check_health, floor_below
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
 from plant.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, park_positions, parked_member,
@@ -306,7 +306,7 @@ class Plant:
         self._offset_now[changed] = off_new[changed]
 
     def _update_friction(self, speeds: np.ndarray) -> None:
-        """Direction-dependent friction: each fish's multiplier from the way it slips over its belt now."""
+        """Direction-dependent friction: each fish's friction material from the way it slips now."""
         direction = self.params.extensions.direction_friction
         if not direction.on or len(self._member) == 0:
             return
@@ -315,19 +315,12 @@ class Plant:
             return
         pts = self._pos[self._pose_bodies[on]] + np.einsum("mkij,mkj->mki", self._rot[self._pose_bodies[on]],
                                                            self._pose_local[on])
-        heading = pts[:, 1, :2] - pts[:, 2, :2]
-        heading /= np.maximum(np.linalg.norm(heading, axis=1, keepdims=True), 1e-9)
-        mid_vel = self._vel[self._pose_bodies[on, 0], :2]
-        belt = self._conveyor_index(pts[:, 0, 0])
-        slip = mid_vel - np.stack([speeds[belt], np.zeros(len(on))], axis=1)
-        along = np.einsum("ij,ij->i", slip, heading)
-        across = heading[:, 0] * slip[:, 1] - heading[:, 1] * slip[:, 0]
-        moving = np.hypot(along, across) > 0.5 * self.params.numerics.friction_regularization_mps
         k = self._member[on]
-        new = np.where(moving, friction_level(self._mucus[k] * direction.factor(along, across)), self._level[k])
-        changed = np.flatnonzero(new != self._level[k])
+        new = direction_friction_levels(pts[:, :, :2], self._vel[self._pose_bodies[on, 0], :2],
+                                        speeds[self._conveyor_index(pts[:, 0, 0])], self._mucus[k], self._level[k],
+                                        direction, 0.5 * self.params.numerics.friction_regularization_mps)
         gc = self.model.contact
-        for i in changed:
+        for i in np.flatnonzero(new != self._level[k]):
             fm = self.model.fish[on[i]]
             material = MAT_FISH0 + int(new[i])
             for sphere in range(fm.first_sphere, fm.first_sphere + fm.n_spheres):
@@ -335,29 +328,17 @@ class Plant:
         self._level[k] = new
 
     def _apply_adhesion(self) -> None:
-        """Touching fish attract: a force per pair of touching spheres of different fish, on both bodies."""
+        """Touching fish attract: the adhesion forces of the state now, set as loads where they changed."""
         adhesion = self.params.extensions.adhesion
         if not adhesion.on or len(self._member) == 0:
             return
-        from scipy.spatial import cKDTree
         m = self.model
         body_on = self.status[self._fish_of_body] == ON_LINE
         sel = np.flatnonzero(body_on[m.sphere_body])
-        force = np.zeros((len(self._pos), 3))
-        if len(sel) > 1:
-            centres = sphere_centres(self._pos, self._rot, m.sphere_body[sel], m.sphere_local[sel])
-            radii = m.sphere_radius[sel]
-            pairs = cKDTree(centres).query_pairs(2.0 * float(radii.max()) + adhesion.range_m, output_type="ndarray")
-            if len(pairs):
-                i, j = pairs[:, 0], pairs[:, 1]
-                bi, bj = m.sphere_body[sel][i], m.sphere_body[sel][j]
-                d = centres[j] - centres[i]
-                dist = np.linalg.norm(d, axis=1)
-                touching = (self._fish_of_body[bi] != self._fish_of_body[bj]) & (dist < radii[i] + radii[j] + adhesion.range_m)
-                unit = d[touching] / np.maximum(dist[touching], 1e-9)[:, None]
-                np.add.at(force, bi[touching], adhesion.force_n * unit)
-                np.add.at(force, bj[touching], -adhesion.force_n * unit)
-        prev = getattr(self, "_adhesion_force", None)
+        centres = sphere_centres(self._pos, self._rot, m.sphere_body[sel], m.sphere_local[sel])
+        force = adhesion_forces(centres, m.sphere_radius[sel], m.sphere_body[sel], self._fish_of_body,
+                                len(self._pos), adhesion)
+        prev = self._adhesion_force
         if prev is None or prev.shape != force.shape:
             prev = np.zeros_like(force)
         for b in np.flatnonzero(np.any(force != prev, axis=1)):
