@@ -19,7 +19,8 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError, SimulationError
-from plant.measured import MAX_RESIM_S, read_dataset, write_dataset
+from plant.measured import read_dataset, write_dataset
+from plant.plausibility import MAX_RESIM_S
 from plant.state import FishStatus
 
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)

@@ -24,8 +24,9 @@ import pandas as pd
 
 from plant.errors import InputError
 from plant.line import Line
-from plant.measured import MAX_RESIM_S, Run
+from plant.measured import Run
 from plant.params import PlantParams
+from plant.plausibility import MAX_RESIM_S
 from plant.population import fish_from_frame
 from plant.simulate import SimulatedRun, simulate_plant
 
