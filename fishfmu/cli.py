@@ -302,7 +302,7 @@ def bench_pile(
     if json_file is not None:
         commands.write_json(json_file, records_json(records))
     if plot_file is not None:
-        from fishfmu.output.ownership import note_temp, replace_into
+        from fishfmu.output.manifest import note_temp, replace_into
         tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
         note_temp(tmp)
         plot(records, tmp)
@@ -386,7 +386,7 @@ def main() -> None:
         print_error("simulation failed", exc)
         sys.exit(EXIT_SIMULATION_FAILED)
     except OSError as exc:  # an output location that cannot be written (disk full, read-only): not a bug
-        from fishfmu.output.ownership import os_error
+        from fishfmu.output.manifest import os_error
         print_error("error", os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error"))
         sys.exit(EXIT_BAD_INPUT)
     except RuntimeError as exc:  # Path.resolve() on a symbolic link loop (Python < 3.13): bad input, not a bug

@@ -44,7 +44,8 @@ def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] |
     """Build built-in FMUs (all when ``names`` is empty) as .fmu files in ``out``; ``defaults`` bakes in
     parameter defaults (one FMU only).  Raises FmuBuildError naming the FMU that failed."""
     from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
-    from fishfmu.output.ownership import check_single_file_target, record_written
+    from fishfmu.output.manifest import record_written
+    from fishfmu.output.ownership import check_single_file_target
     names = list(names) or list(BUILTIN_FMUS)
     if defaults and len(names) != 1:
         raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")

@@ -18,7 +18,7 @@ import pytest
 
 from plant.errors import InputError
 
-from fishfmu.output import ownership
+from fishfmu.output import manifest, ownership
 from fishfmu.output.run_folder import prepare_out_dir
 from fishfmu.output.atomic import write_json_atomic, write_text_atomic
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)
@@ -156,7 +156,7 @@ def test_single_file_outputs_replace_only_their_own_file(tmp_path: Path, earlier
     junit = tmp_path / "ci" / "junit.xml"
     ownership.check_single_file_target(junit)
     write_text_atomic(junit, "<testsuite/>\n")
-    ownership.close_all()
+    manifest.close_all()
     assert ownership.check_single_file_target(junit) == junit
     junit.write_text("<testsuite name='edited'/>\n")
     with pytest.raises(InputError, match="changed since fishfmu wrote it"):
@@ -181,22 +181,22 @@ def test_a_killed_command_leaves_a_folder_that_overwrite_replaces(tmp_path: Path
     proc = subprocess.run([sys.executable, "-c", CRASH, str(out)], cwd=tmp_path, capture_output=True)
     assert proc.returncode == -9, proc.stderr.decode()[-2000:]
     names = sorted(p.name for p in out.iterdir())
-    assert ownership.JOURNAL in names and any(n.startswith(".report.html.") for n in names)  # the temp file
-    assert json.loads((out / ownership.MANIFEST).read_text())["status"] == "writing"
+    assert manifest.JOURNAL in names and any(n.startswith(".report.html.") for n in names)  # the temp file
+    assert json.loads((out / manifest.MANIFEST).read_text())["status"] == "writing"
     with pytest.raises(InputError, match=r"did not finish \(killed\?\); pass --overwrite"):
         prepare_out_dir(out, overwrite=False)
     (tmp_path / "keep.txt").write_text("next to it, not in it\n")
     prepare_out_dir(out, overwrite=True)
-    assert sorted(p.name for p in out.iterdir()) == [ownership.MANIFEST]
+    assert sorted(p.name for p in out.iterdir()) == [manifest.MANIFEST]
     assert (tmp_path / "keep.txt").read_text() == "next to it, not in it\n"
 
 
 def test_sweep_resumes_only_into_a_folder_of_its_own(tmp_path: Path) -> None:
     out = ownership.open_resumable(tmp_path / "sweep")
     write_json_atomic(out / "points" / "p1.json", {"run_id": "p1"})
-    ownership.close_all()
+    manifest.close_all()
     assert ownership.open_resumable(out) == out and (out / "points" / "p1.json").is_file()  # kept
-    ownership.close_all()
+    manifest.close_all()
     (out / "points" / "mine.json").write_text("{}")
     before = snapshot(tmp_path)
     with pytest.raises(InputError, match=r"points/mine.json \(not written by fishfmu\)"):
@@ -222,6 +222,6 @@ def test_a_full_disk_while_writing_is_one_line_not_an_internal_error(tmp_path: P
     def full(*_a, **_k):
         raise OSError(errno.ENOSPC, "No space left on device")
     monkeypatch.setattr(os, "fsync", full)
-    with pytest.raises(ownership.OutputError, match="kpis.json: cannot write: no space left on device"):
+    with pytest.raises(manifest.OutputError, match="kpis.json: cannot write: no space left on device"):
         write_json_atomic(out / "kpis.json", {"a": 1})
     assert not [p for p in out.iterdir() if p.name.endswith(".part")]

@@ -165,7 +165,7 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     sim_runs = [simulated_run(r, s) for r, s in zip(c.dataset.runs, c.resims) if not s.error]
     write_dataset(Dataset(c.dataset.name + "-simulated", "re-simulated by fishfmu compare", c.dataset.line,
                           c.dataset.kpi, sim_runs), out / "simulated")
-    from fishfmu.output.ownership import record_written
+    from fishfmu.output.manifest import record_written
     record_written(out / "simulated")  # the folder's manifest: these files are fishfmu's
     paths["simulated"] = out / "simulated"
     summary = c.summary()

@@ -15,7 +15,7 @@ import pandas as pd  # noqa: E402
 
 
 def _save(fig, path: Path) -> str:
-    from fishfmu.output.ownership import record_written
+    from fishfmu.output.manifest import record_written
     fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     record_written(path)  # the folder's manifest: this file is fishfmu's

@@ -221,7 +221,8 @@ def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) 
 def open_folder(out: Path, spec: SweepSpec) -> Path:
     """Create the sweep folder, or accept one holding this very sweep; refuse anything else."""
     from fishfmu.output.atomic import write_json_atomic
-    from fishfmu.output.ownership import is_internal, note_dir, open_resumable
+    from fishfmu.output.manifest import is_internal, note_dir
+    from fishfmu.output.ownership import open_resumable
     definition = spec.definition()
     out = open_resumable(Path(out), [spec.scenario])  # refuses a folder holding anything fishfmu did not write
     if (out / DEFINITION).is_file():
@@ -381,7 +382,7 @@ def _table_safe(df: pd.DataFrame) -> pd.DataFrame:
 
 def write_tables(out: Path, runs: pd.DataFrame, summary: pd.DataFrame) -> dict[str, Path]:
     """runs/summary as parquet and CSV, each written to a temporary name and renamed into place."""
-    from fishfmu.output.ownership import note_temp, replace_into
+    from fishfmu.output.manifest import note_temp, replace_into
     paths = {}
     for name, df in (("runs", runs), ("summary", summary)):
         for ext in ("parquet", "csv"):

@@ -42,7 +42,7 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
     line per combination of the other parameters.  Parameters with a single value get no plot; the
     singulation rate's band is drawn clipped to [0, 1] (the tables keep the unclipped interval)."""
     from matplotlib.figure import Figure  # no pyplot: no global state, Agg canvas
-    from fishfmu.output.ownership import note_dir, record_written
+    from fishfmu.output.manifest import note_dir, record_written
     folder.mkdir(parents=True, exist_ok=True)
     note_dir(folder)
     for x_key in parameters:

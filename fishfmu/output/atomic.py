@@ -1,5 +1,5 @@
 """The atomic writers every command uses: a file is written under a temporary name, recorded in
-its folder's manifest (:mod:`fishfmu.output.ownership`, where the byte writer lives) and renamed into place,
+its folder's manifest (:mod:`fishfmu.output.manifest`, where the byte writer lives) and renamed into place,
 so a crash or an interrupt never leaves a half-written file under its final name.
 
 A module of its own, below :mod:`fishfmu.output.run_folder` (which re-exports all of it), so that what only
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from fishfmu.output.ownership import write_bytes_atomic
+from fishfmu.output.manifest import write_bytes_atomic
 
 __all__ = ["MARKER", "json_safe", "write_bytes_atomic", "write_json_atomic", "write_run_info", "write_text_atomic"]
 

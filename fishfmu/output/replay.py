@@ -351,7 +351,7 @@ def write_page(header: dict[str, Any], blob: str, out: Path) -> Path:
     """The page, written atomically (a reader never sees half a page)."""
     html = render_html(header, blob)
     from fishfmu.output.atomic import write_text_atomic
-    write_text_atomic(out, html)  # recorded in the folder's manifest (fishfmu.output.ownership)
+    write_text_atomic(out, html)  # recorded in the folder's manifest (fishfmu.output.manifest)
     return out
 
 

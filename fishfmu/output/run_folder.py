@@ -25,7 +25,7 @@ from xml.etree import ElementTree as ET
 
 from plant.measured import write_dataset
 
-from fishfmu.output import ownership
+from fishfmu.output import manifest, ownership
 from fishfmu.output.atomic import MARKER, json_safe, write_json_atomic, write_run_info, write_text_atomic
 from fishfmu.cosim.results import ExpectResult, RunResult
 from fishfmu.scenario.schema import resolved_toml
@@ -46,8 +46,8 @@ def mark_running(out: Path, scenario_file: str | Path | None = None) -> None:
 def discard_if_unused(out: Path) -> None:
     """Remove ``out`` again if it holds nothing but the ``running`` marker (bad input found late)."""
     try:
-        if [p.name for p in out.iterdir() if not ownership.is_internal(p.name)] == [MARKER]:
-            ownership.forget(out)
+        if [p.name for p in out.iterdir() if not manifest.is_internal(p.name)] == [MARKER]:
+            manifest.forget(out)
             for p in out.iterdir():
                 p.unlink()
             out.rmdir()
@@ -71,18 +71,18 @@ def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
 def write_outputs(result: RunResult, out: Path, partial: bool = False, report: bool = True) -> dict[str, Path]:
     """Write every output of a run into ``out`` (already prepared); returns the paths written.
 
-    A write that fails (disk full, read-only) raises an :class:`~fishfmu.output.ownership.OutputError`
+    A write that fails (disk full, read-only) raises an :class:`~fishfmu.output.manifest.OutputError`
     saying so; ``run_info.json`` is then set to ``failed`` with that message when it still can be."""
     try:
         return _write_outputs(result, out, partial, report)
-    except (ownership.OutputError, OSError) as exc:
-        err = exc if isinstance(exc, ownership.OutputError) else ownership.os_error(exc, exc.filename or out)
+    except (manifest.OutputError, OSError) as exc:
+        err = exc if isinstance(exc, manifest.OutputError) else manifest.os_error(exc, exc.filename or out)
         try:
             write_run_info(out, "failed", error=f"writing the outputs failed: {err}", t_end_s=round(result.t_end_s, 6))
             note = f"{MARKER} says failed"
         except OSError:
             note = f"{MARKER} could not be updated and still says running"
-        raise ownership.OutputError(f"{err.message}; the outputs are incomplete ({note})", file=err.file) from None
+        raise manifest.OutputError(f"{err.message}; the outputs are incomplete ({note})", file=err.file) from None
 
 
 def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) -> dict[str, Path]:
@@ -101,19 +101,19 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
     tmp_run = out / ".run.part"
     if tmp_run.exists():
         shutil.rmtree(tmp_run)
-    ownership.note_temp(tmp_run)
+    manifest.note_temp(tmp_run)
     write_dataset(result.dataset(), tmp_run)
     if paths["run"].exists():
         shutil.rmtree(paths["run"])
-    ownership.record_tree_as(tmp_run, paths["run"])
+    manifest.record_tree_as(tmp_run, paths["run"])
     os.replace(tmp_run, paths["run"])
     if result.poses is not None:
         paths["poses"] = out / "poses.npz"
         tmp = out / ".poses.part.npz"
         import numpy as np
-        ownership.note_temp(tmp)
+        manifest.note_temp(tmp)
         np.savez_compressed(tmp, **result.poses)
-        ownership.replace_into(tmp, paths["poses"])
+        manifest.replace_into(tmp, paths["poses"])
     if report:
         from fishfmu.output.report import write_report
         write_report(result, out)
