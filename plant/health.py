@@ -36,7 +36,7 @@ the reserve); an integration step of 5 or 10 ms
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
