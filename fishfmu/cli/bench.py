@@ -1,0 +1,121 @@
+"""``fishfmu bench ...``: every benchmark, its results written to a file (JSON), never asserted in tests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from plant.errors import InputError
+
+from fishfmu.terminal import console as literal_console
+
+bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
+                        help="Benchmarks: results written to a file (JSON), never asserted in tests.")
+err_console = literal_console(stderr=True)
+
+
+@bench_app.command("pile")
+def bench_pile(
+    fish: str = typer.Option("18,50,100,200", "--fish", help="Fish counts, comma separated."),
+    duration: float = typer.Option(5.0, "--duration", help="Simulated seconds measured after the drop."),
+    comm_step: float = typer.Option(0.01, "--comm-step", help="Communication step [s]."),
+    threads: int = typer.Option(1, "--threads", help="Exudyn threads."),
+    json_file: Path | None = typer.Option(None, "--json", help="Write the records as a JSON list here."),
+    plot_file: Path | None = typer.Option(None, "--plot", help="Write a PNG of cost against fish count here."),
+) -> None:
+    """Fish dumped in a pile: real-time factor of plant and co-simulation per fish count, stages, peak memory."""
+    from rich.table import Table
+
+    from fishfmu import commands
+    from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
+    try:
+        counts = [int(x) for x in fish.split(",") if x.strip()]
+    except ValueError:
+        raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
+    if not counts or min(counts) < 0:
+        raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
+    commands.check_targets(json_file, plot_file)
+    console = literal_console()
+    table = Table(title=f"fishfmu bench pile: {duration:g} s simulated after the drop, step {comm_step:g} s, "
+                        f"{threads} thread(s)")
+    for col in ("fish", "RTF plant", "RTF co-sim", "Exudyn", "plant py", "FMUs", "master", "recording",
+                "FMU+master+rec", "peak MB"):
+        table.add_column(col, justify="right")
+
+    def row(r) -> None:
+        w = r.wall_cosim_s
+        table.add_row(str(r.fish), f"{r.rtf_plant:.2f}", f"{r.rtf_cosim:.2f}", f"{100 * r.plant_exudyn_s / w:.0f} %",
+                      f"{100 * r.plant_python_s / w:.0f} %", f"{100 * r.fmu_s / w:.1f} %", f"{100 * r.master_s / w:.1f} %",
+                      f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
+        err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
+
+    records = run_bench(counts, duration, comm_step, threads, on_record=row)
+    console.print(table)
+    base, per = per_fish_cost(records)
+    console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
+                  "measured counts)")
+    if json_file is not None:
+        commands.write_json(json_file, records_json(records))
+    if plot_file is not None:
+        from fishfmu.output.manifest import note_temp, replace_into
+        tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
+        note_temp(tmp)
+        plot(records, tmp)
+        replace_into(tmp, plot_file)
+
+
+@bench_app.command("fmu-worker")
+def bench_fmu_worker(
+    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    steps: int = typer.Option(2000, "--steps", min=1, help="Communication steps per run (no fish)."),
+    repeats: int = typer.Option(3, "--repeats", min=1),
+    with_fish: bool = typer.Option(False, "--with-fish", help="Also the scenario as shipped, in both modes."),
+    json_file: Path = typer.Option(Path("bench-results/fmu_worker_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """What running each FMU in a worker process costs per communication step."""
+    from fishfmu import commands
+    from fishfmu.bench.fmu_worker import bench, summary
+    commands.check_targets(json_file)
+    doc = bench(scenario, steps, repeats, with_fish)
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+@bench_app.command("sweep")
+def bench_sweep(
+    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    runs: int = typer.Option(8, "--runs", min=1, help="Seeds per setting."),
+    workers: list[int] = typer.Option([1, 2], "--workers", help="Worker counts to measure (repeatable)."),
+    set_: list[str] = typer.Option([], "--set", help="Fixed override: --set fish.count=30 (repeatable)."),
+    json_file: Path = typer.Option(Path("bench-results/sweep_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers."""
+    from fishfmu import commands
+    from fishfmu.bench.sweep import bench, summary
+    from fishfmu.scenario.schema import parse_assignments
+    commands.check_targets(json_file)
+    doc = bench(scenario, runs, tuple(workers), parse_assignments(set_))
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+@bench_app.command("diagnose")
+def bench_diagnose(
+    seeds: int = typer.Option(5, "--seeds", min=1, help="Repetitions per hidden effect."),
+    first_seed: int = typer.Option(100, "--first-seed"),
+    strength: float = typer.Option(1.0, "--strength", help="Size of each hidden effect (1: as in the tests)."),
+    workers: int = typer.Option(2, "--workers", min=1),
+    json_file: Path = typer.Option(Path("bench-results/diagnose_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """How often diagnose names the hidden effect of a synthetic dataset, over many seeds."""
+    from fishfmu import commands
+    from fishfmu.bench.diagnose import bench, summary
+    commands.check_targets(json_file)
+    doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+def _bench_done(lines: list[str], written: Path) -> None:
+    console = literal_console()
+    for line in lines:
+        console.print(line)
+    console.print(f"written: {written}")
