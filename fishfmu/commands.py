@@ -77,9 +77,10 @@ class RunOutcome:
 
 def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
         junit: str | Path | None = None, overwrite: bool = False, report: bool = True, replay: bool = False,
-        on_progress: Callable[[float, float], None] | None = None) -> RunOutcome:
+        on_progress: Callable[[float, float], None] | None = None, clock: Any = None) -> RunOutcome:
     """Run a scenario into ``out`` (default ``out/<name>``): KPIs, signals, the run, report, JUnit.
-    SIGINT/SIGTERM stop it after the current step with what there is written (``status = "partial"``)."""
+    SIGINT/SIGTERM stop it after the current step with what there is written (``status = "partial"``).
+    ``clock``: a :class:`fishfmu.cosim.master.StageClock` to time the master's stages (benchmarks)."""
     from fishfmu.cosim.build import checked
     from fishfmu.cosim.stop import stop_on_signals
     from fishfmu.session import register_output
@@ -99,7 +100,7 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
         with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
             try:
                 result = run_scenario(sc, scenario_file, on_progress, record_poses=replay, stop=stop,
-                                      checked_scenario=checked_scenario)
+                                      checked_scenario=checked_scenario, **({"clock": clock} if clock else {}))
             except InputError:
                 discard_if_unused(out_dir)
                 raise

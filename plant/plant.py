@@ -81,6 +81,7 @@ class Plant:
         self.fish_specs = list(fish)
         self._fish_ids = [f.fish_id for f in self.fish_specs]
         self._fish_id_tuple = tuple(self._fish_ids)
+        self._drop_t_s = np.array([f.drop_t_s for f in self.fish_specs], dtype=float)  # one comparison per step
         n_sub = comm_step_s / self.params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
             raise ValueError(f"communication step {comm_step_s} s is not a whole multiple of the integration "
@@ -193,7 +194,7 @@ class Plant:
                 j = slice(4 * slot, 4 * slot + 4)
                 members.append(Member(int(k), self.prepared[k], coords, vel, True, self._k_now[j].copy(),
                                       self._offset_now[j].copy(), int(self._level[k])))
-        due = [k for k in np.flatnonzero(self.status == WAITING) if self.fish_specs[k].drop_t_s <= t + ADMIT_AHEAD_S]
+        due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t + ADMIT_AHEAD_S))]
         parks = park_positions(self.line, len(due))
         members += [parked_member(int(k), self.prepared[k], parks[i], int(self._level[k])) for i, k in enumerate(due)]
         t0 = time.perf_counter()
@@ -202,7 +203,7 @@ class Plant:
         self.rebuilds += 1
 
     def _admit_and_release(self, t: float) -> None:
-        due = [k for k in np.flatnonzero(self.status == WAITING) if self.fish_specs[k].drop_t_s <= t]
+        due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t))]
         if not due:
             return
         if any(k not in self._slot_of for k in due):

@@ -67,6 +67,9 @@ class PopulationSpec(Strict):
         "release of the first fish; the others follow every drop_interval_s"))
     drop_interval_s: float = Field(0.25, gt=0.0, le=600.0, description=(
         "time between releases (bulk: a dump takes a few seconds for 18 fish)"))
+    drop_interval_jitter_s: float = Field(0.0, ge=0.0, le=300.0, description=(
+        "each release moved by a uniform random time within +- this (unit: s), as fish arrive from a pump "
+        "or a feeding belt; below half the interval, so fish keep their order"))
     drop_x_min_m: float | None = Field(None, description=(
         "drop zone along x (default: first 60 % of the first conveyor); give both ends or neither"))
     drop_x_max_m: float | None = Field(None, description="downstream end of the drop zone (see drop_x_min_m)")
@@ -83,6 +86,9 @@ class PopulationSpec(Strict):
             raise ValueError(f"length_mean_m ({self.length_mean_m}) is outside [length_min_m, length_max_m]")
         if (self.drop_x_min_m is None) != (self.drop_x_max_m is None):
             raise ValueError("give both drop_x_min_m and drop_x_max_m, or neither")
+        if self.drop_interval_jitter_s >= 0.5 * self.drop_interval_s and self.drop_interval_jitter_s > 0.0:
+            raise ValueError(f"drop_interval_jitter_s ({self.drop_interval_jitter_s}) must be below half of "
+                             f"drop_interval_s ({self.drop_interval_s}) so that fish keep their order")
         if self.drop_x_min_m is not None and self.drop_x_max_m is not None and self.drop_x_min_m > self.drop_x_max_m:
             raise ValueError("drop_x_min_m is above drop_x_max_m")
         return self
@@ -108,6 +114,7 @@ def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_widt
     lengths = np.clip(rng.normal(spec.length_mean_m, spec.length_sd_m, spec.count), spec.length_min_m, spec.length_max_m)
     x0, x1 = infeed_x_m
     zone = (spec.drop_x_min_m, spec.drop_x_max_m) if spec.drop_x_min_m is not None else (x0, x0 + 0.6 * (x1 - x0))
+    # drawn after everything else, so that a batch without jitter is the same as before jitter existed
     fish = []
     for i, length in enumerate(lengths):
         length = float(length)
@@ -134,6 +141,10 @@ def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_widt
             hours_post_mortem=spec.hours_post_mortem, drop_t_s=spec.first_drop_s + i * spec.drop_interval_s,
             drop_x_m=float(x), drop_y_m=float(y), drop_yaw_rad=float(yaw), drop_z_m=spec.drop_height_m,
             side=1 if rng.random() < 0.5 else -1))
+    if spec.drop_interval_jitter_s > 0.0:
+        shifts = rng.uniform(-spec.drop_interval_jitter_s, spec.drop_interval_jitter_s, len(fish))
+        first = spec.first_drop_s
+        fish = [replace(f, drop_t_s=max(first, f.drop_t_s + float(s))) for f, s in zip(fish, shifts)]
     return fish
 
 

@@ -119,3 +119,24 @@ def _bench_done(lines: list[str], written: Path) -> None:
     for line in lines:
         console.print(line)
     console.print(f"written: {written}")
+
+
+@bench_app.command("scenario")
+def bench_scenario(
+    scenarios: list[Path] = typer.Argument(..., help="Scenario files (TOML), each run as shipped."),
+    repeats: int = typer.Option(1, "--repeats", min=1, help="Runs per scenario (the median is reported)."),
+    set_: list[str] = typer.Option([], "--set", help="Override in every run: --set run.duration_s=60 (repeatable)."),
+    json_file: Path = typer.Option(Path("bench-results/scenario_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """Whole scenarios: simulated s per CPU s of the whole process, stages, fish in play, peak memory."""
+    from fishfmu import commands
+    from fishfmu.bench.scenario import bench, summary
+    from fishfmu.scenario.schema import load_scenario, parse_assignments
+    overrides = parse_assignments(set_)
+    for s in scenarios:  # bad input before measuring
+        load_scenario(s, overrides)
+    commands.check_targets(json_file)
+    doc = bench([str(s) for s in scenarios], repeats, overrides,
+                on_record=lambda r: err_console.print(f"{Path(r['scenario']).stem}: {r['rtf_cpu']:.2f}x per CPU s"))
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
