@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.extensions import adhesion_forces, direction_friction_levels, friction_level
+from plant.extensions import FRICTION_LEVELS, adhesion_forces, direction_friction_levels, friction_level
 from plant.health import check_health, floor_below
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
@@ -44,6 +44,7 @@ from plant.params import PlantParams
 from plant.population import FishSpec
 from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
+from plant import sleep as sleeping
 from plant.state import FishStatus, PlantOutputs, PlantState
 
 WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
@@ -111,6 +112,25 @@ class Plant:
         """Wall time spent in Exudyn's solver and in rebuilding the system (for benchmarks)."""
         self._steps = 0
         self._t_model0 = 0.0
+        # sleeping fish (plant.sleep): carried with their belt outside the system
+        n = len(self.fish_specs)
+        self._sleep_enabled = self.params.numerics.sleep
+        self._asleep = np.zeros(n, dtype=bool)
+        self._to_wake: list[int] = []
+        self._sleep_coords = np.zeros((n, 5, 6))
+        self._sleep_rot = np.zeros((n, 5, 3, 3))
+        self._sleep_k = np.zeros((n, 4, 3))
+        self._sleep_offset = np.zeros((n, 4, 3))
+        self._sleep_box = np.zeros((n, 2, 3))
+        self._sleep_belt = np.zeros(n, dtype=np.int64)
+        self._sleep_speed = np.zeros(n)
+        self._ride_count = np.zeros(n, dtype=np.int64)
+        self._sleep_load_n = np.zeros(len(line.conveyors))
+        self._sleep_mass_kg = np.zeros(len(line.conveyors))
+        self._x_starts = np.array([c.x_start_m for c in line.conveyors])
+        self.fish_steps_asleep = 0
+        """Fish x communication steps carried kinematically (for benchmarks)."""
+        self.fish_steps_on_line = 0
         self._set_model(build_model(line, [], self.params, self._gravity), [])
         self._publish(PlantOutputs.at_rest(self.conveyor_ids, self.photoeye_ids))
 
@@ -139,6 +159,8 @@ class Plant:
         """Advance one communication step with the given belt surface speeds."""
         speeds = self._speeds_array(belt_speeds_mps)
         self._admit_and_release(self.t_s + 1e-9)
+        if self._sleep_enabled:
+            self._carry_sleepers(speeds)
         self._set_belts(speeds)
         self._relinearize_joints()
         self._update_friction(speeds)
@@ -151,6 +173,10 @@ class Plant:
         self._read_state()
         outputs = self._sensors(speeds)
         self._retire_fish()
+        if self._sleep_enabled:
+            self.fish_steps_on_line += int(np.count_nonzero(self.status == ON_LINE))
+            if self._steps % 10 == 0:
+                self._put_to_sleep(speeds)
         self._publish(outputs)
         self._check_health()
         return outputs
@@ -187,13 +213,19 @@ class Plant:
         """A new system with the fish on the line (state carried over) and those due soon (parked)."""
         members = []
         for slot, k in enumerate(self._member):
-            if self.status[k] == ON_LINE:
+            if self.status[k] == ON_LINE and not self._asleep[k]:
                 b = slice(5 * slot, 5 * slot + 5)
                 coords = np.hstack([self._pos[b], matrix_to_rotvec(self._rot[b])])
                 vel = np.hstack([self._vel[b], self._omega_local[b]])
                 j = slice(4 * slot, 4 * slot + 4)
                 members.append(Member(int(k), self.prepared[k], coords, vel, True, self._k_now[j].copy(),
                                       self._offset_now[j].copy(), int(self._level[k])))
+        for k in self._to_wake:  # back into the system as it was carried: riding at its belt's speed
+            vel = np.zeros((5, 6))
+            vel[:, 0] = self._sleep_speed[k]
+            members.append(Member(int(k), self.prepared[k], self._sleep_coords[k].copy(), vel, True,
+                                  self._sleep_k[k].copy(), self._sleep_offset[k].copy(), int(self._level[k])))
+        self._to_wake = []
         due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t + ADMIT_AHEAD_S))]
         parks = park_positions(self.line, len(due))
         members += [parked_member(int(k), self.prepared[k], parks[i], int(self._level[k])) for i, k in enumerate(due)]
@@ -206,7 +238,8 @@ class Plant:
         due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t))]
         if not due:
             return
-        if any(k not in self._slot_of for k in due):
+        woke = self._wake_near_drops(due) if self._sleep_enabled else False
+        if woke or any(k not in self._slot_of for k in due):
             self._rebuild(t)
         for k in due:
             self._release(k)
@@ -358,6 +391,7 @@ class Plant:
         v = sd.GetODE2Coordinates_t()
         coords = q[self.model.body_ltg] + self.model.body_ref
         vel = v[self.model.body_ltg]
+        self._coords = coords
         self._pos = coords[:, :3]
         self._rot = rotvec_to_matrix(coords[:, 3:])
         self._vel = vel[:, :3]
@@ -366,6 +400,8 @@ class Plant:
 
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self.comm_step_s, self.params.gravity_mps2)
+        if self._sleep_enabled:  # fish carried outside the system still weigh on their belt
+            load, mass = load + self._sleep_load_n, mass + self._sleep_mass_kg
         blocked = self._beams_blocked()
         return PlantOutputs(
             t_s=self.t_s,
@@ -443,7 +479,7 @@ class Plant:
             fish_of_body=self._fish_of_body, pos=self._pos, rot=self._rot, vel=self._vel,
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
-            outputs=outputs)
+            outputs=outputs, asleep=self._asleep.copy() if self._sleep_enabled else None)
 
     def _check_health(self) -> None:
         s = self._state
@@ -451,6 +487,102 @@ class Plant:
         if not np.any(body_on):
             return
         check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self.line, s.t_s)
+
+    # ---- sleeping fish (plant.sleep) -----------------------------------------------------------
+    def _member_boxes(self) -> np.ndarray:
+        """(n_slots, 2, 3) boxes around the contact spheres of each fish in the system."""
+        m = self.model
+        centres = sphere_centres(self._pos, self._rot, m.sphere_body, m.sphere_local)
+        return sleeping.fish_boxes(centres, m.sphere_radius, m.sphere_body // 5, len(self._member))
+
+    def _mu_belt(self, ks: np.ndarray) -> np.ndarray:
+        return self.params.friction.fish_belt * FRICTION_LEVELS[self._level[ks]]
+
+    def _wake(self, ks) -> None:
+        for k in ks:
+            self._asleep[k] = False
+            self._ride_count[k] = 0
+            self._to_wake.append(int(k))
+
+    def _wake_near_drops(self, due: list[int]) -> bool:
+        """Wake the sleeping fish within reach of where a fish is about to be dropped."""
+        ks = np.flatnonzero(self._asleep)
+        if not len(ks):
+            return False
+        drop_x = np.array([self.fish_specs[k].drop_x_m for k in due])
+        reach = np.array([self.fish_specs[k].length_m for k in due]) + sleeping.CLEAR_M
+        box = self._sleep_box[ks]
+        near = np.any((box[:, 1, 0][:, None] > drop_x - reach) & (box[:, 0, 0][:, None] < drop_x + reach), axis=1)
+        self._wake(ks[near])
+        return bool(np.any(near))
+
+    def _carry_sleepers(self, speeds: np.ndarray) -> None:
+        """Wake the sleeping fish whose motion could change in this step (then rebuild); move the others
+        with their belts over the step, and put their weight (and the force to accelerate them) on it."""
+        self._sleep_load_n[:] = 0.0
+        self._sleep_mass_kg[:] = 0.0
+        ks = np.flatnonzero(self._asleep)
+        if not len(ks):
+            return
+        dt = self.comm_step_s
+        belt = self._sleep_belt[ks]
+        v = speeds[belt]
+        wake = sleeping.too_fast_a_change(v, self._sleep_speed[ks], dt, self._mu_belt(ks), self.params.gravity_mps2)
+        wake |= sleeping.near_end(self._sleep_box[ks], self._x_ends[belt], self._beams[:, 0], v * dt)
+        on = np.flatnonzero(self.status[self._member] == ON_LINE)
+        if len(on):
+            reach = sleeping.WAKE_CLEAR_M + dt * (float(np.abs(self._vel).max(initial=0.0)) + np.abs(v))
+            gap = sleeping.box_gap(self._sleep_box[ks], self._member_boxes()[on])
+            wake |= np.any(gap < reach[:, None], axis=1)
+        if np.any(wake):
+            self._wake(ks[wake])
+            self._rebuild(self.t_s)
+        rest, v = ks[~wake], v[~wake]
+        if not len(rest):
+            return
+        m = self._fish_mass_kg[rest]
+        np.add.at(self._sleep_load_n, self._sleep_belt[rest], m * (v - self._sleep_speed[rest]) / dt)
+        np.add.at(self._sleep_mass_kg, self._sleep_belt[rest], m)
+        self._sleep_coords[rest, :, 0] += (v * dt)[:, None]
+        self._sleep_box[rest, :, 0] += (v * dt)[:, None]
+        self._sleep_speed[rest] = v
+        self.fish_steps_asleep += len(rest)
+
+    def _put_to_sleep(self, speeds: np.ndarray) -> None:
+        """Fish that have ridden with their belt for a while, alone and clear of ends, photo-eyes and
+        guides, leave the system (a rebuild) and are carried from now on."""
+        slots = np.flatnonzero(self.status[self._member] == ON_LINE)
+        if not len(slots):
+            return
+        pos = self._pos.reshape(-1, 5, 3)[slots]
+        belt_speed = speeds[self._conveyor_index(pos[:, :, 0])]
+        ride = sleeping.riding(self._vel.reshape(-1, 5, 3)[slots], self._omega_local.reshape(-1, 5, 3)[slots],
+                               belt_speed)
+        ks = self._member[slots]
+        self._ride_count[ks] = np.where(ride, self._ride_count[ks] + 1, 0)
+        cand = np.flatnonzero(ride & (self._ride_count[ks] >= sleeping.SLEEP_AFTER_CHECKS))
+        if not len(cand):
+            return
+        boxes = self._member_boxes()
+        belt = sleeping.on_one_belt_clear(boxes[slots[cand]], self._x_starts, self._x_ends, self._beams[:, 0],
+                                          0.5 * self.line.guide_width_m)
+        others = np.concatenate([boxes[slots], self._sleep_box[self._asleep]])
+        gap = sleeping.box_gap(boxes[slots[cand]], others)
+        gap[np.arange(len(cand)), cand] = np.inf  # not from itself
+        chosen = np.flatnonzero((belt >= 0) & np.all(gap >= sleeping.CLEAR_M, axis=1))
+        if not len(chosen):
+            return
+        for i in chosen:
+            slot, k = int(slots[cand[i]]), int(ks[cand[i]])
+            b, j = slice(5 * slot, 5 * slot + 5), slice(4 * slot, 4 * slot + 4)
+            self._sleep_coords[k] = self._coords[b]
+            self._sleep_rot[k] = self._rot[b]
+            self._sleep_k[k], self._sleep_offset[k] = self._k_now[j], self._offset_now[j]
+            self._sleep_box[k] = boxes[slot]
+            self._sleep_belt[k] = belt[i]
+            self._sleep_speed[k] = speeds[belt[i]]
+            self._asleep[k] = True
+        self._rebuild(self.t_s)
 
     def floor_below(self, x_m: np.ndarray) -> np.ndarray:
         """Lowest belt top within 0.1 m of each x: where a fish can lie, drape or hang over a drum."""
@@ -473,6 +605,12 @@ class Plant:
             k = self._member[slots]
             x[k], y[k], z[k] = pts[:, 0, 0], pts[:, 0, 1], pts[:, 0, 2]
             yaw[k] = np.arctan2(chord[:, 1], chord[:, 0])
+        for k in np.flatnonzero(self._asleep):
+            pts = np.array([self._sleep_coords[k, b, :3] + self._sleep_rot[k, b] @ local
+                            for b, local in self._spine_refs[k]])
+            chord = pts[1] - pts[2]
+            x[k], y[k], z[k] = pts[0]
+            yaw[k] = np.arctan2(chord[1], chord[0])
         return FishState(self.t_s, x, y, z, yaw, self.status.copy())
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
@@ -484,6 +622,9 @@ class Plant:
         body_index = (5 * self._fish_of_body + np.tile(np.arange(5), len(self._member))) if len(self._member) else []
         pos[body_index] = self._pos
         rot[body_index] = self._rot
+        for k in np.flatnonzero(self._asleep):
+            pos[5 * k:5 * k + 5] = self._sleep_coords[k, :, :3]
+            rot[5 * k:5 * k + 5] = self._sleep_rot[k]
         return pos, rot
 
     def body_velocities(self) -> np.ndarray:
@@ -491,4 +632,6 @@ class Plant:
         vel = np.full((n, 3), np.nan)
         if len(self._member):
             vel[5 * self._fish_of_body + np.tile(np.arange(5), len(self._member))] = self._vel
+        for k in np.flatnonzero(self._asleep):
+            vel[5 * k:5 * k + 5] = [self._sleep_speed[k], 0.0, 0.0]
         return vel

@@ -104,6 +104,9 @@ class PlantState:
     extension is off (or before its first step)."""
     outputs: PlantOutputs | None = None
     """The sensor readings of the step (at rest before the first step)."""
+    asleep: np.ndarray | None = None
+    """(n_fish,) True for fish on the line carried with their belt outside the system (plant.sleep);
+    their bodies are not among the bodies above."""
 
     def __post_init__(self) -> None:
         for name in _ARRAY_FIELDS:
