@@ -103,12 +103,13 @@ LAYERS = [
     {"fishfmu.output"},
     {"fishfmu.session"},
     {"fishfmu.batch", "fishfmu.analysis"},
-    {"fishfmu.bench"},
     {"fishfmu.commands"},
+    {"fishfmu.bench"},
     {"fishfmu.cli"},
 ]
 """Each part may import only parts of lower layers (and itself): physics, FMUs, scenario, one run,
-what a run writes, the command's process, many runs and measured data, benchmarks, commands, CLI."""
+what a run writes, the command's process, many runs and measured data, commands, benchmarks (which
+measure what the commands do), CLI."""
 
 
 def _part(module: str) -> str:
