@@ -44,17 +44,22 @@ def run_case(scenario: str | Path, overrides: dict[str, Any]) -> dict[str, Any]:
     tracks = result.run.tracks
     in_play = tracks.groupby("t_s")["fish_id"].nunique() if len(tracks) else None
     sim_s = result.t_end_s
-    return {
+    rec = {
         "scenario": str(scenario), "overrides": overrides, "simulated_s": sim_s,
         "process_cpu_s": round(cpu_s, 3), "process_wall_s": round(wall_s, 3), "run_wall_s": round(result.wall_s, 3),
         "rtf_cpu": round(sim_s / cpu_s, 3), "rtf_wall": round(sim_s / wall_s, 3),
         "stages_s": {k: round(v, 3) for k, v in clock.totals_s.items()},
+        "comm_step_s": result.scenario.run.comm_step_s,
+        "plant_exudyn_s": round(result.timings_s.get("plant_exudyn", 0.0), 3),
+        "plant_rebuild_s": round(result.timings_s.get("plant_rebuild", 0.0), 3),
         "fish": len(result.fish), "fish_in_play_mean": round(float(in_play.mean()), 2) if in_play is not None else 0.0,
         "fish_in_play_max": int(in_play.max()) if in_play is not None else 0,
         "fish_in_play_per_s": ({f"{t:g}": int(n) for t, n in in_play.groupby(in_play.index.astype(int)).max().items()}
                                if in_play is not None else {}),
         "peak_rss_mb": round(usage.ru_maxrss / 1024.0, 1), "kpis": {k: v for k, v in result.kpis.items()
                                                                     if isinstance(v, (int, float))}}
+    rec["cpu_per_step_ms"] = cpu_per_step_ms(rec)
+    return rec
 
 
 def bench(scenarios: list[str | Path], repeats: int = 1, overrides: dict[str, Any] | None = None,
@@ -93,7 +98,24 @@ def summary(doc: dict[str, Any]) -> list[str]:
                      f"fish in play {last['fish_in_play_mean']:.1f} on average, {last['fish_in_play_max']} at most; "
                      f"peak {m['peak_rss_mb']:.0f} MB; stages: "
                      + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in stages.items()))
+        lines.append("  CPU per communication step: " + ", ".join(
+            f"{k} {v:.2f} ms" for k, v in last["cpu_per_step_ms"].items()))
     return lines
+
+
+def cpu_per_step_ms(rec: dict[str, Any]) -> dict[str, float]:
+    """Where one run's time went, per communication step [ms]: Exudyn's integration, rebuilding the
+    system, the plant's own Python (sensors, joints, checks), the FMUs, the rest of the master's step
+    (energy check, recording, events), and everything outside the steps (imports, checks, start-up,
+    files) spread over them."""
+    stages = rec["stages_s"]
+    steps = max(1, round(rec["simulated_s"] / rec.get("comm_step_s", 0.01)))
+    loop_s = sum(stages.values())
+    exudyn, rebuild = rec.get("plant_exudyn_s", 0.0), rec.get("plant_rebuild_s", 0.0)
+    parts = {"exudyn": exudyn, "rebuild": rebuild, "plant_python": stages.get("plant", 0.0) - exudyn - rebuild,
+             "fmus": stages.get("fmus", 0.0), "master_rest": loop_s - stages.get("plant", 0.0) - stages.get("fmus", 0.0),
+             "outside_steps": max(0.0, rec["process_cpu_s"] - loop_s)}
+    return {k: round(1e3 * v / steps, 3) for k, v in parts.items()}
 
 
 if __name__ == "__main__":  # one case, used by bench()

@@ -85,6 +85,7 @@ def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: Ru
     else:
         watch = cosim.energy_watch
         signals, t_end, worst = cosim.signal_frame(), cosim.t_s, (watch.worst_excess_j, watch.worst_ratio)
+    timings_s = {**timings_s, **{f"plant_{k}": v for k, v in plant.timings_s.items()}}
     return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall_s,
                      timings_s, list(plant.drop_adjustments), pose_record(recorder, plant),
                      {"worst_excess_j": worst[0], "worst_fraction_of_reserve": worst[1]})
