@@ -172,3 +172,27 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
     assert kpis["statistics"]["fish_in"]["n"] == 2
     assert (tmp_path / "mc" / "seeds" / "runs.csv").is_file()
 
+
+
+def test_a_scale_multiplies_the_scenarios_values_of_its_keys() -> None:
+    """--scale speed=KEYS with --param speed=F: each key gets F times its value in paper_test.toml
+    (0.25/0.50/0.80/1.25 m/s), the same at every point and for every seed; other keys untouched."""
+    from fishfmu.batch.sweep import FmuChecker, point_overrides, prepare_point
+    keys = [f"fmu[0].parameters.speed_{i}" for i in range(1, 5)]
+    spec = make_spec(PAPER, {"speed": [0.5, 1.2], "fish.first_drop_s": [2.0]}, 1, {"fish.count": 3},
+                     scales={"speed": keys})
+    over = point_overrides(spec, {"speed": 0.5, "fish.first_drop_s": 2.0})
+    assert [over[k] for k in keys] == pytest.approx([0.125, 0.25, 0.40, 0.625])
+    assert over["fish.first_drop_s"] == 2.0 and over["fish.count"] == 3 and "speed" not in over
+    sc = prepare_point(spec, {"speed": 1.2, "fish.first_drop_s": 2.0}, FmuChecker())
+    assert [sc.fmu[0].parameters[f"speed_{i}"] for i in range(1, 5)] == pytest.approx([0.30, 0.60, 0.96, 1.50])
+    assert spec.definition()["scales"] == {"speed": keys}  # a resumed sweep with other scales is refused
+
+
+def test_a_scale_on_a_key_that_is_not_a_number_or_not_swept_is_refused() -> None:
+    with pytest.raises(InputError, match="not swept"):
+        make_spec(PAPER, {"fish.count": [3]}, 1, scales={"speed": ["fmu[0].parameters.speed_1"]})
+    with pytest.raises(InputError, match="not a number"):
+        make_spec(PAPER, {"f": [1.0]}, 1, scales={"f": ["fish.drop"]})
+    with pytest.raises(InputError, match="not set"):
+        make_spec(PAPER, {"f": [1.0]}, 1, scales={"f": ["fmu[0].parameters.no_such"]})

@@ -42,7 +42,8 @@ from plant.kpis import KPI_KEYS
 from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
 from fishfmu.session import STOPS
 from fishfmu.cosim.preflight import FmuDescription, describe_file, preflight
-from fishfmu.scenario.schema import Scenario, load_scenario, parse_value
+from fishfmu.scenario.schema import Scenario, get_dotted, load_scenario, parse_value
+from plant.validation import read_toml
 
 DEFINITION = "sweep.json"
 MAX_RUNS = 100_000
@@ -65,12 +66,16 @@ class SweepSpec:
     seeds: list[int]
     fixed: dict[str, Any] = field(default_factory=dict)
     """overrides applied at every point (``--set``)"""
+    scales: dict[str, list[str]] = field(default_factory=dict)
+    """named factors (``--scale NAME=KEY1,KEY2``): a swept NAME multiplies the scenario's value of each KEY
+    (the belt speeds of a profile, scaled together)"""
 
     def definition(self) -> dict[str, Any]:
         """sweep.json: everything that decides the runs' results (the scenario file by its content too)."""
         return {"format": FORMAT, "scenario": self.scenario,
                 "scenario_sha256": hashlib.sha256(Path(self.scenario).read_bytes()).hexdigest(),
-                "fixed": self.fixed, "parameters": [[k, v] for k, v in self.parameters.items()], "seeds": self.seeds}
+                "fixed": self.fixed, "parameters": [[k, v] for k, v in self.parameters.items()], "seeds": self.seeds,
+                **({"scales": self.scales} if self.scales else {})}
 
     def points(self) -> list[dict[str, Any]]:
         keys = list(self.parameters)
@@ -78,9 +83,21 @@ class SweepSpec:
 
 
 def make_spec(scenario: str | Path, parameters: dict[str, list[Any]], n_seeds: int,
-              fixed: dict[str, Any] | None = None) -> SweepSpec:
+              fixed: dict[str, Any] | None = None, scales: dict[str, list[str]] | None = None) -> SweepSpec:
     """Check the sweep as a whole (the scenario with ``fixed`` must load) and choose the seeds."""
     fixed = dict(fixed or {})
+    scales = {k: list(v) for k, v in (scales or {}).items()}
+    for name, keys in scales.items():
+        if name not in parameters:
+            raise InputError(f"--scale {name}: not swept (give its factors with --param {name}=...)")
+        if not keys:
+            raise InputError(f"--scale {name}: no keys to scale")
+        for key in keys:
+            if key in parameters or key in fixed:
+                raise InputError(f"--scale {name}: '{key}' is also swept or fixed (--param/--set)")
+            value = get_dotted(read_toml(Path(scenario)), key, fixed)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(f"--scale {name}: '{key}' is {value!r} in the scenario, not a number to scale")
     if n_seeds < 1:
         raise InputError(f"--seeds must be at least 1 (got {n_seeds})")
     check_size(math.prod(len(v) for v in parameters.values()), n_seeds)
@@ -94,7 +111,7 @@ def make_spec(scenario: str | Path, parameters: dict[str, list[Any]], n_seeds: i
     base = load_scenario(scenario, fixed)
     first = base.run.seed
     spec = SweepSpec(str(Path(scenario).resolve()), {k: list(v) for k, v in parameters.items()},
-                     list(range(first, first + n_seeds)), fixed)
+                     list(range(first, first + n_seeds)), fixed, scales)
     checker = FmuChecker()
     for key, values in spec.parameters.items():  # a key no value works for is a typo, not a failed point
         errors = []
@@ -209,9 +226,25 @@ class FmuChecker:
         preflight(scenario, scenario_file, fmus)
 
 
+def point_overrides(spec: SweepSpec, params: dict[str, Any]) -> dict[str, Any]:
+    """The scenario overrides of a point: ``--set`` values, swept keys, and each swept scale factor times the
+    scenario's value of the keys it scales."""
+    out = dict(spec.fixed)
+    data = read_toml(Path(spec.scenario)) if spec.scales else {}
+    for key, value in params.items():
+        if key in spec.scales:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise InputError(f"--param {key}: a scale factor must be a number (got {value!r})")
+            for scaled in spec.scales[key]:
+                out[scaled] = float(get_dotted(data, scaled, spec.fixed)) * float(value)
+        else:
+            out[key] = value
+    return out
+
+
 def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) -> Scenario:
     """The point's scenario, validated as far as possible without running (raises InputError)."""
-    sc = load_scenario(spec.scenario, {**spec.fixed, **params})
+    sc = load_scenario(spec.scenario, point_overrides(spec, params))
     checker.check(sc, spec.scenario)
     return sc
 

@@ -250,6 +250,24 @@ def set_dotted(data: dict[str, Any], key: str, value: Any, file: str | Path | No
                 node = node.setdefault(part, {})
 
 
+def get_dotted(data: dict[str, Any], key: str, overrides: dict[str, Any] | None = None) -> Any:
+    """The value of ``key`` (``a.b[2].c``) in a scenario's TOML, or in ``overrides`` if given there."""
+    if overrides and key in overrides:
+        return overrides[key]
+    node: Any = data
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
+        if part.startswith("["):
+            idx = int(part[1:-1])
+            if not isinstance(node, list) or idx >= len(node):
+                raise InputError(f"'{key}': no element {idx} there")
+            node = node[idx]
+        elif isinstance(node, dict) and part in node:
+            node = node[part]
+        else:
+            raise InputError(f"'{key}' is not set in the scenario")
+    return node
+
+
 def parse_value(text: str) -> Any:
     """A command-line value as TOML would read it (numbers, booleans, strings, arrays)."""
     import tomllib
