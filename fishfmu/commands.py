@@ -145,12 +145,13 @@ def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = 
 # ---------------------------------------------------------------- sweep
 
 def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, out: str | Path,
-          fixed: dict[str, Any] | None = None, **options: Any):
-    """Sweep parameters x seeds on Dask into ``out`` (resumable); ``options`` as
-    :func:`fishfmu.batch.sweep.run_sweep` takes them (scheduler, workers, max_runs, retry_failed, ...)."""
+          fixed: dict[str, Any] | None = None, scales: dict[str, list[str]] | None = None, **options: Any):
+    """Sweep parameters x seeds on Dask into ``out`` (resumable); ``scales``: named factors on several keys
+    (:class:`fishfmu.batch.sweep.SweepSpec`); ``options`` as :func:`fishfmu.batch.sweep.run_sweep` takes them
+    (scheduler, workers, max_runs, retry_failed, ...)."""
     from fishfmu.batch.sweep import make_spec, run_sweep
     from fishfmu.session import register_output
-    spec = make_spec(Path(scenario_file), params, seeds, fixed or {})
+    spec = make_spec(Path(scenario_file), params, seeds, fixed or {}, scales)
     register_output(Path(out), {"command": "sweep"})
     return spec, run_sweep(spec, Path(out), **options)
 
@@ -170,12 +171,18 @@ def replay(run_dir: str | Path, out: str | Path | None = None) -> Path:
 # ---------------------------------------------------------------- compare and diagnose
 
 def _dataset_and_params(dataset: Path, scenario_file: Path | None):
+    """The dataset, and the plant (and drive) parameters of ``scenario_file``: a whole scenario, or a fragment
+    of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``)."""
     from plant.measured import read_dataset
     from plant.params import PlantParams
     ds = read_dataset(dataset)
     if scenario_file is None:
         return ds, PlantParams(), None
     from fishfmu.scenario.schema import load_scenario
+    from plant.validation import read_toml, validate
+    data = read_toml(scenario_file)
+    if set(data) <= {"plant"}:
+        return ds, validate(PlantParams, data.get("plant", {}), file=scenario_file, prefix="plant."), None
     sc = load_scenario(scenario_file)
     drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
     return ds, sc.plant, (drives[0] if drives else None)
@@ -229,7 +236,7 @@ class DiagnoseOutcome:
 
 def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
              workers: int | None = None, max_fit: int = 3, overwrite: bool = False,
-             progress: Callable[[str], None] | None = None) -> DiagnoseOutcome:
+             progress: Callable[[str], None] | None = None, calibrate: bool = True) -> DiagnoseOutcome:
     """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
     from fishfmu.analysis.diagnose import diagnose as diagnose_
     from fishfmu.analysis.diagnose_report import write_diagnosis
@@ -242,13 +249,46 @@ def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | N
     out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "diagnose")
     register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
     try:
-        d = diagnose_(ds, params, workers, max_fit, progress=progress)
+        d = diagnose_(ds, params, workers, max_fit, progress=progress, calibrate=calibrate)
     except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
         write_run_info(out_dir, "failed", command="diagnose", dataset=str(dataset), error=str(exc))
         raise
     paths = write_diagnosis(d, out_dir)
     write_run_info(out_dir, "ok", command="diagnose", dataset=str(dataset))
     return DiagnoseOutcome(d, paths, out_dir)
+
+
+@dataclass
+class CalibrateOutcome:
+    calibration: Any
+    """:class:`fishfmu.analysis.calibrate.Calibration`"""
+    base: Any
+    """The plant parameters it started from."""
+    paths: dict[str, Path]
+    out_dir: Path
+
+
+def calibrate(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
+              workers: int | None = None, overwrite: bool = False,
+              progress: Callable[[str], None] | None = None) -> CalibrateOutcome:
+    """Fit the line's base parameters on ``dataset``; ``out`` gets ``calibrated.toml`` and ``calibration.json``."""
+    from fishfmu.analysis.calibrate import calibrate as calibrate_, write_calibration
+    from fishfmu.session import register_output
+    from fishfmu.output.run_folder import prepare_out_dir
+    from fishfmu.output.atomic import write_run_info
+    dataset = Path(dataset)
+    scenario_file = Path(scenario_file) if scenario_file is not None else None
+    ds, params, _ = _dataset_and_params(dataset, scenario_file)
+    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "calibrate")
+    register_output(out_dir, {"command": "calibrate", "dataset": str(dataset)})  # a signal: run_info.json says partial
+    try:
+        c = calibrate_(ds, params, workers, progress=progress)
+    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
+        write_run_info(out_dir, "failed", command="calibrate", dataset=str(dataset), error=str(exc))
+        raise
+    paths = write_calibration(c, params, out_dir)
+    write_run_info(out_dir, "ok", command="calibrate", dataset=str(dataset))
+    return CalibrateOutcome(c, params, paths, out_dir)
 
 
 # ---------------------------------------------------------------- single files a command writes

@@ -123,6 +123,16 @@ def friction_level(multiplier: float | np.ndarray) -> np.ndarray:
     return np.rint((m - FRICTION_LEVELS[0]) / 0.01).astype(np.int64)
 
 
+def body_friction_levels(level: int, gradient: float, n_bodies: int = 5) -> np.ndarray:
+    """Friction level of each body (head first) of a fish at ``level``: with a gradient g along the fish,
+    body i takes (1 + g (i - c) / c) times the fish's multiplier, c the middle body (head 1 - g, fin 1 + g)."""
+    if gradient == 0.0:
+        return np.full(n_bodies, int(level), dtype=np.int64)
+    c = 0.5 * (n_bodies - 1)
+    factor = 1.0 + gradient * (np.arange(n_bodies) - c) / c
+    return friction_level(FRICTION_LEVELS[int(level)] * factor)
+
+
 # ---------------------------------------------------------------- the forces, as functions of the state
 
 def direction_friction_levels(spine_xy: np.ndarray, mid_velocity_xy: np.ndarray, belt_speed_mps: np.ndarray,

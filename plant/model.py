@@ -39,7 +39,7 @@ from exudyn.itemInterface import (  # noqa: E402
     LoadForceVector, LoadMassProportional, MarkerBodyMass, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG,
     ObjectConnectorRigidBodySpringDamper, ObjectGround, ObjectRigidBody)
 
-from plant.extensions import FRICTION_LEVELS  # noqa: E402
+from plant.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
 from plant.fish_body import FishGeometry, fish_geometry  # noqa: E402
 from plant.joints import JointLaws, joint_laws  # noqa: E402
 from plant.line import Line  # noqa: E402
@@ -304,7 +304,8 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
         d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
         objects, loads, sticky = [], [], []
         first_sphere = len(sphere_body)
-        material = MAT_FISH0 + int(mem.friction_level)
+        materials = MAT_FISH0 + body_friction_levels(mem.friction_level, params.friction.belt_gradient,
+                                                     len(geo.bodies))
         for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
             node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(mem.coords[i]),
                                                      initialVelocities=list(mem.velocities[i])))
@@ -315,7 +316,7 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
             for (x, y, r) in b.spheres:
                 marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=obj, localPosition=[x, y, 0.0]))
                 gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
-                                       frictionMaterialIndex=material)
+                                       frictionMaterialIndex=int(materials[i]))
                 sphere_body.append(first + i)
                 sphere_local.append((x, y, 0.0))
                 sphere_radius.append(r)

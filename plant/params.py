@@ -28,6 +28,11 @@ class FrictionParams(Strict):
     fish_fish: float = Field(0.30, ge=0.0, le=2.0, description=(
         "salmon on salmon, both covered in mucus (assumption; lower than on a belt)"))
     fish_guide: float = Field(0.25, ge=0.0, le=2.0, description="salmon on polished stainless side guides (assumption)")
+    belt_gradient: float = Field(0.0, ge=-0.8, le=0.8, description=(
+        "fish-belt (and guide) friction along the fish: the head body takes (1 - g), the fin (1 + g) times the "
+        "fish's coefficient, linearly between (skin, scales and mucus differ along a salmon); g > 0 grips more "
+        "at the tail, so a fish taken over by a faster belt head first comes up to speed later than without it, one "
+        "tail first sooner"))
 
 
 class JointParams(Strict):

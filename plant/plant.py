@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.extensions import FRICTION_LEVELS, adhesion_forces, direction_friction_levels, friction_level
+from plant.extensions import (FRICTION_LEVELS, adhesion_forces, body_friction_levels, direction_friction_levels,
+                              friction_level)
 from plant.health import check_health, floor_below
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
@@ -354,11 +355,13 @@ class Plant:
                                         speeds[self._conveyor_index(pts[:, 0, 0])], self._mucus[k], self._level[k],
                                         direction, 0.5 * self.params.numerics.friction_regularization_mps)
         gc = self.model.contact
+        gradient = self.params.friction.belt_gradient
         for i in np.flatnonzero(new != self._level[k]):
             fm = self.model.fish[on[i]]
-            material = MAT_FISH0 + int(new[i])
+            materials = MAT_FISH0 + body_friction_levels(int(new[i]), gradient)
             for sphere in range(fm.first_sphere, fm.first_sphere + fm.n_spheres):
-                gc.SetSphereMarkerBased(sphere, frictionMaterialIndex=material)
+                body = int(self.model.sphere_body[sphere]) - fm.first_body
+                gc.SetSphereMarkerBased(sphere, frictionMaterialIndex=int(materials[body]))
         self._level[k] = new
 
     def _apply_adhesion(self) -> None:
@@ -496,7 +499,9 @@ class Plant:
         return sleeping.fish_boxes(centres, m.sphere_radius, m.sphere_body // 5, len(self._member))
 
     def _mu_belt(self, ks: np.ndarray) -> np.ndarray:
-        return self.params.friction.fish_belt * FRICTION_LEVELS[self._level[ks]]
+        # the least gripping body decides whether friction can hold the fish
+        return (self.params.friction.fish_belt * FRICTION_LEVELS[self._level[ks]]
+                * (1.0 - abs(self.params.friction.belt_gradient)))
 
     def _wake(self, ks) -> None:
         for k in ks:

@@ -64,3 +64,14 @@ def test_a_fish_riding_with_its_belt_keeps_its_level():
     level = direction_friction_levels(SPINE, np.array([[0.8, 0.0]]), np.array([0.8]), np.array([1.0]), kept,
                                       DIRECTION, 0.01)
     assert level[0] == 17
+
+
+def test_a_friction_gradient_grades_the_bodies_from_head_to_fin_around_the_fish_level():
+    from plant.extensions import body_friction_levels
+    level = int(friction_level(1.0))
+    assert body_friction_levels(level, 0.0).tolist() == [level] * 5  # no gradient: the fish's level, untouched
+    multipliers = FRICTION_LEVELS[body_friction_levels(level, 0.5)]
+    assert multipliers.tolist() == pytest.approx([0.5, 0.75, 1.0, 1.25, 1.5])
+    # around a fish at 1.2 (e.g. mucus): the same proportions of its multiplier
+    assert FRICTION_LEVELS[body_friction_levels(int(friction_level(1.2)), -0.5)].tolist() == pytest.approx(
+        [1.8, 1.5, 1.2, 0.9, 0.6])

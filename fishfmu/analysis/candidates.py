@@ -60,8 +60,9 @@ def _belt_friction(p: PlantParams, multiplier: float) -> None:
 
 
 def _direction(p: PlantParams, head: float, tail: float) -> None:
+    # multipliers of the base model's (1 unless a calibration has set them): the effect is judged against it
     d = p.extensions.direction_friction
-    d.head, d.tail = head, tail
+    d.head, d.tail = float(np.clip(d.head * head, 0.21, 3.0)), float(np.clip(d.tail * tail, 0.21, 3.0))
     d.across = 0.5 * (d.head + d.tail)
 
 

@@ -2,7 +2,10 @@
 
 The pipeline is built so that it fits in minutes on a 2-core machine:
 
-1. **Baseline.** Every run re-simulated once with the model as it is (in parallel processes);
+0. **Calibration** (unless switched off): the base parameters every line has are fitted first
+   (:mod:`fishfmu.analysis.calibrate`), and everything below judges the candidates against the
+   calibrated model: a real line's own mismatch with the default model can outweigh any effect.
+1. **Baseline.** Every run re-simulated once with the model as it is (calibrated; in parallel processes);
    residuals per fish and belt, per pair of fish at transfers, per drive (:mod:`fishfmu.analysis.residuals`).
    A run whose baseline re-simulation fails stops the diagnosis (:class:`~plant.errors.SimulationError`
    naming the run); a failed simulation during a fit counts as no better than the baseline.
@@ -39,64 +42,18 @@ from plant.errors import SimulationError
 from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
+from fishfmu.analysis.calibrate import Calibration, calibrate_with_pool
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment
 from fishfmu.analysis.evidence import evidence_table, run_level_choice
 from fishfmu.analysis.evidence_base import RunLevelShape
-from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone,
-                               belt_residuals, concat_typed, drive_residuals_averaged, pair_residuals, track_errors,
-                               typed_frame)
+from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
+from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
+                               concat_typed, drive_residuals_averaged)
 from fishfmu.analysis.resim import Resim, drive_check, resim_pool, resimulate_many, stop_pool
 
 MIN_GAIN = 0.02
 """A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
 zero): measurement noise that no model removes can be most of the error, as with noisy drive logs."""
-HEADING_SPLIT = 0.3
-"""|cos(yaw)| above which a fish rides clearly head first or tail first."""
-
-
-@dataclass
-class RunResiduals:
-    run_id: str
-    rows: pd.DataFrame
-    pairs: pd.DataFrame
-    track_rms_m: float
-    error: str | None = None
-
-    def squares(self, group: str | None = None) -> tuple[float, int]:
-        """(sum of squares, count) of this run's residuals: lags of fish alone, extra pair separation.
-
-        ``group``: ``head_first`` / ``tail_first`` rows only (no pairs), for direction friction;
-        ``pairs``: the pairs only, for adhesion."""
-        if group == "pairs":
-            d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
-            return float(np.sum(d**2)), len(d)
-        free = alone(self.rows)
-        if group == "head_first":
-            free = free[free["heading"] > HEADING_SPLIT]
-        elif group == "tail_first":
-            free = free[free["heading"] < -HEADING_SPLIT]
-        ss = float(np.sum(free["lag_m"].to_numpy(float) ** 2))
-        n = len(free)
-        if group is None and len(self.pairs):
-            d = self.pairs["dsep_m"].to_numpy(float)
-            ss, n = ss + float(np.sum(d**2)), n + len(d)
-        return ss, n
-
-
-def residuals_of(dataset: Dataset, resims: list[Resim]) -> list[RunResiduals]:
-    """Residuals of each run against its re-simulation (a failed re-simulation has none, and says why)."""
-    out = []
-    for run, r in zip(dataset.runs, resims):
-        if r.error:
-            empty = track_errors(run.tracks.iloc[0:0], run.tracks.iloc[0:0])
-            out.append(RunResiduals(run.id, belt_residuals(run, empty, dataset.line),
-                                    typed_frame([], PAIR_RESIDUAL_DTYPES), np.nan, r.error))
-            continue
-        errors = track_errors(run.tracks, r.sim.tracks)
-        rms = float(np.sqrt(np.mean(errors["ex_m"] ** 2))) if len(errors) else np.nan
-        out.append(RunResiduals(run.id, belt_residuals(run, errors, dataset.line),
-                                pair_residuals(run, r.sim.tracks, dataset.line), rms))
-    return out
 
 
 def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, float] | None = None) -> pd.DataFrame:
@@ -131,39 +88,6 @@ class CandidateFit:
         return bool(self.heldout_gain >= MIN_GAIN and self.heldout_gain_ci95[0] > 0.0)
 
 
-def folds(run_ids: list[str], k: int = 5) -> list[list[str]]:
-    ids = sorted(run_ids)
-    k = max(2, min(k, len(ids)))
-    return [ids[i::k] for i in range(k)]
-
-
-def _gain_with_ci(u: np.ndarray, e0: np.ndarray, rng: np.random.Generator, n: int = 1000) -> tuple[float, tuple]:
-    """Fraction of error removed, sum(u) / sum(e0), with a bootstrap over runs."""
-    gain = float(u.sum() / e0.sum()) if e0.sum() > 0 else 0.0
-    if len(u) < 2:
-        return gain, (float("nan"), float("nan"))
-    boot = []
-    for _ in range(n):
-        i = rng.integers(0, len(u), len(u))
-        if e0[i].sum() > 0:
-            boot.append(u[i].sum() / e0[i].sum())
-    return gain, (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
-
-
-def _vertex(x: np.ndarray, y: np.ndarray) -> float:
-    """Minimum of a parabola through the lowest point and its neighbours (within the grid's range)."""
-    order = np.argsort(x)
-    x, y = x[order], y[order]
-    i = int(np.argmin(y))
-    lo, hi = max(0, i - 1), min(len(x), i + 2)
-    if hi - lo < 3:
-        return float(x[i])
-    a, b, _ = np.polyfit(x[lo:hi], y[lo:hi], 2)
-    if a <= 0:
-        return float(x[i])
-    return float(np.clip(-b / (2 * a), x[lo], x[hi - 1]))
-
-
 def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]],
                         rng: np.random.Generator) -> CandidateFit:
     """Cross-validated choice of strength on the simulated grid (the ``off`` value is the baseline)."""
@@ -183,7 +107,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
             best = int(np.argmin(ss[g][:, ~test].sum(axis=1) / np.maximum(nn[g][:, ~test].sum(axis=1), 1)))
             u[test] += ss[g][0, test] - ss[g][best, test]
             e0[test] += ss[g][0, test]
-    gain, ci = _gain_with_ci(u, e0, rng)
+    gain, ci = gain_with_ci(u, e0, rng)
     n_total = sum(nn[g][0].sum() for g in groups)
     fit = CandidateFit(name, z, heldout_gain=gain, heldout_gain_ci95=ci,
                        heldout_rms_before=float(np.sqrt(e0.sum() / max(n_total, 1))),
@@ -191,11 +115,11 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
     # fitted values on all runs, with a bootstrap over runs
     for g, pname in zip(groups, cand.parameters):
         err = ss[g].sum(axis=1) / np.maximum(nn[g].sum(axis=1), 1)
-        fit.values[pname] = _vertex(values, err)
+        fit.values[pname] = vertex(values, err)
         boot = []
         for _ in range(300):
             i = rng.integers(0, len(runs), len(runs))
-            boot.append(_vertex(values, ss[g][:, i].sum(axis=1) / np.maximum(nn[g][:, i].sum(axis=1), 1)))
+            boot.append(vertex(values, ss[g][:, i].sum(axis=1) / np.maximum(nn[g][:, i].sum(axis=1), 1)))
         fit.ci95[pname] = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
     fit.grid = pd.DataFrame([{"value": v, "run_id": r, "ss": sum(ss[g][i, j] for g in groups),
                               "n": int(sum(nn[g][i, j] for g in groups))}
@@ -247,7 +171,7 @@ def fit_drive_candidate(cand: Candidate, z: float, drive: pd.DataFrame, rng: np.
                 rr = d[d["run_id"] == r]
                 e0[j] = float(np.sum(rr["residual_mps"] ** 2))
                 u[j] = e0[j] - float(np.sum((rr["residual_mps"] + s * rr["load_force_n"]) ** 2))
-    fit.heldout_gain, fit.heldout_gain_ci95 = _gain_with_ci(u, e0, rng)
+    fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(u, e0, rng)
     fit.heldout_rms_before = float(np.sqrt(e0.sum() / len(d)))
     fit.heldout_rms_after = float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / len(d)))
     fit.values[pname] = slip(d)
@@ -270,6 +194,8 @@ class Diagnosis:
     timing_s: dict[str, float]
     baseline: list[RunResiduals]
     drive: pd.DataFrame
+    calibration: Calibration | None = None
+    """The base model's calibration that came first (None: the model was taken as given)."""
 
     def ranking(self) -> list[str]:
         fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain, nan=-1.0))
@@ -278,11 +204,14 @@ class Diagnosis:
 
 
 def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, max_fit: int = 3,
-             seed: int = 0, progress: Callable[[str], None] | None = None) -> Diagnosis:
-    """Name the cause of the discrepancy between the model and the dataset (see the module docstring)."""
+             seed: int = 0, progress: Callable[[str], None] | None = None, calibrate: bool = True) -> Diagnosis:
+    """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
+    ``calibrate``: first fit the base model to the dataset (:mod:`fishfmu.analysis.calibrate`) and judge
+    the candidates against it; off when the base is known to be right (data made by this simulator)."""
     pool = resim_pool(workers)  # kept for every re-simulation below: a new process pays for importing Exudyn
     try:
-        result = _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None))
+        result = _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None),
+                           calibrate)
     except BaseException:  # an error, Ctrl-C or SIGTERM: the workers are stopped, not waited for
         stop_pool(pool)
         raise
@@ -292,14 +221,20 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
 
 
 def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int,
-              say: Callable[[str], None]) -> Diagnosis:
+              say: Callable[[str], None], calibrate: bool = True) -> Diagnosis:
     from plant.kpis import compute_kpis
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = dataset.runs
-    say(f"baseline: re-simulating {len(runs)} runs")
-    base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
+    calibration = None
+    if calibrate:  # the calibrated model's re-simulation of every run is the baseline
+        calibration = calibrate_with_pool(dataset, base, pool, seed, say)
+        base, base_sims = calibration.params, calibration.sims_after
+        timing["calibration"] = time.perf_counter() - t0
+    else:
+        say(f"baseline: re-simulating {len(runs)} runs")
+        base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
     failed = [(r.run_id, r.error) for r in base_sims if r.error]
     if failed:  # no baseline for a run, no diagnosis of the dataset: say so now rather than after the fits
         (run_id, error), more = failed[0], failed[1:]
@@ -371,7 +306,10 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int
         after_rms = {b.run_id: b.track_rms_m for b in residuals_of(dataset, sims)}
         timing["confirm"] = time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
-    return Diagnosis(cause, evidence, fits, frag, base_rms, after_rms, kpis_before, kpis_after, timing, baseline, drive)
+    if calibration is not None:
+        frag = calibration.fragment(calibration.base) + frag
+    return Diagnosis(cause, evidence, fits, frag, base_rms, after_rms, kpis_before, kpis_after, timing, baseline, drive,
+                     calibration)
 
 
 def _sim_run(run: Run, resim: Resim) -> Run:

@@ -14,6 +14,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
+from fishfmu.analysis.calibrate import calibration_document  # noqa: E402
 from fishfmu.analysis.diagnose import MIN_GAIN, Diagnosis  # noqa: E402
 from fishfmu.analysis.evidence import RunLevelShape  # noqa: E402
 from fishfmu.analysis.evidence_base import SUPPORT_Z
@@ -67,6 +68,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
                         "after": float(np.mean(after_rms)) if after_rms else None,
                         "per_run_before": d.base_rms_m, "per_run_after": d.after_rms_m},
         "ranking": d.ranking(),
+        "calibration": calibration_document(d.calibration, d.calibration.base) if d.calibration else None,
         "candidates": candidates,
         "rules": {"support_z": SUPPORT_Z, "min_gain": MIN_GAIN},
         "timing_s": d.timing_s,

@@ -57,11 +57,13 @@ class Noise:
     belt_speed_mps: float = 0.003
 
 
-def hidden_effect(effect: str, strength: float = 1.0) -> tuple[PlantParams, dict[str, float]]:
-    """Plant parameters and drive parameters with one effect switched on (strength 1: clearly visible)."""
+def hidden_effect(effect: str, strength: float = 1.0,
+                  base: PlantParams | None = None) -> tuple[PlantParams, dict[str, float]]:
+    """Plant parameters and drive parameters with one effect switched on (strength 1: clearly visible), on
+    top of ``base``: the line's own physics (default: the model's)."""
     if effect not in EFFECTS:
         raise ValueError(f"unknown effect '{effect}' (known: {', '.join(EFFECTS)})")
-    params = PlantParams()
+    params = base.model_copy(deep=True) if base is not None else PlantParams()
     drive: dict[str, float] = {}
     if effect != "none":
         CANDIDATES[effect].synthetic(params, drive, strength)
@@ -146,14 +148,15 @@ def _simulate_task(args: tuple) -> Run:
 
 def make_dataset(path: str | Path, effect: str, line: Line, kpi: KpiSettings, runs: list[tuple[float, str, int]],
                  speeds: list[float], seed: int = 0, strength: float = 1.0, noise: Noise = Noise(),
-                 duration_s: float = 60.0, workers: int | None = None) -> Path:
+                 duration_s: float = 60.0, workers: int | None = None, base: PlantParams | None = None) -> Path:
     """Simulate runs (hours post mortem, pattern, number of fish) with ``effect`` on and write a dataset.
+    ``base``: the line's own physics, for a dataset whose base parameters differ from the model's.
 
     Runs are simulated in ``workers`` processes (default: all cores); each run draws its fish and its
     noise from its own stream of ``seed``, so the dataset does not depend on the number of workers."""
     import os
     from concurrent.futures import ProcessPoolExecutor
-    params, drive = hidden_effect(effect, strength)
+    params, drive = hidden_effect(effect, strength, base)
     streams = [np.random.default_rng([seed, i]) for i in range(len(runs))]
     tasks = [(f"r{i + 1:02d}", line, kpi, run_fish(n_fish, hours, pattern, rng, line), speeds, params, drive,
               duration_s) for i, ((hours, pattern, n_fish), rng) in enumerate(zip(runs, streams))]

@@ -32,7 +32,7 @@ def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: fl
                 t0 = time.perf_counter()
                 path = make_dataset(Path(tmp) / "data", effect, SMALL_LINE, SMALL_KPI, SMALL_RUNS, SMALL_SPEEDS,
                                     seed=seed, strength=strength)
-                d = diagnose(read_dataset(path), workers=workers, seed=seed)
+                d = diagnose(read_dataset(path), workers=workers, seed=seed, calibrate=False)  # base: the model's
                 fit = next((f for f in d.fits if f.name == d.cause), None)
                 rows.append({"effect": effect, "seed": seed, "cause": d.cause, "correct": d.cause == effect,
                              "heldout_gain": fit.heldout_gain if fit else 0.0, "wall_s": time.perf_counter() - t0})

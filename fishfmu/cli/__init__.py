@@ -166,6 +166,8 @@ def sweep(
     seeds: int = typer.Option(5, "--seeds", min=1, help="Fish batches per point: run.seed and the N-1 after it."),
     out: Path = typer.Option(..., "--out", help="Sweep folder; the same command on the same folder resumes."),
     set_: list[str] = typer.Option([], "--set", help="Fixed override at every point: --set fish.count=30."),
+    scale: list[str] = typer.Option([], "--scale", help="A named factor on several keys, swept with --param NAME=...: "
+                                                         "--scale speed='fmu[0].parameters.speed_1,fmu[0].parameters.speed_2'"),
     scheduler: str | None = typer.Option(None, "--scheduler", help="Address of a running Dask scheduler "
                                                                    "(default: a local cluster)."),
     workers: int | None = typer.Option(None, "--workers", help="Local worker processes (default: cores)."),
@@ -182,7 +184,14 @@ def sweep(
     params = dict(parse_param(p) for p in param)
     if len(params) != len(param):
         raise InputError("a key is given twice with --param")
-    spec, result = commands.sweep(scenario, params, seeds, out, fixed, scheduler=scheduler, workers=workers,
+    scales = {}
+    for item in scale:
+        name, eq, keys = item.partition("=")
+        if not eq or not name.strip() or not keys.strip():
+            raise InputError(f"--scale '{item}': expected NAME=KEY1,KEY2,...")
+        scales[name.strip()] = [k.strip() for k in keys.split(",") if k.strip()]
+    spec, result = commands.sweep(scenario, params, seeds, out, fixed, scales=scales, scheduler=scheduler,
+                                  workers=workers,
                                   threads_per_worker=threads_per_worker, progress=_show_progress(),
                                   max_runs=max_runs, retry_failed=retry_failed)
     console = literal_console()
@@ -249,16 +258,42 @@ def diagnose_cmd(
     workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
     max_fit: int = typer.Option(3, "--max-fit", help="Fit at most this many plant candidates by simulation."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
+    calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="First fit the base model to the "
+                                   "data (fishfmu calibrate); --no-calibrate: take it as given (--scenario)."),
 ) -> None:
-    """Name the cause of what the simulation gets wrong, fit it, and measure the gain on held-out runs."""
+    """Calibrate the base model, then name the cause of what it still gets wrong, fit it, and measure the gain
+    on held-out runs."""
     from fishfmu import commands
     from fishfmu.analysis.diagnose_report import decision_text
     done = commands.diagnose(dataset, out, scenario, workers, max_fit, overwrite,
-                             progress=lambda text: err_console.print(text))
+                             progress=lambda text: err_console.print(text), calibrate=calibrate)
     d, paths = done.diagnosis, done.paths
+    if d.calibration is not None:
+        from fishfmu.analysis.calibrate import summary_lines
+        for line in summary_lines(d.calibration, d.calibration.base):
+            literal_console().print("calibration: " + line)
     literal_console().print(labelled("cause:", d.cause, "bold"))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")
+
+
+@app.command("calibrate")
+def calibrate_cmd(
+    dataset: Path = typer.Argument(..., help="Measured dataset folder (contracts/measured-data.md)."),
+    out: Path = typer.Option(..., "--out", help="Output folder: calibrated.toml and calibration.json."),
+    scenario: Path | None = typer.Option(None, "--scenario", help="Start from this scenario's plant parameters."),
+    workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
+) -> None:
+    """Fit the line's base parameters (friction by slip direction, fish-belt friction) on measured runs,
+    checked on held-out runs; the result is a fragment for --scenario of compare, diagnose and run."""
+    from fishfmu import commands
+    from fishfmu.analysis.calibrate import summary_lines
+    done = commands.calibrate(dataset, out, scenario, workers, overwrite, progress=lambda text: err_console.print(text))
+    console = literal_console()
+    for line in summary_lines(done.calibration, done.base):
+        console.print(line)
+    console.print(f"fragment: {done.paths['fragment']}\ncalibration: {done.paths['json']}")
 
 
 def main() -> None:
