@@ -85,9 +85,12 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
         raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' left the line sideways "
                               f"(y = {pos[i, 1]:.3f} m, guides at +-{half:g} m)", t_s)
     floor = floor_below(line, pos[:, 0])
-    # a fish sliding off the end of the line hangs over the last drum: only a body clear of
-    # that drum (as floor_below counts it, 0.1 m) can have gone through a belt
-    before_end = pos[:, 0] < line.x_end_m - 0.1
+    # a fish sliding off the end of the line hangs over the last drum, and one leaving slowly drops
+    # and tumbles beside it: only a fish wholly clear of that drum (as floor_below counts it, 0.1 m)
+    # can have gone through a belt
+    fish_max_x = np.full(int(fish_of.max()) + 1, -np.inf)
+    np.maximum.at(fish_max_x, fish_of, pos[:, 0])
+    before_end = fish_max_x[fish_of] < line.x_end_m - 0.1
     below = within_x & before_end & (pos[:, 2] < floor - 0.08)
     if np.any(below):
         i = int(np.flatnonzero(below)[0])

@@ -443,6 +443,9 @@ class Plant:
         z_floor = min(c.z_top_m for c in self.line.conveyors) - 0.5
         past = np.all(pos[:, :, 0] > x_gone, axis=1)
         fell_off_end = np.all(pos[:, :, 0] > self.line.x_end_m, axis=1) & np.all(pos[:, :, 2] < z_floor, axis=1)
+        # one that left slowly drops beside the end drum, some of it not past the end: gone once far below
+        fell_off_end |= (np.max(pos[:, :, 0], axis=1) > self.line.x_end_m - 0.1) & np.all(pos[:, :, 2] < z_floor - 0.5,
+                                                                                        axis=1)
         slots = np.flatnonzero(on & (past | fell_off_end))
         if not len(slots):
             return

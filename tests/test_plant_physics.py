@@ -166,3 +166,13 @@ def test_a_friction_gradient_moves_ground_at_a_transfer_from_the_end_that_slips_
     assert gap[0.0] > 0.15, gap
     assert gap[0.6] < gap[0.0] - 0.1, gap
     assert gap[-0.6] > gap[0.0] + 0.02, gap
+
+
+def test_a_fish_leaving_a_slow_belt_over_its_end_tail_first_has_left_the_line_not_fallen_through_it():
+    """At 0.1 m/s a fish riding tail first tips over the end drum and drops beside it, part of it not past
+    the end: it has left the line (retired once far below), not gone through the belt (found by the paper
+    study: a run stopped with 'fell through a belt' 1.5 m below the outfeed's end)."""
+    line = straight_line(("c1", 0.0, 1.0, 0.0))
+    run = simulate_plant(line, [fish(x_m=0.55, yaw_rad=math.pi)], {"c1": 0.1}, 12.0)
+    assert run.fish_status is not None and run.fish_status[0] == FishStatus.LEFT
+    assert run.t_end_s < 12.0  # cleared: the run stopped once the fish had gone
