@@ -234,27 +234,36 @@ class DiagnoseOutcome:
     out_dir: Path
 
 
+def _analysis_into(command: str, dataset: Path, out: str | Path, scenario_file: Path | None, overwrite: bool,
+                   analyse: Callable[[Any, Any], Any], write: Callable[[Any, Any, Path], dict[str, Path]]):
+    """An analysis of ``dataset`` written into the folder ``out``: (result, base plant parameters, paths,
+    folder).  A run the model cannot re-simulate is exit 3, with run_info.json saying why."""
+    from fishfmu.session import register_output
+    from fishfmu.output.run_folder import prepare_out_dir
+    from fishfmu.output.atomic import write_run_info
+    ds, params, _ = _dataset_and_params(dataset, scenario_file)
+    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], command)
+    register_output(out_dir, {"command": command, "dataset": str(dataset)})  # a signal: run_info.json says partial
+    try:
+        result = analyse(ds, params)
+    except SimulationError as exc:
+        write_run_info(out_dir, "failed", command=command, dataset=str(dataset), error=str(exc))
+        raise
+    paths = write(result, params, out_dir)
+    write_run_info(out_dir, "ok", command=command, dataset=str(dataset))
+    return result, params, paths, out_dir
+
+
 def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
              workers: int | None = None, max_fit: int = 3, overwrite: bool = False,
              progress: Callable[[str], None] | None = None, calibrate: bool = True) -> DiagnoseOutcome:
     """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
     from fishfmu.analysis.diagnose import diagnose as diagnose_
     from fishfmu.analysis.diagnose_report import write_diagnosis
-    from fishfmu.session import register_output
-    from fishfmu.output.run_folder import prepare_out_dir
-    from fishfmu.output.atomic import write_run_info
-    dataset = Path(dataset)
-    scenario_file = Path(scenario_file) if scenario_file is not None else None
-    ds, params, _ = _dataset_and_params(dataset, scenario_file)
-    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "diagnose")
-    register_output(out_dir, {"command": "diagnose", "dataset": str(dataset)})  # a signal: run_info.json says partial
-    try:
-        d = diagnose_(ds, params, workers, max_fit, progress=progress, calibrate=calibrate)
-    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
-        write_run_info(out_dir, "failed", command="diagnose", dataset=str(dataset), error=str(exc))
-        raise
-    paths = write_diagnosis(d, out_dir)
-    write_run_info(out_dir, "ok", command="diagnose", dataset=str(dataset))
+    d, _, paths, out_dir = _analysis_into(
+        "diagnose", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
+        lambda ds, params: diagnose_(ds, params, workers, max_fit, progress=progress, calibrate=calibrate),
+        lambda d, params, folder: write_diagnosis(d, folder))
     return DiagnoseOutcome(d, paths, out_dir)
 
 
@@ -273,21 +282,9 @@ def calibrate(dataset: str | Path, out: str | Path, scenario_file: str | Path | 
               progress: Callable[[str], None] | None = None) -> CalibrateOutcome:
     """Fit the line's base parameters on ``dataset``; ``out`` gets ``calibrated.toml`` and ``calibration.json``."""
     from fishfmu.analysis.calibrate import calibrate as calibrate_, write_calibration
-    from fishfmu.session import register_output
-    from fishfmu.output.run_folder import prepare_out_dir
-    from fishfmu.output.atomic import write_run_info
-    dataset = Path(dataset)
-    scenario_file = Path(scenario_file) if scenario_file is not None else None
-    ds, params, _ = _dataset_and_params(dataset, scenario_file)
-    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "calibrate")
-    register_output(out_dir, {"command": "calibrate", "dataset": str(dataset)})  # a signal: run_info.json says partial
-    try:
-        c = calibrate_(ds, params, workers, progress=progress)
-    except SimulationError as exc:  # a run the model cannot re-simulate: exit 3, run_info.json says why
-        write_run_info(out_dir, "failed", command="calibrate", dataset=str(dataset), error=str(exc))
-        raise
-    paths = write_calibration(c, params, out_dir)
-    write_run_info(out_dir, "ok", command="calibrate", dataset=str(dataset))
+    c, params, paths, out_dir = _analysis_into(
+        "calibrate", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
+        lambda ds, params: calibrate_(ds, params, workers, progress=progress), write_calibration)
     return CalibrateOutcome(c, params, paths, out_dir)
 
 

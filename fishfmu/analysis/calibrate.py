@@ -44,9 +44,10 @@ from plant.errors import SimulationError
 from plant.measured import Dataset
 from plant.params import PlantParams
 
+from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
 from fishfmu.analysis.residuals import alone
-from fishfmu.analysis.resim import resim_pool, resimulate_many, stop_pool
+from fishfmu.analysis.resim import pool_for, resimulate_many
 
 
 @dataclass(frozen=True)
@@ -137,7 +138,7 @@ class Calibration:
         out = {}
         for f in self.fits:
             for path in KNOBS[f.name].writes:
-                a, b = _read(base, path), _read(self.params, path)
+                a, b = plant_value(base, path), plant_value(self.params, path)
                 if a != b:
                     out[path] = (a, b)
         return out
@@ -148,18 +149,7 @@ class Calibration:
         head = "# fitted by fishfmu calibrate on the runs " + ", ".join(self.fit_runs) + "\n"
         if not changed:
             return head + "# nothing changed: no base parameter fitted the data clearly better than the model's\n"
-        tables: dict[str, list[str]] = {}
-        for path, (_, value) in changed.items():
-            *table, key = path.split(".")
-            tables.setdefault(".".join(["plant", *table]), []).append(f"{key} = {value:.4g}\n")
-        return head + "".join(f"[{t}]\n" + "".join(lines) for t, lines in tables.items())
-
-
-def _read(p: PlantParams, path: str) -> float:
-    obj = p
-    for part in path.split("."):
-        obj = getattr(obj, part)
-    return float(obj)
+        return head + plant_tables({path: value for path, (_, value) in changed.items()})
 
 
 def _squares(res: dict[str, RunResiduals], runs: list[str], group: str | None) -> tuple[np.ndarray, np.ndarray]:
@@ -229,15 +219,8 @@ def fit_knob(knob: Knob, runs: list[str], table: dict[float, dict[str, RunResidu
 def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
               progress: Callable[[str], None] | None = None) -> Calibration:
     """Calibrate the base model on ``dataset`` (see the module docstring)."""
-    pool = resim_pool(workers)  # one pool for every re-simulation: a new process pays for importing Exudyn
-    try:
-        result = calibrate_with_pool(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None))
-    except BaseException:  # an error, Ctrl-C or SIGTERM: the workers are stopped, not waited for
-        stop_pool(pool)
-        raise
-    if pool is not None:
-        pool.shutdown()
-    return result
+    with pool_for(workers) as pool:  # one pool for every re-simulation: a new process pays for importing Exudyn
+        return calibrate_with_pool(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None))
 
 
 def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None]) -> Calibration:

@@ -188,14 +188,24 @@ class Candidate:
             return head + "# in each conveyor_drive FMU instance:\n# [fmu.parameters]\n" + "".join(
                 f"# {k} = {drive[k]:.4g}\n" for k in self.writes)
         p = self.params(base, *v)
-        tables: dict[str, list[str]] = {}
-        for path in self.writes:
-            *table, key = path.split(".")
-            obj = p
-            for part in path.split("."):
-                obj = getattr(obj, part)
-            tables.setdefault(".".join(["plant", *table]), []).append(f"{key} = {obj:.4g}\n")
-        return head + "".join(f"[{t}]\n" + "".join(lines) for t, lines in tables.items())
+        return head + plant_tables({path: plant_value(p, path) for path in self.writes})
+
+
+def plant_value(p: PlantParams, path: str) -> float:
+    """The value at a dotted path in ``[plant]`` (``friction.fish_belt``)."""
+    obj = p
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return float(obj)
+
+
+def plant_tables(values: dict[str, float]) -> str:
+    """Values at dotted paths in ``[plant]`` as TOML tables (``[plant.friction]`` ...), in the given order."""
+    tables: dict[str, list[str]] = {}
+    for path, value in values.items():
+        *table, key = path.split(".")
+        tables.setdefault(".".join(["plant", *table]), []).append(f"{key} = {value:.4g}\n")
+    return "".join(f"[{t}]\n" + "".join(lines) for t, lines in tables.items())
 
 
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (

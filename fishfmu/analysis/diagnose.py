@@ -49,7 +49,7 @@ from fishfmu.analysis.evidence_base import RunLevelShape
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                concat_typed, drive_residuals_averaged)
-from fishfmu.analysis.resim import Resim, drive_check, resim_pool, resimulate_many, stop_pool
+from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
 
 MIN_GAIN = 0.02
 """A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
@@ -208,16 +208,9 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
     ``calibrate``: first fit the base model to the dataset (:mod:`fishfmu.analysis.calibrate`) and judge
     the candidates against it; off when the base is known to be right (data made by this simulator)."""
-    pool = resim_pool(workers)  # kept for every re-simulation below: a new process pays for importing Exudyn
-    try:
-        result = _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None),
-                           calibrate)
-    except BaseException:  # an error, Ctrl-C or SIGTERM: the workers are stopped, not waited for
-        stop_pool(pool)
-        raise
-    if pool is not None:
-        pool.shutdown()
-    return result
+    with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
+        return _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None),
+                         calibrate)
 
 
 def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int,

@@ -14,8 +14,10 @@ Runs are independent: :func:`resimulate_many` spreads them over worker processes
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
@@ -130,6 +132,20 @@ def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
     import multiprocessing
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_ignore_sigint)
+
+
+@contextlib.contextmanager
+def pool_for(workers: int | None = None) -> Iterator[ProcessPoolExecutor | None]:
+    """A :func:`resim_pool` for the ``with`` block: shut down when it ends, stopped (not waited for) when
+    it ends by an error, Ctrl-C or SIGTERM."""
+    pool = resim_pool(workers)
+    try:
+        yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
+    if pool is not None:
+        pool.shutdown()
 
 
 def stop_pool(pool: ProcessPoolExecutor | None, grace_s: float = 2.0) -> None:
