@@ -88,10 +88,11 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     # a fish sliding off the end of the line hangs over the last drum, and one leaving slowly drops
     # and tumbles beside it: only a fish wholly clear of that drum (as floor_below counts it, 0.1 m)
     # can have gone through a belt
-    fish_max_x = np.full(int(fish_of.max()) + 1, -np.inf)
-    np.maximum.at(fish_max_x, fish_of, pos[:, 0])
-    before_end = fish_max_x[fish_of] < line.x_end_m - 0.1
-    below = within_x & before_end & (pos[:, 2] < floor - 0.08)
+    below = within_x & (pos[:, 2] < floor - 0.08)
+    if np.any(below):  # rare: only then look at the whole fish (this runs every step)
+        fish_max_x = np.full(int(fish_of.max()) + 1, -np.inf)
+        np.maximum.at(fish_max_x, fish_of, pos[:, 0])
+        below &= fish_max_x[fish_of] < line.x_end_m - 0.1
     if np.any(below):
         i = int(np.flatnonzero(below)[0])
         raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' fell through a belt "

@@ -29,7 +29,7 @@ a transfer is what friction decides):
    after is reported for the fit runs and the held-out runs.
 
 The result is a scenario fragment (``calibrated.toml``, only ``[plant]`` tables) that ``fishfmu
-compare``, ``diagnose`` and ``run`` take with ``--scenario``.
+compare`` and ``diagnose`` take with ``--scenario`` (and whose tables a scenario for ``run`` can take).
 """
 
 from __future__ import annotations

@@ -286,7 +286,7 @@ def calibrate_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Fit the line's base parameters (friction by slip direction, fish-belt friction) on measured runs,
-    checked on held-out runs; the result is a fragment for --scenario of compare, diagnose and run."""
+    checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
     from fishfmu import commands
     from fishfmu.analysis.calibrate import summary_lines
     done = commands.calibrate(dataset, out, scenario, workers, overwrite, progress=lambda text: err_console.print(text))
