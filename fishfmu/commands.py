@@ -255,14 +255,14 @@ def _analysis_into(command: str, dataset: Path, out: str | Path, scenario_file: 
 
 
 def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
-             workers: int | None = None, max_fit: int = 3, overwrite: bool = False,
+             workers: int | None = None, overwrite: bool = False,
              progress: Callable[[str], None] | None = None, calibrate: bool = True) -> DiagnoseOutcome:
     """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
     from fishfmu.analysis.diagnose import diagnose as diagnose_
     from fishfmu.analysis.diagnose_report import write_diagnosis
     d, _, paths, out_dir = _analysis_into(
         "diagnose", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
-        lambda ds, params: diagnose_(ds, params, workers, max_fit, progress=progress, calibrate=calibrate),
+        lambda ds, params: diagnose_(ds, params, workers, progress=progress, calibrate=calibrate),
         lambda d, params, folder: write_diagnosis(d, folder))
     return DiagnoseOutcome(d, paths, out_dir)
 

@@ -16,8 +16,9 @@ import pytest
 from plant.extensions import RigorMortis
 from plant.params import PlantParams
 
-from fishfmu.analysis.candidates import CANDIDATES, fragment, rigor_index, rigor_limit_loss
-from fishfmu.analysis.evidence_base import Residuals
+from fishfmu.analysis.candidates import CANDIDATES, fragment
+from fishfmu.analysis.levels import rigor_index, rigor_limit_loss
+from fishfmu.analysis.evidence_base import HeadingSlope, Residuals
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
 from fishfmu.scenario.schema import load_scenario
 
@@ -25,10 +26,6 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "paper_test.toml"
 
 VALUES = {  # a fitted value per parameter (exact in four digits), and what the plant (or drive) must then hold
-    "belt_friction": ({"multiplier": 1.5}, {"friction.fish_belt": lambda base: 1.5 * base.friction.fish_belt}),
-    "direction_friction": ({"head": 0.75, "tail": 1.5},  # across: the mean, (0.75 + 1.5) / 2
-                           {"extensions.direction_friction.head": 0.75, "extensions.direction_friction.tail": 1.5,
-                            "extensions.direction_friction.across": 1.125}),
     "mucus_friction": ({"gain": -0.25}, {"extensions.mucus_friction.gain": -0.25}),
     "rigor_mortis": ({"stiffness_gain": 3.0},  # limit loss 0.6 * 3 / (3 + 3)
                      {"extensions.rigor_mortis.stiffness_gain": 3.0, "extensions.rigor_mortis.limit_loss": 0.3}),
@@ -144,7 +141,7 @@ def test_direction_evidence_follows_the_lag_of_head_first_fish(sign: float):
                   "rb": [(1.0, 0.031), (-1.0, 0.009), (1.0, 0.029), (-1.0, 0.011)]})
     rows["lag_m"] *= sign
     empty = Residuals(rows, typed_frame([], PAIR_RESIDUAL_DTYPES), typed_frame([], DRIVE_RESIDUAL_DTYPES))
-    ev = CANDIDATES["direction_friction"].evidence(empty, np.random.default_rng(0))
+    ev = HeadingSlope()(empty, np.random.default_rng(0))  # explains the head-first/tail-first asymmetry
     assert ev["n"] == 8
     assert ev["coefficient"] == pytest.approx(sign * 0.01)
     # residuals +-1 mm: se = sqrt(8e-6 / 7 / 8) = 3.78e-4 m; the bootstrap over the two runs sees the same slope

@@ -19,8 +19,7 @@ from fishfmu.analysis.diagnose_report import write_diagnosis
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
 
 
-@pytest.mark.parametrize("effect", ["none", "direction_friction", "mucus_friction", "rigor_mortis", "adhesion",
-                                    "drive_droop"])
+@pytest.mark.parametrize("effect", ["none", "mucus_friction", "rigor_mortis", "adhesion", "drive_droop"])
 def test_diagnose_names_the_hidden_effect_with_a_held_out_gain(effect: str, tmp_path: Path):
     path = make_dataset(tmp_path / "data", effect, SMALL_LINE, SMALL_KPI, SMALL_RUNS, SMALL_SPEEDS, seed=11)
     dataset = read_dataset(path)  # through the readers, like any customer's data

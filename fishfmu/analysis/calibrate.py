@@ -46,6 +46,7 @@ from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
+from fishfmu.analysis.levels import FRICTION, MODELS, Level, Responses, fit_model, responses, run_levels
 from fishfmu.analysis.residuals import alone
 from fishfmu.analysis.resim import pool_for, resimulate_many
 
@@ -70,8 +71,8 @@ class Knob:
     """Knobs of one stage are fitted together (independent residuals), stages one after the other."""
 
 
-def _belt(p: PlantParams, m: float) -> None:
-    p.friction.fish_belt = float(p.friction.fish_belt * m)
+def _friction(p: PlantParams, m: float) -> None:
+    FRICTION.apply(p, m, 0.0)
 
 
 def _gradient(p: PlantParams, g: float) -> None:
@@ -80,15 +81,16 @@ def _gradient(p: PlantParams, g: float) -> None:
 
 KNOBS: dict[str, Knob] = {k.name: k for k in (
     Knob("belt_gradient", "fish-belt friction from head to fin: head x(1 - g), fin x(1 + g) (added to the model's g)",
-         0.0, (0.3, 0.5, 0.7), (-0.8, 0.8), "transfers", _gradient, ("friction.belt_gradient",), 1),
-    Knob("belt_friction", "fish-belt friction coefficient (multiplier)", 1.0, (0.8, 1.25), (0.3, 3.0), "transfers",
-         _belt, ("friction.fish_belt",), 2),
+         0.0, (-0.4, 0.4), (-0.8, 0.8), "transfers", _gradient, ("friction.belt_gradient",), 1),
+    Knob("friction_level", "fish-belt and fish-guide friction coefficients (multiplier)", 1.0, FRICTION.grid,
+         FRICTION.bounds, "transfers", _friction, ("friction.fish_belt", "friction.fish_guide"), 2),
 )}
-"""The knobs, in stages.  Friction by slip direction (``direction_friction``) also makes head-first and
-tail-first fish differ, but it stays a candidate effect: on the independent simulator's data without an
-effect it removed the asymmetry of fish alone as well as a gradient along the fish (slipping tail first
-x0.25: lag RMS 9.2 -> 3.8 cm on the sparse runs) but made the bulk batches worse (track RMS 19.0 -> 21.6 cm),
-where the gradient (0.6) made them better (see README)."""
+"""The knobs, in stages.  The gradient is fitted on a grid of simulated values (extended once beyond an end
+where the error still falls) and applied at the simulated value nearest its fit, so that those simulations
+are the next stage's base; the friction level through the level responses of :mod:`fishfmu.analysis.levels`
+(the same simulations that judge mucus and rigor in ``diagnose``).  Friction by slip direction also makes
+head-first and tail-first fish differ, but on the independent simulator's data without an effect it made
+the bulk batches worse (track RMS 19.0 -> 21.6 cm) where the gradient made them better (see README)."""
 
 
 @dataclass
@@ -124,14 +126,21 @@ class Calibration:
     rms_before_m: dict[str, float]
     """Per group of runs (``fit``, ``heldout``, ``all``): RMS of the lags of fish alone, model as given."""
     rms_after_m: dict[str, float]
+    """The same, calibrated (fit runs: interpolated in the level responses, not simulated at the fitted level)."""
     track_rms_before_m: dict[str, float]
     track_rms_after_m: dict[str, float]
     timing_s: dict[str, float]
     baseline: list[RunResiduals]
     after: list[RunResiduals]
+    """Every run against the calibrated model (fit runs: at the friction level's nearest simulated value 1,
+    i.e. with the gradient only)."""
+    responses: Responses | None = None
+    """How the fit runs' residuals move with the levels (friction, and rigor when asked for)."""
+    level_base: PlantParams | None = None
+    """The model the levels were simulated around (the calibrated gradient, friction level 1)."""
     sims_after: list = field(default_factory=list, repr=False)
-    """The calibrated model's re-simulation of every run (:class:`~fishfmu.analysis.resim.Resim`): the
-    baseline of a diagnosis that follows."""
+    """Every run re-simulated (:class:`~fishfmu.analysis.resim.Resim`), in the dataset's order: the held-out
+    runs with the calibrated model, the fit runs with every level off (the base of the responses)."""
 
     def changed(self, base: PlantParams) -> dict[str, tuple[float, float]]:
         """Every value the calibration changed: dotted path -> (model's, calibrated)."""
@@ -223,8 +232,70 @@ def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | 
         return calibrate_with_pool(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None))
 
 
-def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None]) -> Calibration:
-    """:func:`calibrate` with the re-simulations on ``pool`` (``fishfmu diagnose`` calibrates on its own pool)."""
+def _grid_sims(dataset: Dataset, runs: list, variants: list[PlantParams], pool) -> list[tuple[list, list[RunResiduals]]]:
+    """(re-simulations, residuals) of ``runs`` under each of ``variants`` (one batch: the workers stay busy)."""
+    sims = resimulate_many(dataset.line, runs * len(variants), [p for p in variants for _ in runs], pool=pool, workers=1)
+    sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, runs)
+    out = []
+    for k in range(len(variants)):
+        part = sims[k * len(runs):(k + 1) * len(runs)]
+        out.append((part, residuals_of(sub, part)))
+    return out
+
+
+def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, base_res: dict[str, RunResiduals],
+                  base_sims: dict, pool, rng: np.random.Generator, say: Callable[[str], None]
+                  ) -> tuple[KnobFit, float, dict[str, RunResiduals], dict]:
+    """The gradient on a grid (extended once beyond an end where the error still falls): its fit, the simulated
+    change nearest the fit (applied when kept), and the fit runs' residuals and re-simulations with it."""
+    knob = KNOBS["belt_gradient"]
+    ids = [r.id for r in fit_runs]
+    table = {knob.off: base_res}
+    resims = {knob.off: base_sims}
+    values = list(knob.grid)
+    for _ in range(2):
+        say(f"belt_gradient + {', '.join(f'{v:g}' for v in values)} on {len(ids)} runs")
+        variants = []
+        for v in values:
+            p = params.model_copy(deep=True)
+            knob.apply(p, v)
+            variants.append(p)
+        for v, (sims, res) in zip(values, _grid_sims(dataset, fit_runs, variants, pool)):
+            table[v] = {r.run_id: (base_res[r.run_id] if r.error else r) for r in res}  # failed: no better
+            resims[v] = {s.run_id: (base_sims[s.run_id] if s.error else s) for s in sims}
+        err = {v: sum(t[r].squares("transfers")[0] for r in ids) for v, t in table.items()}
+        order = sorted(table)
+        best = min(order, key=lambda v: err[v])
+        step = order[1] - order[0]
+        lo, hi = knob.bounds[0] - params.friction.belt_gradient, knob.bounds[1] - params.friction.belt_gradient
+        nxt = (min(best + step, hi) if best == order[-1] else max(best - step, lo) if best == order[0] else None)
+        if nxt is None or nxt in table or abs(nxt - best) < 0.05:
+            break
+        values = [round(nxt, 6)]
+    fit = fit_knob(knob, ids, table, rng)
+    applied = min(table, key=lambda v: abs(v - fit.fitted)) if fit.kept else knob.off
+    fit.value = applied
+    return fit, applied, table[applied], resims[applied]
+
+
+def _friction_fit(resp: Responses, rng: np.random.Generator) -> KnobFit:
+    """The friction level as a knob: the ``constant`` model of the level responses, its held-out gain against
+    leaving the level at 1."""
+    m = fit_model(MODELS["constant"], resp, rng)
+    off = resp.run_ss({})
+    fit = KnobFit("friction_level", m.values["friction_level"], m.values["friction_level"], m.ci95["friction_level"])
+    fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(off - m.cv_ss, off, rng)
+    fit.kept = bool(fit.heldout_gain_ci95[0] > 0.0)
+    n = max(int(resp.counts.sum()), 1)
+    fit.errors = {1.0: float(off.sum() / n), fit.fitted: float(m.ss.sum() / n)}
+    return fit
+
+
+def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
+                        levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True) -> Calibration:
+    """:func:`calibrate` with the re-simulations on ``pool``.  ``levels``: the level responses to simulate
+    on the fit runs (``diagnose`` adds rigor); ``fit_base`` False: measure the responses but change nothing
+    (a dataset this simulator made)."""
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -236,79 +307,91 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
         raise SimulationError(f"run '{failed[0][0]}': {failed[0][1]} (re-simulating it with the model as it is, "
                               "before calibrating)")
     baseline = residuals_of(dataset, sims)
+    sim_of = {r.id: s for r, s in zip(runs, sims)}
     timing["baseline"] = time.perf_counter() - t0
     fit_ids, heldout_ids = choose_fit_runs(baseline)
     fit_runs = [r for r in runs if r.id in fit_ids]
-    sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
     base_by_run = {b.run_id: b for b in baseline}
     say(f"fitting on {len(fit_ids)} runs with the most fish alone ({', '.join(fit_ids)}); held out: "
         + (", ".join(heldout_ids) or "none"))
 
     params = base.model_copy(deep=True)
     fits: list[KnobFit] = []
-    stage_base = base_by_run  # residuals of the model as fitted so far (``off`` of the next stage's knobs)
-    current, current_sims = baseline, sims  # every run with the model as fitted so far
-    for stage in sorted({k.stage for k in KNOBS.values()}):
+    stage_base = {r: base_by_run[r] for r in fit_ids}
+    if fit_base:
         t1 = time.perf_counter()
-        knobs = [k for k in KNOBS.values() if k.stage == stage]
-        jobs = [(k, m) for k in knobs for m in k.grid]
-        say(f"stage {stage}: " + "; ".join(f"{k.name} {'x' if k.off == 1.0 else '+'} {', '.join(f'{m:g}' for m in k.grid)}"
-                                           for k in knobs))
-        variants = []
-        for k, m in jobs:
-            p = params.model_copy(deep=True)
-            k.apply(p, m)
-            variants.append(p)
-        sims = resimulate_many(dataset.line, fit_runs * len(jobs), [p for p in variants for _ in fit_runs],
-                               pool=pool, workers=1)
-        kept = []
-        for k in knobs:
-            table = {k.off: {r: stage_base[r] for r in fit_ids}}
-            for j, (kk, m) in enumerate(jobs):
-                if kk is k:
-                    res = residuals_of(sub, sims[j * len(fit_runs):(j + 1) * len(fit_runs)])
-                    # a failed simulation counts as no better than the model's
-                    table[m] = {r.run_id: (stage_base[r.run_id] if r.error else r) for r in res}
-            f = fit_knob(k, fit_ids, table, rng)
-            fits.append(f)
-            if f.kept:
-                kept.append(f)
-        if kept:
-            # the stage's values on every run: kept only if the held-out runs' tracks do not get worse (the
-            # check that what was fitted on fish alone carries over to the other runs, e.g. bulk batches);
-            # if they do, half the change is tried once (fish alone and piles may want different amounts)
-            held = set(heldout_ids)
-            for share in (1.0, 0.5):
-                trial_params = params.model_copy(deep=True)
-                for f in kept:
-                    f.value = KNOBS[f.name].off + share * (f.value - KNOBS[f.name].off)
-                    KNOBS[f.name].apply(trial_params, float(np.clip(f.value, *KNOBS[f.name].bounds)))
-                say(f"stage {stage}: checking " + ", ".join(f"{f.name} {f.value:.3g}" for f in kept) + " on every run")
-                sims = resimulate_many(dataset.line, runs, [trial_params] * len(runs), pool=pool, workers=1)
-                trial = residuals_of(dataset, sims)
-                worse = any(r.error for r in trial) or (bool(held) and _rms(trial, held) > _rms(current, held))
-                if held and not any(r.error for r in trial):
-                    say(f"  held-out runs: lag RMS {_rms(current, held):.3f} -> {_rms(trial, held):.3f} m"
-                        + (": worse" if worse else ""))
-                if not worse:
-                    params, current, current_sims = trial_params, trial, sims
-                    by_run = {r.run_id: r for r in trial}
-                    stage_base = {r: by_run[r] for r in fit_ids}
-                    break
-            else:
-                for f in kept:
-                    f.kept, f.rejected_on_heldout = False, True
-        timing[f"stage_{stage}"] = time.perf_counter() - t1
+        gradient, applied, stage_base, fit_sims = _fit_gradient(dataset, fit_runs, params, stage_base,
+                                                                {r: sim_of[r] for r in fit_ids}, pool, rng, say)
+        sim_of.update(fit_sims)
+        fits.append(gradient)
+        if applied != KNOBS["belt_gradient"].off:
+            KNOBS["belt_gradient"].apply(params, applied)
+        timing["gradient"] = time.perf_counter() - t1
 
-    after = current
+    t1 = time.perf_counter()
+    level_base = params.model_copy(deep=True)
+    hours = {r.id: (r.hours_post_mortem if r.hours_post_mortem is not None else 24.0) for r in fit_runs}
+    simulated: dict[tuple[str, float], dict[str, RunResiduals]] = {}
+    pending = [(lv, v) for lv in levels for v in lv.grid]
+    for _ in range(3):  # the grid, then up to twice beyond an end where a run's own best level still lies
+        jobs = [(lv, v, r) for lv, v in pending for r in fit_runs]
+        say("levels: " + "; ".join(f"{lv.name} {v:g}" for lv, v in pending) + f" on {len(fit_runs)} runs")
+        level_sims = resimulate_many(dataset.line, [r for _, _, r in jobs],
+                                     [lv.params(params, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1)
+        for (lv, v, r), s in zip(jobs, level_sims):
+            sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, [r])
+            res = residuals_of(sub, [s])[0]
+            simulated.setdefault((lv.name, v), {})[r.id] = res
+        resp = responses(stage_base, simulated, hours)
+        own = run_levels(resp)
+        pending = []
+        for lv in levels:
+            values = list(resp.values[lv.name])
+            best = own[f"{lv.name}_level"].to_numpy(float)
+            for low, end in ((True, values[0]), (False, values[-1])):
+                nxt = lv.beyond(values, low) if np.isclose(best, end, rtol=1e-6).any() else None
+                if nxt is not None:
+                    pending.append((lv, nxt))
+        if not pending:
+            break
+    timing["levels"] = time.perf_counter() - t1
+    if fit_base:
+        friction = _friction_fit(resp, rng)
+        fits.append(friction)
+        if friction.kept:
+            KNOBS["friction_level"].apply(params, friction.value)
+    else:
+        friction = None
+
+    # the held-out runs with the calibrated model (the fit runs' level-off simulations are the gradient stage's)
+    t1 = time.perf_counter()
+    held_runs = [r for r in runs if r.id in set(heldout_ids)]
+    if held_runs and params != base:
+        say(f"held-out runs: re-simulating {len(held_runs)} with the calibrated model")
+        held_sims = resimulate_many(dataset.line, held_runs, [params] * len(held_runs), pool=pool, workers=1)
+        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, held_runs)
+        held_after = {r.run_id: r for r in residuals_of(sub, held_sims)}
+        sim_of.update({r.id: s for r, s in zip(held_runs, held_sims)})
+    else:
+        held_after = {r: base_by_run[r] for r in heldout_ids}
+    timing["heldout"] = time.perf_counter() - t1
+    after = [stage_base.get(b.run_id) or held_after[b.run_id] for b in baseline]
     timing["total"] = time.perf_counter() - t0
     groups = {"fit": set(fit_ids), "heldout": set(heldout_ids), "all": set(fit_ids) | set(heldout_ids)}
+    rms_after = {g: _rms(after, ids) for g, ids in groups.items()}
+    if friction is not None and friction.kept:  # the fit runs at the fitted level: interpolated in the responses
+        n = max(int(resp.counts.sum()), 1)
+        ss_fit = float(resp.run_ss({"friction": np.full(len(resp.runs), friction.value)}).sum())
+        rms_after["fit"] = float(np.sqrt(ss_fit / n))
+        held = [r for r in after if r.run_id in groups["heldout"] and not r.error]
+        ss_h, n_h = sum(r.squares("transfers")[0] for r in held), sum(r.squares("transfers")[1] for r in held)
+        rms_after["all"] = float(np.sqrt((ss_fit + ss_h) / max(n + n_h, 1)))
+    sims_after = [sim_of[r.id] for r in runs]
     return Calibration(base, params, fits, fit_ids, heldout_ids,
-                       {g: _rms(baseline, ids) for g, ids in groups.items()},
-                       {g: _rms(after, ids) for g, ids in groups.items()},
+                       {g: _rms(baseline, ids) for g, ids in groups.items()}, rms_after,
                        {g: _track_rms(baseline, ids) for g, ids in groups.items()},
                        {g: _track_rms(after, ids) for g, ids in groups.items()}, timing, baseline, after,
-                       current_sims)
+                       resp, level_base, sims_after)
 
 
 def calibration_document(c: Calibration, base: PlantParams) -> dict:

@@ -11,14 +11,16 @@ evidence table before sorting (and so of ties).
 The identifiers are the ones ``diagnosis.json`` reports as ``cause``:
 
 ================== ====================================================================================
-``belt_friction``  the fish-belt friction coefficient is off (a calibration, not a new effect)
-``direction_friction`` friction depends on the direction a fish slips: head first, tail first, across
 ``mucus_friction`` friction on belts changes with hours post mortem
 ``rigor_mortis``   joints stiffen and their range shrinks with rigor (hours post mortem)
 ``adhesion``       touching fish stick together
 ``drive_droop``    the belts slow down under load more than the drive model says (belt creep)
 ``none``           no candidate explains the data clearly better than noise
 ================== ====================================================================================
+
+What every line has and nobody knows exactly (the fish-belt friction, how it differs along a fish) is
+no candidate: ``fishfmu calibrate`` fits it first, and the candidates are judged against the calibrated
+model (:mod:`fishfmu.analysis.calibrate`).
 """
 
 from __future__ import annotations
@@ -27,45 +29,13 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
-import numpy as np
 
-from plant.extensions import MucusFriction, RigorMortis
 from plant.params import PlantParams
 
-from fishfmu.analysis.evidence_base import DriveSlope, HeadingSlope, PairSeparation, RunLevelShape, constant
-
-_RIGOR = RigorMortis()
-_MUCUS = MucusFriction()
-
-
-def rigor_index(hours: np.ndarray) -> np.ndarray:
-    """How far rigor has set in (0..1, 1 at its peak) at the plant's default onset and duration."""
-    return np.exp(-(((np.asarray(hours, dtype=float) - _RIGOR.peak_h) / _RIGOR.width_h) ** 2))
-
-
-def mucus_index(hours: np.ndarray) -> np.ndarray:
-    """How far the mucus has dried (0 fresh, towards 1) at the plant's default time constant."""
-    return 1.0 - np.exp(-np.asarray(hours, dtype=float) / _MUCUS.time_constant_h)
-
-
-def rigor_limit_loss(stiffness_gain: float) -> float:
-    """One strength for both effects of rigor: the fraction of joint range lost at full rigor that goes with
-    a stiffness of (1 + ``stiffness_gain``) x the soft one."""
-    return 0.6 * stiffness_gain / (stiffness_gain + 3.0)
-
+from fishfmu.analysis.evidence_base import DriveSlope, PairSeparation, RunLevelShape
+from fishfmu.analysis.levels import mucus_index, rigor_index, rigor_limit_loss
 
 # ---------------------------------------------------------------- what each candidate sets (fitted values)
-def _belt_friction(p: PlantParams, multiplier: float) -> None:
-    p.friction.fish_belt = p.friction.fish_belt * multiplier
-
-
-def _direction(p: PlantParams, head: float, tail: float) -> None:
-    # multipliers of the base model's (1 unless a calibration has set them): the effect is judged against it
-    d = p.extensions.direction_friction
-    d.head, d.tail = float(np.clip(d.head * head, 0.21, 3.0)), float(np.clip(d.tail * tail, 0.21, 3.0))
-    d.across = 0.5 * (d.head + d.tail)
-
-
 def _mucus(p: PlantParams, gain: float) -> None:
     p.extensions.mucus_friction.gain = gain
 
@@ -85,11 +55,6 @@ def _belt_slip(drive: dict[str, float], belt_slip: float) -> None:
 
 # ---------------------------------------------------------------- the hidden effects of synthetic datasets
 # (strength 1: clearly visible; deliberately not the fitted family itself, e.g. rigor's range loss)
-def _hide_direction(p: PlantParams, drive: dict[str, float], s: float) -> None:
-    p.extensions.direction_friction.head = 1.0 - 0.45 * s
-    p.extensions.direction_friction.tail = 1.0 + 0.3 * s
-
-
 def _hide_mucus(p: PlantParams, drive: dict[str, float], s: float) -> None:
     p.extensions.mucus_friction.gain = -0.5 * s
 
@@ -107,10 +72,10 @@ def _hide_droop(p: PlantParams, drive: dict[str, float], s: float) -> None:
     drive["belt_slip"] = 4e-4 * s
 
 
-Group = Literal["head_first", "tail_first", "pairs"] | None
+Group = Literal["transfers", "pairs"] | None
 """Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.diagnose.RunResiduals.squares`):
-None all (lags of fish alone and pairs), ``head_first`` / ``tail_first`` lags of fish riding that way,
-``pairs`` the extra separation of close pairs."""
+None all (lags of fish alone and pairs), ``transfers`` lags of fish alone after a transfer, ``pairs`` the
+extra separation of close pairs."""
 
 
 @dataclass(frozen=True)
@@ -126,7 +91,8 @@ class Candidate:
     """The parameter value with the effect switched off."""
     grid: tuple[float, ...]
     """Values simulated when fitting (besides ``off``); the fit interpolates between them.  A single value
-    sets every parameter.  Empty: fitted without simulation (drive candidates, from the drive residuals)."""
+    sets every parameter.  Empty: fitted without a grid of its own (through the level responses, or drive
+    candidates from the drive residuals)."""
     bounds: tuple[float, float]
     acts_on: Literal["plant", "drive"]
     """Plant candidates are fitted by re-simulating the runs; drive candidates from the drive residuals."""
@@ -140,6 +106,8 @@ class Candidate:
     """Its test of the baseline residuals (one of :mod:`fishfmu.analysis.evidence`'s), ``(Residuals, rng) -> dict``."""
     groups: tuple[Group, ...] = (None,)
     """The residuals each parameter is fitted on (one per parameter)."""
+    level_model: str | None = None
+    """The model of :data:`fishfmu.analysis.levels.MODELS` it is fitted as (run-level effects), or None."""
     synthetic: Callable[[PlantParams, dict[str, float], float], None] | None = None
     """``synthetic(params, drive, strength)`` switches the effect on for a synthetic dataset (None: not one
     of :data:`fishfmu.analysis.synthetic.EFFECTS`)."""
@@ -209,22 +177,15 @@ def plant_tables(values: dict[str, float]) -> str:
 
 
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
-    Candidate("belt_friction", "fish-belt friction coefficient (multiplier of the model's)", ("multiplier",), "x",
-              1.0, (0.7, 0.85, 1.15, 1.35), (0.3, 3.0), "plant", _belt_friction, ("friction.fish_belt",),
-              RunLevelShape(constant, varies=False)),
-    Candidate("direction_friction", "friction multipliers when slipping head first / tail first", ("head", "tail"),
-              "x", 1.0, (0.6, 0.8, 1.25, 1.6), (0.21, 2.9), "plant", _direction,
-              ("extensions.direction_friction.head", "extensions.direction_friction.tail",
-               "extensions.direction_friction.across"),
-              HeadingSlope(), groups=("tail_first", "head_first"),  # tail-first fish slip head first at a transfer
-              synthetic=_hide_direction),
     Candidate("mucus_friction", "relative change of belt friction once the mucus has dried", ("gain",), "",
-              0.0, (-0.4, -0.2, 0.2, 0.4), (-0.8, 2.0), "plant", _mucus, ("extensions.mucus_friction.gain",),
-              RunLevelShape(mucus_index, label="mucus index"), synthetic=_hide_mucus),
+              0.0, (), (-0.8, 2.0), "plant", _mucus, ("extensions.mucus_friction.gain",),
+              RunLevelShape(mucus_index, label="mucus index"), groups=("transfers",), level_model="mucus_friction",
+              synthetic=_hide_mucus),
     Candidate("rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it)",
-              ("stiffness_gain",), "x", 0.0, (2.0, 5.0, 12.0), (0.0, 50.0), "plant", _rigor,
+              ("stiffness_gain",), "x", 0.0, (), (0.0, 50.0), "plant", _rigor,
               ("extensions.rigor_mortis.stiffness_gain", "extensions.rigor_mortis.limit_loss"),
-              RunLevelShape(rigor_index, label="rigor index"), synthetic=_hide_rigor),
+              RunLevelShape(rigor_index, label="rigor index"), groups=("transfers",), level_model="rigor_mortis",
+              synthetic=_hide_rigor),
     Candidate("adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N",
               0.0, (1.0, 3.0, 8.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
               PairSeparation(), groups=("pairs",), synthetic=_hide_adhesion),

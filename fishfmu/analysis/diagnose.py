@@ -1,32 +1,25 @@
 """``fishfmu diagnose``: name the cause of what the simulation gets wrong, fit it, measure the gain.
 
-The pipeline is built so that it fits in minutes on a 2-core machine:
+Every candidate is fitted; cheap evidence (:mod:`fishfmu.analysis.evidence`) is shown beside the fits as an
+explanation, never as a gate.  The pipeline fits in minutes on a 2-core machine because each candidate is
+fitted on the runs that carry its signal, mostly from simulations it shares with the others:
 
-0. **Calibration** (unless switched off): the base parameters every line has are fitted first
-   (:mod:`fishfmu.analysis.calibrate`), and everything below judges the candidates against the
-   calibrated model: a real line's own mismatch with the default model can outweigh any effect.
-1. **Baseline.** Every run re-simulated once with the model as it is (calibrated; in parallel processes);
-   residuals per fish and belt, per pair of fish at transfers, per drive (:mod:`fishfmu.analysis.residuals`).
-   A run whose baseline re-simulation fails stops the diagnosis (:class:`~plant.errors.SimulationError`
-   naming the run); a failed simulation during a fit counts as no better than the baseline.
-2. **Evidence.** Which candidates' conditions the residuals depend on (each candidate of the
-   registry :data:`fishfmu.analysis.candidates.CANDIDATES` names its test in :mod:`fishfmu.analysis.evidence`).
-   Only candidates with enough evidence are fitted: those with a test of their own (direction
-   friction, adhesion), and of the candidates acting through hours post mortem (or a constant) the
-   best-shaped one; at most ``max_fit`` plant candidates.  Drive candidates (drive droop) are
-   fitted analytically, so they cost nothing.  With none, the answer is ``none``.
-3. **Fit.** Each chosen plant candidate is simulated at a few strengths (its grid, extended once
-   beyond an end where the error is still falling) on every run;
-   the error of a run is the mean square of its residuals (lag of fish alone on a belt, extra
-   separation of close pairs).  Direction-dependent friction has two parameters but they act on
-   different fish (tail-first fish slip head first at a transfer, and the other way round), so one
-   grid fits both.
-4. **Held-out gain.** Runs are split into folds; a strength is chosen on the other folds and scored
-   on the held-out one.  The gain is the fraction of held-out error removed; its 95 % interval comes
-   from a bootstrap over runs.  A candidate is named the cause only if its gain is at least
-   ``MIN_GAIN`` and the interval excludes zero; otherwise the answer is ``none``.
-5. **Confirmation.** The named extension with its fitted strength (interpolated between grid
-   values) is simulated once more on every run, for the KPIs and errors after.
+1. **Calibration** (:mod:`fishfmu.analysis.calibrate`): every run re-simulated with the model as given;
+   the runs with most fish alone are the fit runs; the friction gradient along a fish is fitted on them
+   (``--no-calibrate``: not fitted), then each fit run is simulated at two more friction levels and two
+   rigor levels (:mod:`fishfmu.analysis.levels`), and the constant friction level fitted from those
+   responses; the other runs are re-simulated with the calibrated model.
+2. **Run-level candidates** (mucus friction, rigor): models of the runs' levels against hours post
+   mortem, fitted on the level responses without more simulation; each run's error with parameters
+   chosen on the other runs (leave one run out) against that of the constant friction level (the
+   calibrated model, one parameter fewer).
+3. **Adhesion**: the runs with touching pairs simulated at a few attraction forces around the calibrated
+   model; the extra separation of close pairs, held-out by folds of runs.
+4. **Drive droop**: from the drive logs against the simulated belt loads, no simulation (linear).
+5. **Decision**: a candidate is *significant* when it removes at least ``MIN_GAIN`` of its held-out error
+   and the 95 % interval of that gain (a bootstrap over runs) is above zero; of the significant ones, the
+   cause is the one whose interval's lower end is highest (the most certain; gains of different
+   candidates are fractions of different residuals).  None significant: ``none``.
 """
 
 from __future__ import annotations
@@ -38,15 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.errors import SimulationError
-from plant.measured import Dataset, Run
+from plant.measured import Dataset
 from plant.params import PlantParams
 
-from fishfmu.analysis.calibrate import Calibration, calibrate_with_pool
-from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment
-from fishfmu.analysis.evidence import evidence_table, run_level_choice
-from fishfmu.analysis.evidence_base import RunLevelShape
+from fishfmu.analysis.calibrate import KNOBS, Calibration, calibrate_with_pool
+from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment, plant_tables, plant_value
+from fishfmu.analysis.evidence import evidence_table
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
+from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                concat_typed, drive_residuals_averaged)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
@@ -54,6 +46,10 @@ from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
 MIN_GAIN = 0.02
 """A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
 zero): measurement noise that no model removes can be most of the error, as with noisy drive logs."""
+
+DECISION_RULE = (f"every candidate is fitted; significant = held-out gain >= {MIN_GAIN:.0%} of its residuals' "
+                 "held-out error with the 95 % bootstrap interval (over runs) above zero; the cause is the "
+                 "significant candidate with the highest lower end of that interval; none significant: none")
 
 
 def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, float] | None = None) -> pd.DataFrame:
@@ -188,123 +184,123 @@ class Diagnosis:
     fits: list[CandidateFit]
     fragment: str
     base_rms_m: dict[str, float]
+    """Track RMS per run with the model as given."""
     after_rms_m: dict[str, float]
-    kpis_before: list[dict]
-    kpis_after: list[dict]
+    """Track RMS per run with the calibrated model (the fit runs: gradient only, friction level 1)."""
     timing_s: dict[str, float]
     baseline: list[RunResiduals]
+    """Every run's residuals against the calibrated model: what the candidates are judged against."""
     drive: pd.DataFrame
-    calibration: Calibration | None = None
-    """The base model's calibration that came first (None: the model was taken as given)."""
+    calibration: Calibration
+    run_levels: pd.DataFrame
+    """The signature of run-level effects: each fit run's own best friction and rigor levels, with its hours."""
 
     def ranking(self) -> list[str]:
-        fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain, nan=-1.0))
+        fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain_ci95[0], nan=-1.0))
         rest = [c for c in self.evidence["candidate"] if c not in {f.name for f in fitted}]
         return [f.name for f in fitted] + rest
 
 
-def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, max_fit: int = 3,
-             seed: int = 0, progress: Callable[[str], None] | None = None, calibrate: bool = True) -> Diagnosis:
+def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
+             progress: Callable[[str], None] | None = None, calibrate: bool = True) -> Diagnosis:
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
     ``calibrate``: first fit the base model to the dataset (:mod:`fishfmu.analysis.calibrate`) and judge
     the candidates against it; off when the base is known to be right (data made by this simulator)."""
     with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
-        return _diagnose(dataset, base or PlantParams(), pool, max_fit, seed, progress or (lambda text: None),
-                         calibrate)
+        return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate)
 
 
-def _diagnose(dataset: Dataset, base: PlantParams, pool, max_fit: int, seed: int,
-              say: Callable[[str], None], calibrate: bool = True) -> Diagnosis:
-    from plant.kpis import compute_kpis
+def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFit, resp: Responses,
+                        rng: np.random.Generator) -> CandidateFit:
+    """A run-level candidate's fit from its level model, judged against the constant friction level."""
+    fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95))
+    fit.heldout_gain, fit.heldout_gain_ci95 = gain_over(reference, model, rng)
+    n = max(int(resp.counts.sum()), 1)
+    fit.heldout_rms_before = float(np.sqrt(reference.cv_ss.sum() / n))
+    fit.heldout_rms_after = float(np.sqrt(model.cv_ss.sum() / n))
+    return fit
+
+
+def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
+              calibrate: bool = True) -> Diagnosis:
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    runs = dataset.runs
-    calibration = None
-    if calibrate:  # the calibrated model's re-simulation of every run is the baseline
-        calibration = calibrate_with_pool(dataset, base, pool, seed, say)
-        base, base_sims = calibration.params, calibration.sims_after
-        timing["calibration"] = time.perf_counter() - t0
-    else:
-        say(f"baseline: re-simulating {len(runs)} runs")
-        base_sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
-    failed = [(r.run_id, r.error) for r in base_sims if r.error]
-    if failed:  # no baseline for a run, no diagnosis of the dataset: say so now rather than after the fits
-        (run_id, error), more = failed[0], failed[1:]
-        also = f"; also failed: {', '.join(repr(r) for r, _ in more)}" if more else ""
-        raise SimulationError(f"run '{run_id}': {error} (re-simulating it with the model as it is, the baseline of "
-                              f"the diagnosis{also})")
-    baseline = residuals_of(dataset, base_sims)
-    drive = drive_table(dataset, base_sims)
-    timing["baseline"] = time.perf_counter() - t0
-
-    rows = concat_typed([b.rows for b in baseline], BELT_RESIDUAL_DTYPES)
-    pairs = concat_typed([b.pairs for b in baseline], PAIR_RESIDUAL_DTYPES)
+    cal = calibrate_with_pool(dataset, base, pool, seed, say, levels=(FRICTION, RIGOR), fit_base=calibrate)
+    timing["calibration"] = time.perf_counter() - t0
+    sims = cal.sims_after
+    current = cal.after
+    drive = drive_table(dataset, sims)
+    rows = concat_typed([b.rows for b in current], BELT_RESIDUAL_DTYPES)
+    pairs = concat_typed([b.pairs for b in current], PAIR_RESIDUAL_DTYPES)
     evidence = evidence_table(rows, pairs, drive, seed)
-    say("evidence: " + ", ".join(f"{c} z={z:.1f}" for c, z in zip(evidence["candidate"], evidence["evidence"])))
+    z_of = evidence.set_index("candidate")["evidence"].astype(float).to_dict()
+    say("evidence (an explanation, not a gate): " + ", ".join(f"{c} z={z:.1f}" for c, z in z_of.items()))
 
     fits: list[CandidateFit] = []
-    base_by_run = {b.run_id: b for b in baseline if not b.error}
-    supported = set(evidence.loc[evidence["supported"], "candidate"])
-    # candidates tested on their own are fitted when supported; those acting through hours post mortem compete
-    plant_choice = [c.name for c in CANDIDATES.values()
-                    if c.simulated and not isinstance(c.evidence, RunLevelShape) and c.name in supported]
-    plant_choice += run_level_choice(evidence)
-    plant_choice = sorted(plant_choice, key=lambda c: -float(evidence.set_index("candidate").loc[c, "evidence"]))
-    plant_choice = plant_choice[:max_fit]
-    for name in plant_choice:
-        t1 = time.perf_counter()
-        cand = CANDIDATES[name]
-        z = float(evidence.set_index("candidate").loc[name, "evidence"])
-        # adhesion acts only where fish touch: simulate just the runs with touching pairs
-        fit_runs = [r for r in runs if not cand.needs_pairs or len(base_by_run.get(r.id, baseline[0]).pairs)] or runs
-        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
-        grid: dict[float, dict[str, RunResiduals]] = {}
-        values = list(cand.grid)
-        for _ in range(2):  # the grid, then once more beyond an end where the error is still falling
-            say(f"fit {name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
-            # the whole grid at once, so that the workers stay busy to the end
-            sims = resimulate_many(dataset.line, fit_runs * len(values),
-                                   [cand.params(base, v) for v in values for _ in fit_runs], pool=pool, workers=1)
-            for k, v in enumerate(values):
-                res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
-                grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
-                for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the baseline
-                    grid[v][rid] = base_by_run[rid]
-            values = beyond_the_ends(name, base_by_run, grid)
-            if not values:
-                break
-        fits.append(fit_plant_candidate(name, z, base_by_run, grid, rng))
-        timing[f"fit_{name}"] = time.perf_counter() - t1
-    for cand in CANDIDATES.values():  # fitted without simulation: cheap, so whenever there is any evidence
-        if not cand.simulated:
-            z = float(evidence.set_index("candidate").loc[cand.name, "evidence"])
-            if z > 0:
-                fits.append(fit_drive_candidate(cand, z, drive, rng))
+    resp = cal.responses
+    reference = fit_model(MODELS["constant"], resp, rng)
+    for cand in CANDIDATES.values():
+        if cand.level_model is not None:
+            model = fit_model(MODELS[cand.level_model], resp, rng)
+            fits.append(level_candidate_fit(cand.name, z_of.get(cand.name, 0.0), model, reference, resp, rng))
+
+    t1 = time.perf_counter()
+    cur_by_run = {b.run_id: b for b in current if not b.error}
+    for cand in CANDIDATES.values():
+        if cand.grid:  # simulated on the runs that carry its signal (adhesion: runs with touching pairs)
+            fits.append(_fit_on_grid(dataset, cand, cal.params, cur_by_run, z_of.get(cand.name, 0.0), pool, rng, say))
+            timing[f"fit_{cand.name}"] = time.perf_counter() - t1
+    for cand in CANDIDATES.values():  # fitted without simulation
+        if cand.acts_on == "drive":
+            fits.append(fit_drive_candidate(cand, z_of.get(cand.name, 0.0), drive, rng))
 
     significant = [f for f in fits if f.significant]
-    winner = max(significant, key=lambda f: f.heldout_gain) if significant else None
+    winner = max(significant, key=lambda f: f.heldout_gain_ci95[0]) if significant else None
     cause = winner.name if winner else "none"
-    frag = fragment(cause, winner.values if winner else {}, base)
-
-    kpis_before = [compute_kpis(_sim_run(r, s), dataset.line, dataset.kpi) for r, s in zip(runs, base_sims)]
-    base_rms = {b.run_id: b.track_rms_m for b in baseline}
-    kpis_after, after_rms = kpis_before, base_rms
-    if winner is not None and CANDIDATES[cause].simulated:
-        t1 = time.perf_counter()
-        say(f"confirming {cause} with {winner.values}")
-        p = CANDIDATES[cause].params(base, *[winner.values[k] for k in CANDIDATES[cause].parameters])
-        sims = resimulate_many(dataset.line, runs, [p] * len(runs), pool=pool, workers=1)
-        kpis_after = [compute_kpis(_sim_run(r, s), dataset.line, dataset.kpi) for r, s in zip(runs, sims)]
-        after_rms = {b.run_id: b.track_rms_m for b in residuals_of(dataset, sims)}
-        timing["confirm"] = time.perf_counter() - t1
+    frag = _fragment(cal, base, winner)
     timing["total"] = time.perf_counter() - t0
-    if calibration is not None:
-        frag = calibration.fragment(calibration.base) + frag
-    return Diagnosis(cause, evidence, fits, frag, base_rms, after_rms, kpis_before, kpis_after, timing, baseline, drive,
-                     calibration)
+    return Diagnosis(cause, evidence, fits, frag, {b.run_id: b.track_rms_m for b in cal.baseline},
+                     {b.run_id: b.track_rms_m for b in current}, timing, current, drive, cal, run_levels(resp))
 
 
-def _sim_run(run: Run, resim: Resim) -> Run:
-    return Run(run.id, run.hours_post_mortem, "simulated", resim.sim.fish, resim.sim.tracks, resim.sim.photoeyes,
-               resim.sim.belts)
+def _fit_on_grid(dataset: Dataset, cand: Candidate, params: PlantParams, cur_by_run: dict[str, RunResiduals],
+                 z: float, pool, rng: np.random.Generator, say: Callable[[str], None]) -> CandidateFit:
+    """A candidate simulated at its grid of strengths (extended once beyond an end where the error still falls)
+    on the runs that carry its signal, against the calibrated model."""
+    fit_runs = [r for r in dataset.runs if r.id in cur_by_run
+                and (not cand.needs_pairs or len(cur_by_run[r.id].pairs))] or dataset.runs
+    sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
+    base_by_run = {r.id: cur_by_run[r.id] for r in fit_runs if r.id in cur_by_run}
+    grid: dict[float, dict[str, RunResiduals]] = {}
+    values = list(cand.grid)
+    for _ in range(2):
+        say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
+        sims = resimulate_many(dataset.line, fit_runs * len(values),
+                               [cand.params(params, v) for v in values for _ in fit_runs], pool=pool, workers=1)
+        for k, v in enumerate(values):
+            res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
+            grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
+            for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the base
+                grid[v][rid] = base_by_run[rid]
+        values = beyond_the_ends(cand.name, base_by_run, grid)
+        if not values:
+            break
+    return fit_plant_candidate(cand.name, z, base_by_run, grid, rng)
+
+
+def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) -> str:
+    """The calibration and the named cause as one scenario fragment: every value that differs from ``base``."""
+    if winner is None:
+        return cal.fragment(base) + fragment("none", {}, base)
+    cand = CANDIDATES[winner.name]
+    if cand.level_model is None:
+        return cal.fragment(base) + cand.fragment(winner.values, cal.params)
+    # a run-level effect comes with its own friction level (fitted with it), on the calibrated gradient
+    p = cal.level_base.model_copy(deep=True)
+    FRICTION.apply(p, winner.values["friction_level"], 0.0)
+    cand.apply(p, *[winner.values[k] for k in cand.parameters])
+    paths = [path for k in KNOBS.values() for path in k.writes] + list(cand.writes)
+    changed = {path: plant_value(p, path) for path in dict.fromkeys(paths) if plant_value(p, path) != plant_value(base, path)}
+    return (f"# fitted by fishfmu diagnose on the runs {', '.join(cal.fit_runs)}: the calibrated model and "
+            f"{cand.description}\n" + plant_tables(changed))

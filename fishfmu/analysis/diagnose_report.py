@@ -15,18 +15,15 @@ import pandas as pd  # noqa: E402
 
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.calibrate import calibration_document  # noqa: E402
-from fishfmu.analysis.diagnose import MIN_GAIN, Diagnosis  # noqa: E402
-from fishfmu.analysis.evidence import RunLevelShape  # noqa: E402
-from fishfmu.analysis.evidence_base import SUPPORT_Z
+from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, Diagnosis  # noqa: E402
+from fishfmu.analysis.evidence_base import RunLevelShape  # noqa: E402
+from fishfmu.analysis.evidence_base import SUPPORT_Z  # noqa: E402
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, concat_typed  # noqa: E402
 
 
 def decision_text(d: Diagnosis) -> str:
     if d.cause == "none":
         fitted = [f for f in d.fits]
-        if not fitted:
-            return (f"No candidate had evidence of z >= {SUPPORT_Z} in the residuals, so none was fitted: no "
-                    "significant discrepancy was found.")
         return ("No fitted candidate removed at least {:.0%} of the held-out error with a 95 % interval above zero: "
                 "no significant discrepancy was found ({}).".format(MIN_GAIN, "; ".join(
                     f"{f.name}: gain {f.heldout_gain:.1%} [{f.heldout_gain_ci95[0]:.1%}, {f.heldout_gain_ci95[1]:.1%}]"
@@ -36,6 +33,21 @@ def decision_text(d: Diagnosis) -> str:
     return (f"{d.cause}: {CANDIDATES[d.cause].description}. Fitted {values}. On held-out runs it removes "
             f"{w.heldout_gain:.1%} of the error (95 % interval {w.heldout_gain_ci95[0]:.1%} to "
             f"{w.heldout_gain_ci95[1]:.1%}): RMS {w.heldout_rms_before:.4g} -> {w.heldout_rms_after:.4g} {w.error_unit}.")
+
+
+def candidate_lines(d: Diagnosis) -> list[str]:
+    """Every fitted candidate, ranked: its held-out gain with interval, its values, and its cheap evidence."""
+    fits = {f.name: f for f in d.fits}
+    lines = []
+    for name in d.ranking():
+        f = fits.get(name)
+        if f is None:
+            continue
+        values = ", ".join(f"{k} {v:.3g}" for k, v in f.values.items())
+        lines.append(f"{name}: held-out gain {f.heldout_gain:.1%} [{f.heldout_gain_ci95[0]:.1%}, "
+                     f"{f.heldout_gain_ci95[1]:.1%}]{' significant' if f.significant else ''}; {values}; "
+                     f"evidence z {f.evidence_z:.1f}")
+    return lines
 
 
 def diagnosis_document(d: Diagnosis) -> dict:
@@ -70,7 +82,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "ranking": d.ranking(),
         "calibration": calibration_document(d.calibration, d.calibration.base) if d.calibration else None,
         "candidates": candidates,
-        "rules": {"support_z": SUPPORT_Z, "min_gain": MIN_GAIN},
+        "rules": {"min_gain": MIN_GAIN, "rule": DECISION_RULE, "evidence_support_z": SUPPORT_Z},
+        "run_levels": d.run_levels.to_dict(orient="records"),
         "timing_s": d.timing_s,
     }
 
@@ -113,6 +126,16 @@ def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:
     axes[1].set_xlabel("belt load [N]")
     axes[1].set_ylabel("logged - model belt speed [m/s]")
     figs["evidence_pairs_drive.png"] = _img(fig, out / "evidence_pairs_drive.png")
+    if len(d.run_levels):
+        fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
+        lv = d.run_levels.sort_values("hours_post_mortem")
+        axes[0].plot(lv["hours_post_mortem"], lv["friction_level"], "o-")
+        axes[0].set_ylabel("the run's best friction level [x]")
+        axes[1].plot(lv["hours_post_mortem"], lv["rigor_level"], "o-")
+        axes[1].set_ylabel("the run's best rigor level [x soft stiffness]")
+        for ax in axes:
+            ax.set_xlabel("hours post mortem")
+        figs["signature_levels.png"] = _img(fig, out / "signature_levels.png")
     for f in d.fits:
         if f.grid is None:
             continue

@@ -131,8 +131,7 @@ class RunLevelShape:
     Hours post mortem (and a constant offset) vary only between runs, so this is a one-parameter
     model through the origin of the shape, tested with Student's t on (runs - 1) degrees of freedom
     and turned into the equivalent z.  A shape that does not vary over the runs gives no evidence
-    (unless it is a constant: ``varies=False``).  ``shape_rss`` says how well the shape fits, for
-    choosing among such candidates (:func:`run_level_choice`)."""
+    (unless it is a constant: ``varies=False``).  ``shape_rss`` says how well the shape fits."""
 
     shape: Callable[[np.ndarray], np.ndarray]
     varies: bool = True

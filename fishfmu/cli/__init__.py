@@ -256,7 +256,6 @@ def diagnose_cmd(
     out: Path = typer.Option(..., "--out", help="Output folder."),
     scenario: Path | None = typer.Option(None, "--scenario", help="Start from this scenario's plant parameters."),
     workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
-    max_fit: int = typer.Option(3, "--max-fit", help="Fit at most this many plant candidates by simulation."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="First fit the base model to the "
                                    "data (fishfmu calibrate); --no-calibrate: take it as given (--scenario)."),
@@ -265,13 +264,16 @@ def diagnose_cmd(
     on held-out runs."""
     from fishfmu import commands
     from fishfmu.analysis.diagnose_report import decision_text
-    done = commands.diagnose(dataset, out, scenario, workers, max_fit, overwrite,
+    done = commands.diagnose(dataset, out, scenario, workers, overwrite,
                              progress=lambda text: err_console.print(text), calibrate=calibrate)
     d, paths = done.diagnosis, done.paths
     if d.calibration is not None:
         from fishfmu.analysis.calibrate import summary_lines
         for line in summary_lines(d.calibration, d.calibration.base):
             literal_console().print("calibration: " + line)
+    from fishfmu.analysis.diagnose_report import candidate_lines
+    for line in candidate_lines(d):
+        literal_console().print("candidate " + line)
     literal_console().print(labelled("cause:", d.cause, "bold"))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")

@@ -105,12 +105,19 @@ def bench_diagnose(
     strength: float = typer.Option(1.0, "--strength", help="Size of each hidden effect (1: as in the tests)."),
     workers: int = typer.Option(2, "--workers", min=1),
     json_file: Path = typer.Option(Path("bench-results/diagnose_bench.json"), "--json", help="Results (JSON)."),
+    labelled: Path | None = typer.Option(None, "--labelled", help="Instead: diagnose every dataset in this folder "
+                                         "that has a NAME.truth.json label beside it (calibrating first)."),
 ) -> None:
-    """How often diagnose names the hidden effect of a synthetic dataset, over many seeds."""
+    """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
     from fishfmu import commands
-    from fishfmu.bench.diagnose import bench, summary
+    from fishfmu.bench.diagnose import bench, bench_labelled, summary
     commands.check_targets(json_file)
-    doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
+    if labelled is not None:
+        if not labelled.is_dir():
+            raise InputError(f"{labelled}: not a folder of labelled datasets")
+        doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)))
+    else:
+        doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
 
