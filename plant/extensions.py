@@ -57,6 +57,12 @@ class DirectionFriction(Strict):
         return longitudinal * c2 + self.across * (1.0 - c2)
 
 
+def stiffening_limit_loss(stiffening: float) -> float:
+    """The fraction of joint range lost with joints (1 + ``stiffening``) x stiffer: one law for a fish's
+    stiffness and range (0 at 0, 0.3 at 3, towards 0.6), used where both must follow one number."""
+    return 0.6 * stiffening / (stiffening + 3.0)
+
+
 class RigorMortis(Strict):
     """Joint stiffness and range against hours post mortem."""
 

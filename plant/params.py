@@ -54,6 +54,10 @@ class JointParams(Strict):
         "multiplies every bending and twist limit of Table III (1 = the paper's fish)"))
     stiffness_scale: float = Field(1.0, gt=0.01, le=100.0, description=(
         "multiplies the soft stiffness inside the limits (1 = the sag rule above)"))
+    stiffening: float = Field(0.0, ge=0.0, le=50.0, description=(
+        "every fish's joints this much stiffer (x the soft stiffness, added to rigor's), losing the range that "
+        "goes with it by rigor's law (limits x (1 - 0.6 s / (s + 3))): for a line whose fish bend less than "
+        "the paper's at any age; fitted by fishfmu diagnose's calibration"))
 
 
 class NumericsParams(Strict):

@@ -35,7 +35,7 @@ import numpy as np
 
 from plant.errors import SimulationError
 from plant.extensions import (FRICTION_LEVELS, adhesion_forces, body_friction_levels, direction_friction_levels,
-                              friction_level)
+                              friction_level, stiffening_limit_loss)
 from plant.health import check_health, floor_below
 from plant.joints import JointLaws, linearize, stack_laws
 from plant.line import Line
@@ -100,6 +100,10 @@ class Plant:
         if joint_factors is None:
             joint_factors = [ext.rigor_mortis.joint_factors(f.hours_post_mortem) if ext.rigor_mortis.on else (1.0, 1.0)
                              for f in self.fish_specs]
+            k0 = self.params.joints.stiffening
+            if k0 > 0.0:  # every fish stiffer, at any age: added to rigor's stiffness, its range loss multiplied
+                keep = 1.0 - stiffening_limit_loss(k0)
+                joint_factors = [(s + k0, lim * keep) for s, lim in joint_factors]
         self.prepared = [prepare_fish(f, self.params, joint_factors[k]) for k, f in enumerate(self.fish_specs)]
         # each fish's friction multiplier on belts and guides: mucus (hours post mortem) x direction of slip
         self._mucus = np.array([ext.mucus_friction.factor(f.hours_post_mortem) for f in self.fish_specs])

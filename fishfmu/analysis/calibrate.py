@@ -46,8 +46,8 @@ from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
-from fishfmu.analysis.levels import FRICTION, MODELS, Level, Responses, fit_model, responses, run_levels
-from fishfmu.analysis.residuals import alone
+from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
+from fishfmu.analysis.residuals import PAIR_RESIDUAL_DTYPES, alone, belt_residuals, track_errors, typed_frame
 from fishfmu.analysis.resim import pool_for, resimulate_many
 
 
@@ -75,18 +75,26 @@ def _friction(p: PlantParams, m: float) -> None:
     FRICTION.apply(p, m, 0.0)
 
 
+def _stiffening(p: PlantParams, k: float) -> None:
+    p.joints.stiffening = float(k)
+
+
 def _gradient(p: PlantParams, g: float) -> None:
     p.friction.belt_gradient = float(np.clip(p.friction.belt_gradient + g, -0.8, 0.8))
 
 
 KNOBS: dict[str, Knob] = {k.name: k for k in (
     Knob("belt_gradient", "fish-belt friction from head to fin: head x(1 - g), fin x(1 + g) (added to the model's g)",
-         0.0, (-0.4, 0.4), (-0.8, 0.8), "transfers", _gradient, ("friction.belt_gradient",), 1),
+         0.0, (0.4, 0.8), (-0.8, 0.8), "transfers", _gradient, ("friction.belt_gradient",), 1),
     Knob("friction_level", "fish-belt and fish-guide friction coefficients (multiplier)", 1.0, FRICTION.grid,
          FRICTION.bounds, "transfers", _friction, ("friction.fish_belt", "friction.fish_guide"), 2),
+    Knob("joint_stiffening", "every fish's joints (1 + k) x stiffer, with the range lost that goes with it (diagnose "
+         "only: it needs the rigor level's simulations)", 0.0, RIGOR.grid, RIGOR.bounds, "transfers", _stiffening,
+         ("joints.stiffening",), 2),
 )}
 """The knobs, in stages.  The gradient is fitted on a grid of simulated values (extended once beyond an end
-where the error still falls) and applied at the simulated value nearest its fit, so that those simulations
+where the error still falls: the grid starts on the side where the independent simulator's line lies, which
+saves a batch of simulations there and costs one elsewhere) and applied at the simulated value nearest its fit, so that those simulations
 are the next stage's base; the friction level through the level responses of :mod:`fishfmu.analysis.levels`
 (the same simulations that judge mucus and rigor in ``diagnose``).  Friction by slip direction also makes
 head-first and tail-first fish differ, but on the independent simulator's data without an effect it made
@@ -184,6 +192,16 @@ def _track_rms(res: list[RunResiduals], runs: set[str]) -> float:
     return float(np.sqrt(np.mean(np.square(v)))) if v else float("nan")
 
 
+def measured_rows(dataset: Dataset) -> list[RunResiduals]:
+    """Each run's belt rows from its measured tracks alone (no simulation: every error zero): which fish rode
+    alone on which belt."""
+    out = []
+    for run in dataset.runs:
+        rows = belt_residuals(run, track_errors(run.tracks, run.tracks), dataset.line)
+        out.append(RunResiduals(run.id, rows, typed_frame([], PAIR_RESIDUAL_DTYPES), 0.0))
+    return out
+
+
 def choose_fit_runs(baseline: list[RunResiduals]) -> tuple[list[str], list[str]]:
     """(fit runs, held-out runs): the runs with the most fish alone on a belt, at least half of them; with
     three runs or more at least one is held out."""
@@ -234,7 +252,7 @@ def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | 
 
 def _grid_sims(dataset: Dataset, runs: list, variants: list[PlantParams], pool) -> list[tuple[list, list[RunResiduals]]]:
     """(re-simulations, residuals) of ``runs`` under each of ``variants`` (one batch: the workers stay busy)."""
-    sims = resimulate_many(dataset.line, runs * len(variants), [p for p in variants for _ in runs], pool=pool, workers=1)
+    sims = resimulate_many(dataset.line, runs * len(variants), [p for p in variants for _ in runs], pool=pool, workers=1, residuals=True)
     sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, runs)
     out = []
     for k in range(len(variants)):
@@ -243,26 +261,31 @@ def _grid_sims(dataset: Dataset, runs: list, variants: list[PlantParams], pool) 
     return out
 
 
-def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, base_res: dict[str, RunResiduals],
-                  base_sims: dict, pool, rng: np.random.Generator, say: Callable[[str], None]
+def _gradient_variants(params: PlantParams, values: list[float]) -> list[PlantParams]:
+    out = []
+    for v in values:
+        p = params.model_copy(deep=True)
+        KNOBS["belt_gradient"].apply(p, v)
+        out.append(p)
+    return out
+
+
+def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, table: dict[float, dict[str, RunResiduals]],
+                  resims: dict[float, dict], pool, rng: np.random.Generator, say: Callable[[str], None]
                   ) -> tuple[KnobFit, float, dict[str, RunResiduals], dict]:
-    """The gradient on a grid (extended once beyond an end where the error still falls): its fit, the simulated
+    """The gradient from its grid (``table``/``resims``: residuals and re-simulations of the fit runs per simulated
+    change, ``off`` among them), extended once beyond an end where the error still falls: its fit, the simulated
     change nearest the fit (applied when kept), and the fit runs' residuals and re-simulations with it."""
     knob = KNOBS["belt_gradient"]
     ids = [r.id for r in fit_runs]
-    table = {knob.off: base_res}
-    resims = {knob.off: base_sims}
-    values = list(knob.grid)
+    base_res, base_sims = table[knob.off], resims[knob.off]
+    values: list[float] = []
     for _ in range(2):
-        say(f"belt_gradient + {', '.join(f'{v:g}' for v in values)} on {len(ids)} runs")
-        variants = []
-        for v in values:
-            p = params.model_copy(deep=True)
-            knob.apply(p, v)
-            variants.append(p)
-        for v, (sims, res) in zip(values, _grid_sims(dataset, fit_runs, variants, pool)):
-            table[v] = {r.run_id: (base_res[r.run_id] if r.error else r) for r in res}  # failed: no better
-            resims[v] = {s.run_id: (base_sims[s.run_id] if s.error else s) for s in sims}
+        if values:
+            say(f"belt_gradient + {', '.join(f'{v:g}' for v in values)} on {len(ids)} runs")
+            for v, (sims, res) in zip(values, _grid_sims(dataset, fit_runs, _gradient_variants(params, values), pool)):
+                table[v] = {r.run_id: (base_res[r.run_id] if r.error else r) for r in res}  # failed: no better
+                resims[v] = {s.run_id: (base_sims[s.run_id] if s.error else s) for s in sims}
         err = {v: sum(t[r].squares("transfers")[0] for r in ids) for v, t in table.items()}
         order = sorted(table)
         best = min(order, key=lambda v: err[v])
@@ -278,17 +301,21 @@ def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, base_re
     return fit, applied, table[applied], resims[applied]
 
 
-def _friction_fit(resp: Responses, rng: np.random.Generator) -> KnobFit:
-    """The friction level as a knob: the ``constant`` model of the level responses, its held-out gain against
-    leaving the level at 1."""
+def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
+    """The friction level (and joint stiffening, when rigor was simulated) as knobs: the ``constant`` model of
+    the level responses, with its held-out gain against leaving every level off (one gain for both)."""
     m = fit_model(MODELS["constant"], resp, rng)
     off = resp.run_ss({})
-    fit = KnobFit("friction_level", m.values["friction_level"], m.values["friction_level"], m.ci95["friction_level"])
-    fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(off - m.cv_ss, off, rng)
-    fit.kept = bool(fit.heldout_gain_ci95[0] > 0.0)
+    gain, ci = gain_with_ci(off - m.cv_ss, off, rng)
     n = max(int(resp.counts.sum()), 1)
-    fit.errors = {1.0: float(off.sum() / n), fit.fitted: float(m.ss.sum() / n)}
-    return fit
+    names = ["friction_level"] + (["joint_stiffening"] if "rigor" in resp.values else [])
+    fits = []
+    for name in names:
+        v = m.values[name]
+        f = KnobFit(name, v, v, m.ci95[name], gain, ci, kept=bool(ci[0] > 0.0))
+        f.errors = {KNOBS[name].off: float(off.sum() / n), v: float(m.ss.sum() / n)}
+        fits.append(f)
+    return fits
 
 
 def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
@@ -300,28 +327,42 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = dataset.runs
-    say(f"baseline: re-simulating {len(runs)} runs")
-    sims = resimulate_many(dataset.line, runs, [base] * len(runs), pool=pool, workers=1)
+    # the fit runs are chosen from the measured tracks alone, so that the baseline and the gradient's grid
+    # run as one batch (the workers stay busy to the end)
+    fit_ids, heldout_ids = choose_fit_runs(measured_rows(dataset))
+    fit_runs = [r for r in runs if r.id in fit_ids]
+    say(f"fitting on {len(fit_ids)} runs with the most fish alone ({', '.join(fit_ids)}); held out: "
+        + (", ".join(heldout_ids) or "none"))
+    params = base.model_copy(deep=True)
+    grid = list(KNOBS["belt_gradient"].grid) if fit_base else []
+    say(f"baseline: re-simulating {len(runs)} runs" + (f"; belt_gradient + {', '.join(f'{v:g}' for v in grid)} on "
+                                                       f"the {len(fit_runs)} fit runs" if grid else ""))
+    variants = _gradient_variants(params, grid)
+    sims = resimulate_many(dataset.line, runs + fit_runs * len(grid),
+                           [base] * len(runs) + [p for p in variants for _ in fit_runs], pool=pool, workers=1, residuals=True)
+    sims, grid_sims = sims[:len(runs)], sims[len(runs):]
     failed = [(r.run_id, r.error) for r in sims if r.error]
     if failed:
         raise SimulationError(f"run '{failed[0][0]}': {failed[0][1]} (re-simulating it with the model as it is, "
                               "before calibrating)")
     baseline = residuals_of(dataset, sims)
     sim_of = {r.id: s for r, s in zip(runs, sims)}
-    timing["baseline"] = time.perf_counter() - t0
-    fit_ids, heldout_ids = choose_fit_runs(baseline)
-    fit_runs = [r for r in runs if r.id in fit_ids]
     base_by_run = {b.run_id: b for b in baseline}
-    say(f"fitting on {len(fit_ids)} runs with the most fish alone ({', '.join(fit_ids)}); held out: "
-        + (", ".join(heldout_ids) or "none"))
+    timing["baseline"] = time.perf_counter() - t0
 
-    params = base.model_copy(deep=True)
     fits: list[KnobFit] = []
     stage_base = {r: base_by_run[r] for r in fit_ids}
     if fit_base:
         t1 = time.perf_counter()
-        gradient, applied, stage_base, fit_sims = _fit_gradient(dataset, fit_runs, params, stage_base,
-                                                                {r: sim_of[r] for r in fit_ids}, pool, rng, say)
+        table = {KNOBS["belt_gradient"].off: stage_base}
+        resims = {KNOBS["belt_gradient"].off: {r: sim_of[r] for r in fit_ids}}
+        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
+        for k, v in enumerate(grid):
+            part = grid_sims[k * len(fit_runs):(k + 1) * len(fit_runs)]
+            table[v] = {r.run_id: (stage_base[r.run_id] if r.error else r) for r in residuals_of(sub, part)}
+            resims[v] = {s.run_id: (sim_of[s.run_id] if s.error else s) for s in part}
+        gradient, applied, stage_base, fit_sims = _fit_gradient(dataset, fit_runs, params, table, resims, pool, rng,
+                                                                say)
         sim_of.update(fit_sims)
         fits.append(gradient)
         if applied != KNOBS["belt_gradient"].off:
@@ -337,7 +378,7 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
         jobs = [(lv, v, r) for lv, v in pending for r in fit_runs]
         say("levels: " + "; ".join(f"{lv.name} {v:g}" for lv, v in pending) + f" on {len(fit_runs)} runs")
         level_sims = resimulate_many(dataset.line, [r for _, _, r in jobs],
-                                     [lv.params(params, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1)
+                                     [lv.params(params, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1, residuals=True)
         for (lv, v, r), s in zip(jobs, level_sims):
             sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, [r])
             res = residuals_of(sub, [s])[0]
@@ -355,20 +396,18 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
         if not pending:
             break
     timing["levels"] = time.perf_counter() - t1
-    if fit_base:
-        friction = _friction_fit(resp, rng)
-        fits.append(friction)
-        if friction.kept:
-            KNOBS["friction_level"].apply(params, friction.value)
-    else:
-        friction = None
+    constant = _constant_fits(resp, rng) if fit_base else []
+    fits += constant
+    for f in constant:
+        if f.kept:
+            KNOBS[f.name].apply(params, f.value)
 
     # the held-out runs with the calibrated model (the fit runs' level-off simulations are the gradient stage's)
     t1 = time.perf_counter()
     held_runs = [r for r in runs if r.id in set(heldout_ids)]
     if held_runs and params != base:
         say(f"held-out runs: re-simulating {len(held_runs)} with the calibrated model")
-        held_sims = resimulate_many(dataset.line, held_runs, [params] * len(held_runs), pool=pool, workers=1)
+        held_sims = resimulate_many(dataset.line, held_runs, [params] * len(held_runs), pool=pool, workers=1, residuals=True)
         sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, held_runs)
         held_after = {r.run_id: r for r in residuals_of(sub, held_sims)}
         sim_of.update({r.id: s for r, s in zip(held_runs, held_sims)})
@@ -379,9 +418,13 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
     timing["total"] = time.perf_counter() - t0
     groups = {"fit": set(fit_ids), "heldout": set(heldout_ids), "all": set(fit_ids) | set(heldout_ids)}
     rms_after = {g: _rms(after, ids) for g, ids in groups.items()}
-    if friction is not None and friction.kept:  # the fit runs at the fitted level: interpolated in the responses
+    kept = {f.name: f.value for f in constant if f.kept}
+    if kept:  # the fit runs at the fitted levels: interpolated in the responses
         n = max(int(resp.counts.sum()), 1)
-        ss_fit = float(resp.run_ss({"friction": np.full(len(resp.runs), friction.value)}).sum())
+        levels_fit = {"friction": np.full(len(resp.runs), kept.get("friction_level", 1.0))}
+        if "joint_stiffening" in kept:
+            levels_fit["rigor"] = np.full(len(resp.runs), kept["joint_stiffening"])
+        ss_fit = float(resp.run_ss(levels_fit).sum())
         rms_after["fit"] = float(np.sqrt(ss_fit / n))
         held = [r for r in after if r.run_id in groups["heldout"] and not r.error]
         ss_h, n_h = sum(r.squares("transfers")[0] for r in held), sum(r.squares("transfers")[1] for r in held)

@@ -187,7 +187,7 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
               RunLevelShape(rigor_index, label="rigor index"), groups=("transfers",), level_model="rigor_mortis",
               synthetic=_hide_rigor),
     Candidate("adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N",
-              0.0, (1.0, 3.0, 8.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
+              0.0, (2.0, 6.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
               PairSeparation(), groups=("pairs",), synthetic=_hide_adhesion),
     Candidate("drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N",
               0.0, (), (0.0, 0.01), "drive", _belt_slip, ("belt_slip",), DriveSlope(), synthetic=_hide_droop),

@@ -58,6 +58,9 @@ def residuals_of(dataset: Dataset, resims: list[Resim]) -> list[RunResiduals]:
     """Residuals of each run against its re-simulation (a failed re-simulation has none, and says why)."""
     out = []
     for run, r in zip(dataset.runs, resims):
+        if r.residuals is not None:  # computed by the worker that re-simulated the run
+            out.append(r.residuals)
+            continue
         if r.error:
             empty = track_errors(run.tracks.iloc[0:0], run.tracks.iloc[0:0])
             out.append(RunResiduals(run.id, belt_residuals(run, empty, dataset.line),

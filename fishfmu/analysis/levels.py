@@ -14,10 +14,12 @@ Every **model of the levels across runs** (:data:`MODELS`) is then a function fr
 each run's hours post mortem to its levels, and is fitted and cross-validated on these interpolated
 residuals without another simulation:
 
-- ``constant``: one friction multiplier for every run (the base model's calibration, no effect);
+- ``constant``: one friction multiplier and one joint stiffening k0 for every run (the base model's
+  calibration, no effect: the independent simulator's fish land and bend as if stiffer than ours in
+  every run, whatever their age);
 - ``mucus_friction``: that multiplier times (1 + gain x mucus index(hours)), friction that changes as
-  the mucus dries (monotone in hours post mortem);
-- ``rigor_mortis``: the constant multiplier, and joints (1 + K x rigor index(hours)) times stiffer
+  the mucus dries (monotone in hours post mortem), with the constant k0;
+- ``rigor_mortis``: the constant multiplier, and joints (1 + k0 + K x rigor index(hours)) times stiffer
   (rigor sets in, peaks and resolves: not monotone).
 
 A model's parameters are chosen by exhaustive search over a fine grid; its held-out error is that of
@@ -37,16 +39,16 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from plant.extensions import stiffening_limit_loss
 from plant.params import PlantParams
 
 from fishfmu.analysis.fitting import RunResiduals, gain_with_ci
 from fishfmu.analysis.residuals import alone
 
 
-def rigor_limit_loss(stiffness_gain: float) -> float:
-    """One strength for both effects of rigor: the fraction of joint range lost at full rigor that goes with
-    a stiffness of (1 + ``stiffness_gain``) x the soft one."""
-    return 0.6 * stiffness_gain / (stiffness_gain + 3.0)
+rigor_limit_loss = stiffening_limit_loss
+"""One strength for both effects of rigor: the fraction of joint range lost at full rigor that goes with a
+stiffness of (1 + ``stiffness_gain``) x the soft one (the plant's law for ``joints.stiffening``)."""
 
 
 def _friction_level(p: PlantParams, m: float, hours: float) -> None:
@@ -55,9 +57,7 @@ def _friction_level(p: PlantParams, m: float, hours: float) -> None:
 
 
 def _rigor_level(p: PlantParams, k: float, hours: float) -> None:
-    # full rigor at this run's age, so that the run's fish are (1 + k) x stiffer whatever their hours
-    r = p.extensions.rigor_mortis
-    r.peak_h, r.stiffness_gain, r.limit_loss = max(float(hours), 0.01), float(k), rigor_limit_loss(k)
+    p.joints.stiffening = float(k)  # every fish of the run (1 + k) x stiffer, with the range lost that goes with it
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class Level:
         return None if v in values or (v <= min(values) if not low else v >= max(values)) else round(v, 4)
 
 
-FRICTION = Level("friction", 1.0, (0.65, 1.5), (0.2, 3.0), np.log, _friction_level)
+FRICTION = Level("friction", 1.0, (0.4, 1.4), (0.2, 3.0), np.log, _friction_level)
 """Multiplier of fish-belt and fish-guide friction (what mucus changes)."""
 RIGOR = Level("rigor", 0.0, (5.0, 20.0), (0.0, 50.0), np.log1p, _rigor_level)
 """Extra joint stiffness, x the soft one, with the range lost that goes with it (what rigor changes)."""
@@ -122,6 +122,10 @@ class Responses:
         lag = self.lag0.copy()
         rows = np.arange(len(lag))
         for name, per_run in levels.items():
+            if name not in self.values:  # a level not simulated can only be off
+                if np.any(np.asarray(per_run, float) != LEVELS[name].off):
+                    raise ValueError(f"level {name} was not simulated")
+                continue
             lv, xs, d = LEVELS[name], LEVELS[name].to_x(self.values[name]), self.delta[name]
             x = lv.to_x(np.clip(np.asarray(per_run, float), *self.range(name)))[self.row_run]
             j = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
@@ -196,20 +200,29 @@ def rigor_index(hours: np.ndarray, peak_h: float = 24.0, width_h: float = 20.0) 
 
 
 def _friction_values(resp: Responses) -> np.ndarray:
-    return np.geomspace(*resp.range("friction"), 41)
+    return np.geomspace(*resp.range("friction"), 25)
 
 
-def _rigor_values(resp: Responses) -> np.ndarray:
-    return np.concatenate([[0.0], np.geomspace(0.3, resp.range("rigor")[1], 30)])
+def _stiffness_values(resp: Responses) -> np.ndarray:
+    """Joint stiffening levels searched (only 0 when rigor was not simulated)."""
+    if "rigor" not in resp.values:
+        return np.zeros(1)
+    return np.concatenate([[0.0], np.geomspace(0.3, resp.range("rigor")[1], 15)])
+
+
+def _const(h: np.ndarray, value: float) -> np.ndarray:
+    return np.full(len(h), float(value))
 
 
 MODELS: dict[str, LevelModel] = {m.name: m for m in (
-    LevelModel("constant", ("friction_level",), lambda r: (_friction_values(r),),
-               lambda h, a: {"friction": np.full(len(h), a)}),
-    LevelModel("mucus_friction", ("friction_level", "gain"), lambda r: (_friction_values(r), np.linspace(-0.8, 2.0, 57)),
-               lambda h, a, g: {"friction": a * (1.0 + g * mucus_index(h))}),
-    LevelModel("rigor_mortis", ("friction_level", "stiffness_gain"), lambda r: (_friction_values(r), _rigor_values(r)),
-               lambda h, a, k: {"friction": np.full(len(h), a), "rigor": k * rigor_index(h)}),
+    LevelModel("constant", ("friction_level", "joint_stiffening"), lambda r: (_friction_values(r), _stiffness_values(r)),
+               lambda h, a, k0: {"friction": _const(h, a), "rigor": _const(h, k0)}),
+    LevelModel("mucus_friction", ("friction_level", "joint_stiffening", "gain"),
+               lambda r: (_friction_values(r), _stiffness_values(r), np.linspace(-0.8, 2.0, 29)),
+               lambda h, a, k0, g: {"friction": a * (1.0 + g * mucus_index(h)), "rigor": _const(h, k0)}),
+    LevelModel("rigor_mortis", ("friction_level", "joint_stiffening", "stiffness_gain"),
+               lambda r: (_friction_values(r), _stiffness_values(r), _stiffness_values(r)),
+               lambda h, a, k0, k: {"friction": _const(h, a), "rigor": k0 + k * rigor_index(h)}),
 )}
 """The models of levels across runs; ``constant`` is the reference (no effect)."""
 
@@ -258,7 +271,7 @@ def run_levels(resp: Responses) -> pd.DataFrame:
     a_grid = _friction_values(resp)
     ss_a = np.array([resp.run_ss({"friction": np.full(len(resp.runs), a)}) for a in a_grid])
     a_all = float(a_grid[int(np.argmin(ss_a.sum(axis=1)))])
-    k_grid = _rigor_values(resp) if "rigor" in resp.values else None
+    k_grid = _stiffness_values(resp) if "rigor" in resp.values else None
     ss_k = (np.array([resp.run_ss({"friction": np.full(len(resp.runs), a_all), "rigor": np.full(len(resp.runs), k)})
                       for k in k_grid]) if k_grid is not None else None)
     for j, r in enumerate(resp.runs):

@@ -38,7 +38,7 @@ BELT_RESIDUAL_DTYPES = {"run_id": object, "fish_id": object, "belt": "int64", "c
 PAIR_RESIDUAL_DTYPES = {"run_id": object, "leader": object, "follower": object, "conveyor_id": object,
                         "t_s": float, "separation_m": float, "dsep_m": float}
 DRIVE_RESIDUAL_DTYPES = {"run_id": object, "conveyor_id": object, "t_s": float, "residual_mps": float,
-                         "load_force_n": float}
+                         "load_force_n": float, "load_mass_kg": float}
 
 
 def typed_frame(rows: list[dict] | pd.DataFrame, dtypes: dict) -> pd.DataFrame:
@@ -180,15 +180,23 @@ def _separation(tracks: pd.DataFrame, a: str, b: str, t: float) -> float | None:
     return xs[0] - xs[1]
 
 
-def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5) -> pd.DataFrame:
-    """Logged belt speed minus the drive model's, away from setpoint changes (ramps are not droop)."""
+def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5, band: float = 0.05) -> pd.DataFrame:
+    """Logged belt speed minus the drive model's, away from setpoint changes (ramps are not droop): after each
+    change, and after the log's start (a drive starting from rest ramps like after a change), only once both
+    the logged and the model speed have come within ``band`` of the setpoint, and ``settle_s`` later."""
     if check.empty:
         return check.assign(residual_mps=[])
     sp = check["setpoint_mps"].to_numpy()
     t = check["t_s"].to_numpy()
-    change_t = t[np.flatnonzero(np.abs(np.diff(sp)) > 1e-6) + 1]
-    last_change = np.array([change_t[change_t <= x].max() if np.any(change_t <= x) else -np.inf for x in t])
-    steady = (t - last_change >= settle_s) & (np.abs(sp) > 0.05)
+    near = ((np.abs(check["measured_mps"].to_numpy() - sp) <= band * np.abs(sp))
+            & (np.abs(check["model_mps"].to_numpy() - sp) <= band * np.abs(sp)))
+    starts = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(sp)) > 1e-6) + 1, [len(t)]])
+    steady = np.zeros(len(t), dtype=bool)
+    for a, b in zip(starts[:-1], starts[1:]):  # each stretch of one setpoint
+        hit = np.flatnonzero(near[a:b])
+        if len(hit):
+            steady[a:b] = t[a:b] >= t[a + hit[0]] + settle_s
+    steady &= np.abs(sp) > 0.05
     out = check[steady].copy()
     out["residual_mps"] = out["measured_mps"] - out["model_mps"]
     return out
@@ -208,5 +216,5 @@ def drive_residuals_averaged(check: pd.DataFrame, window_s: float = 0.5, settle_
     need = max(1, int(0.5 * window_s / max(dt, 1e-9)))
     binned = steady.assign(window=np.floor(steady["t_s"].to_numpy() / window_s).astype(int))
     g = binned.groupby("window")
-    out = g[["t_s", "residual_mps", "load_force_n", "setpoint_mps", "measured_mps", "model_mps"]].mean()
+    out = g[["t_s", "residual_mps", "load_force_n", "load_mass_kg", "setpoint_mps", "measured_mps", "model_mps"]].mean()
     return out[g.size() >= need].reset_index(drop=True)

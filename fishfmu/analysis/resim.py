@@ -26,7 +26,7 @@ import pandas as pd
 
 from plant.errors import InputError
 from plant.line import Line
-from plant.measured import Run
+from plant.measured import Dataset, Run
 from plant.params import PlantParams
 from plant.plausibility import MAX_RESIM_S
 from plant.population import fish_from_frame
@@ -42,6 +42,9 @@ class Resim:
     loads: pd.DataFrame
     """t_s, conveyor_id, load_force_n, load_mass_kg at every communication step."""
     error: str | None = None
+    residuals: object | None = None
+    """The run's :class:`~fishfmu.analysis.fitting.RunResiduals` against this re-simulation, when the worker
+    computed them (``resimulate_many(..., residuals=True)``: in parallel, not one after the other in the parent)."""
 
 
 def run_seed(run_id: str, seed: int = 0) -> int:
@@ -108,12 +111,16 @@ def not_resimulated(run: Run, error: str) -> Resim:
 
 
 def _task(args: tuple) -> Resim:
-    line, run, params, seed, record_poses = args
+    line, run, params, seed, record_poses, residuals = args
     from plant.errors import SimulationError
     try:
-        return resimulate(line, run, params, seed, record_poses=record_poses)
+        done = resimulate(line, run, params, seed, record_poses=record_poses)
     except SimulationError as exc:
-        return not_resimulated(run, str(exc))
+        done = not_resimulated(run, str(exc))
+    if residuals:
+        from fishfmu.analysis.fitting import residuals_of
+        done.residuals = residuals_of(Dataset(run.id, "", line, None, [run]), [done])[0]
+    return done
 
 
 def _ignore_sigint() -> None:
@@ -172,13 +179,14 @@ def _cost(run: Run) -> float:
 
 def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParams], workers: int | None = None,
                     seed: int = 0, pool: ProcessPoolExecutor | None = None,
-                    record_poses: bool = False) -> list[Resim]:
+                    record_poses: bool = False, residuals: bool = False) -> list[Resim]:
     """Re-simulate runs (each with its own parameters) in parallel processes, results in input order.
 
     With ``pool`` (from :func:`resim_pool`) its processes are used; otherwise a pool of ``workers``
     lives for this call.  The longest runs start first, so that workers finish together.
-    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled)."""
-    tasks = [(line, r, p, seed, record_poses) for r, p in zip(runs, params_per_run)]
+    ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled);
+    ``residuals``: each worker also computes its run's residuals (:attr:`Resim.residuals`)."""
+    tasks = [(line, r, p, seed, record_poses, residuals) for r, p in zip(runs, params_per_run)]
     from fishfmu.session import STOPS, deferred_signals
     done: list[Resim | None] = [None] * len(tasks)
     if pool is None:
@@ -193,7 +201,8 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
             return done  # type: ignore[return-value]
         own = resim_pool(workers)
         try:
-            result = resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses)
+            result = resimulate_many(line, runs, params_per_run, seed=seed, pool=own, record_poses=record_poses,
+                                     residuals=residuals)
         except BaseException:
             stop_pool(own)  # a signal or an error: no worker outlives the call, none is waited for
             raise
@@ -219,7 +228,7 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
 def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:
     """The built-in drive FMU on this belt's logged setpoints and simulated loads.
 
-    Returns t_s, setpoint_mps, measured_mps, model_mps, load_force_n at the drive-log times.
+    Returns t_s, setpoint_mps, measured_mps, model_mps, load_force_n, load_mass_kg at the drive-log times.
     """
     from fishfmu.fmu.build import builtin_fmu
     from fishfmu.fmu.archive import open_fmu
@@ -227,12 +236,14 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
     b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
     if len(b) < 2:
         return pd.DataFrame({c: pd.Series(dtype=float)
-                             for c in ("t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n")})
+                             for c in ("t_s", "setpoint_mps", "measured_mps", "model_mps", "load_force_n",
+                                       "load_mass_kg")})
     t = b["t_s"].to_numpy(float)
     sp = b["setpoint_mps"].to_numpy(float)
     measured = b["speed_mps"].to_numpy(float)
     ld = loads[loads["conveyor_id"] == conveyor_id]
     force = np.interp(t, ld["t_s"].to_numpy(float), ld["load_force_n"].to_numpy(float)) if len(ld) else np.zeros_like(t)
+    mass = np.interp(t, ld["t_s"].to_numpy(float), ld["load_mass_kg"].to_numpy(float)) if len(ld) else np.zeros_like(t)
     params = {"initial_belt_speed": float(np.clip(measured[0], -2.0, 2.0)), **(drive_parameters or {})}
     model = np.empty_like(t)
     with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
@@ -246,4 +257,4 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
         finally:
             drive.terminate()
     return pd.DataFrame({"t_s": t, "setpoint_mps": sp, "measured_mps": measured, "model_mps": model,
-                         "load_force_n": force})
+                         "load_force_n": force, "load_mass_kg": mass})
