@@ -41,13 +41,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.measured import Dataset
+from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
-from fishfmu.analysis.residuals import PAIR_RESIDUAL_DTYPES, alone, belt_residuals, track_errors, typed_frame
+from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, belt_residuals,
+                                        track_errors, typed_frame)
 from fishfmu.analysis.resim import pool_for, resimulate_many
 
 
@@ -149,6 +150,8 @@ class Calibration:
     sims_after: list = field(default_factory=list, repr=False)
     """Every run re-simulated (:class:`~fishfmu.analysis.resim.Resim`), in the dataset's order: the held-out
     runs with the calibrated model, the fit runs with every level off (the base of the responses)."""
+    extra_sims: list = field(default_factory=list, repr=False)
+    """The re-simulations asked for with ``extra`` (in its order)."""
 
     def changed(self, base: PlantParams) -> dict[str, tuple[float, float]]:
         """Every value the calibration changed: dotted path -> (model's, calibrated)."""
@@ -319,10 +322,15 @@ def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
 
 
 def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
-                        levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True) -> Calibration:
+                        levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True, heldout_before: bool = True,
+                        extra: Callable[[PlantParams, list[Run]], list[tuple[Run, PlantParams]]] | None = None
+                        ) -> Calibration:
     """:func:`calibrate` with the re-simulations on ``pool``.  ``levels``: the level responses to simulate
     on the fit runs (``diagnose`` adds rigor); ``fit_base`` False: measure the responses but change nothing
-    (a dataset this simulator made)."""
+    (a dataset this simulator made).  ``heldout_before`` False: the held-out runs are not re-simulated with
+    the model as given (their error before is then unknown; ``diagnose`` saves the time).  ``extra``: more
+    re-simulations that need the calibrated model (``extra(params, heldout_runs)`` -> (run, parameters) pairs), run in the
+    same batch as the held-out runs; they come back in :attr:`Calibration.extra_sims`."""
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -335,18 +343,25 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
         + (", ".join(heldout_ids) or "none"))
     params = base.model_copy(deep=True)
     grid = list(KNOBS["belt_gradient"].grid) if fit_base else []
-    say(f"baseline: re-simulating {len(runs)} runs" + (f"; belt_gradient + {', '.join(f'{v:g}' for v in grid)} on "
-                                                       f"the {len(fit_runs)} fit runs" if grid else ""))
+    first = runs if heldout_before or not fit_base else fit_runs
+    say(f"baseline: re-simulating {len(first)} runs" + (f"; belt_gradient + {', '.join(f'{v:g}' for v in grid)} on "
+                                                        f"the {len(fit_runs)} fit runs" if grid else ""))
     variants = _gradient_variants(params, grid)
-    sims = resimulate_many(dataset.line, runs + fit_runs * len(grid),
-                           [base] * len(runs) + [p for p in variants for _ in fit_runs], pool=pool, workers=1, residuals=True)
-    sims, grid_sims = sims[:len(runs)], sims[len(runs):]
+    sims = resimulate_many(dataset.line, first + fit_runs * len(grid),
+                           [base] * len(first) + [p for p in variants for _ in fit_runs], pool=pool, workers=1,
+                           residuals=True)
+    sims, grid_sims = sims[:len(first)], sims[len(first):]
     failed = [(r.run_id, r.error) for r in sims if r.error]
     if failed:
         raise SimulationError(f"run '{failed[0][0]}': {failed[0][1]} (re-simulating it with the model as it is, "
                               "before calibrating)")
-    baseline = residuals_of(dataset, sims)
-    sim_of = {r.id: s for r, s in zip(runs, sims)}
+    sim_of = {r.id: s for r, s in zip(first, sims)}
+    simulated = {b.run_id: b for b in residuals_of(Dataset(dataset.name, dataset.description, dataset.line,
+                                                            dataset.kpi, first), sims)}
+    baseline = [simulated.get(r.id) or RunResiduals(r.id, typed_frame([], BELT_RESIDUAL_DTYPES),
+                                                    typed_frame([], PAIR_RESIDUAL_DTYPES), float("nan"),
+                                                    "not re-simulated with the model as given")
+                for r in runs]
     base_by_run = {b.run_id: b for b in baseline}
     timing["baseline"] = time.perf_counter() - t0
 
@@ -405,12 +420,20 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
     # the held-out runs with the calibrated model (the fit runs' level-off simulations are the gradient stage's)
     t1 = time.perf_counter()
     held_runs = [r for r in runs if r.id in set(heldout_ids)]
-    if held_runs and params != base:
-        say(f"held-out runs: re-simulating {len(held_runs)} with the calibrated model")
-        held_sims = resimulate_many(dataset.line, held_runs, [params] * len(held_runs), pool=pool, workers=1, residuals=True)
-        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, held_runs)
-        held_after = {r.run_id: r for r in residuals_of(sub, held_sims)}
-        sim_of.update({r.id: s for r, s in zip(held_runs, held_sims)})
+    resim_held = [r for r in held_runs if params != base or r.id not in sim_of]
+    extra_jobs = extra(params, held_runs) if extra is not None else []
+    extra_sims: list = []
+    if resim_held or extra_jobs:
+        say(f"held-out runs: re-simulating {len(resim_held)} with the calibrated model"
+            + (f", and {len(extra_jobs)} more" if extra_jobs else ""))
+        done = resimulate_many(dataset.line, resim_held + [r for r, _ in extra_jobs],
+                               [params] * len(resim_held) + [p for _, p in extra_jobs], pool=pool, workers=1,
+                               residuals=True)
+        held_sims, extra_sims = done[:len(resim_held)], done[len(resim_held):]
+        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, resim_held)
+        held_after = {r: base_by_run[r] for r in heldout_ids}
+        held_after.update({r.run_id: r for r in residuals_of(sub, held_sims)})
+        sim_of.update({r.id: s for r, s in zip(resim_held, held_sims)})
     else:
         held_after = {r: base_by_run[r] for r in heldout_ids}
     timing["heldout"] = time.perf_counter() - t1
@@ -434,7 +457,7 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
                        {g: _rms(baseline, ids) for g, ids in groups.items()}, rms_after,
                        {g: _track_rms(baseline, ids) for g, ids in groups.items()},
                        {g: _track_rms(after, ids) for g, ids in groups.items()}, timing, baseline, after,
-                       resp, level_base, sims_after)
+                       resp, level_base, sims_after, extra_sims)
 
 
 def calibration_document(c: Calibration, base: PlantParams) -> dict:
@@ -478,7 +501,10 @@ def summary_lines(c: Calibration, base: PlantParams) -> list[str]:
     for path, (a, b) in c.changed(base).items():
         lines.append(f"  {path}: {a:.4g} -> {b:.4g}")
     for g, label in (("fit", "fit runs"), ("heldout", "held-out runs")):
-        if np.isfinite(c.rms_before_m[g]):
+        if not np.isfinite(c.rms_before_m[g]) and np.isfinite(c.rms_after_m[g]):
+            lines.append(f"lag RMS on the {label}: {c.rms_after_m[g]:.3f} m calibrated (not re-simulated with the "
+                         f"model as given); track RMS {c.track_rms_after_m[g]:.3f} m")
+        elif np.isfinite(c.rms_before_m[g]):
             lines.append(f"lag RMS on the {label}: {c.rms_before_m[g]:.3f} m -> {c.rms_after_m[g]:.3f} m; "
                          f"track RMS {c.track_rms_before_m[g]:.3f} m -> {c.track_rms_after_m[g]:.3f} m")
     lines.append(f"took {c.timing_s['total']:.0f} s")

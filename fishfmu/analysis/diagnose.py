@@ -40,7 +40,7 @@ from fishfmu.analysis.evidence import evidence_table
 from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
-                               concat_typed, drive_residuals_averaged)
+                               concat_typed, drive_residuals_averaged, pair_residuals)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
 
 MIN_GAIN = 0.02
@@ -262,7 +262,21 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    cal = calibrate_with_pool(dataset, base, pool, seed, say, levels=(FRICTION, RIGOR), fit_base=calibrate)
+    # candidates simulated on a grid of their own (adhesion) start in the batch of the held-out runs'
+    # calibrated re-simulation, on the held-out runs where the measurement shows touching pairs
+    grid_cands = [c for c in CANDIDATES.values() if c.grid]
+    grid_runs: dict[str, list] = {}
+
+    def first_grid(params: PlantParams, held: list) -> list:
+        jobs = []
+        for cand in grid_cands:
+            grid_runs[cand.name] = [r for r in held if not cand.needs_pairs
+                                    or len(pair_residuals(r, r.tracks, dataset.line))]
+            jobs += [(r, cand.params(params, v)) for v in cand.grid for r in grid_runs[cand.name]]
+        return jobs
+
+    cal = calibrate_with_pool(dataset, base, pool, seed, say, levels=(FRICTION, RIGOR), fit_base=calibrate,
+                              heldout_before=False, extra=first_grid)
     timing["calibration"] = time.perf_counter() - t0
     sims = cal.sims_after
     current = cal.after
@@ -283,10 +297,12 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
 
     t1 = time.perf_counter()
     cur_by_run = {b.run_id: b for b in current if not b.error}
-    for cand in CANDIDATES.values():
-        if cand.grid:  # simulated on the runs that carry its signal (adhesion: runs with touching pairs)
-            fits.append(_fit_on_grid(dataset, cand, cal.params, cur_by_run, z_of.get(cand.name, 0.0), pool, rng, say))
-            timing[f"fit_{cand.name}"] = time.perf_counter() - t1
+    done = iter(cal.extra_sims)
+    for cand in grid_cands:  # simulated on the runs that carry its signal (adhesion: runs with touching pairs)
+        first = {v: [next(done) for _ in grid_runs[cand.name]] for v in cand.grid}
+        fits.append(_fit_on_grid(dataset, cand, cal.params, cur_by_run, grid_runs[cand.name], first,
+                                 z_of.get(cand.name, 0.0), pool, rng, say))
+        timing[f"fit_{cand.name}"] = time.perf_counter() - t1
     for cand in CANDIDATES.values():  # fitted without simulation
         if cand.acts_on == "drive":
             fits.append(fit_drive_candidate(cand, z_of.get(cand.name, 0.0), drive, rng))
@@ -301,27 +317,31 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
 
 
 def _fit_on_grid(dataset: Dataset, cand: Candidate, params: PlantParams, cur_by_run: dict[str, RunResiduals],
-                 z: float, pool, rng: np.random.Generator, say: Callable[[str], None]) -> CandidateFit:
-    """A candidate simulated at its grid of strengths (extended once beyond an end where the error still falls)
-    on the runs that carry its signal, against the calibrated model."""
-    fit_runs = [r for r in dataset.runs if r.id in cur_by_run
-                and (not cand.needs_pairs or len(cur_by_run[r.id].pairs))] or dataset.runs
+                 fit_runs: list, first: dict[float, list], z: float, pool, rng: np.random.Generator,
+                 say: Callable[[str], None]) -> CandidateFit:
+    """A candidate at its grid of strengths (``first``: the grid's re-simulations of ``fit_runs``, done), extended
+    once beyond an end where the error still falls, against the calibrated model."""
+    fit_runs = [r for r in fit_runs if r.id in cur_by_run]
+    if not fit_runs:  # nothing carries its signal: no gain either way
+        return CandidateFit(cand.name, z, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="m")
     sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
-    base_by_run = {r.id: cur_by_run[r.id] for r in fit_runs if r.id in cur_by_run}
+    base_by_run = {r.id: cur_by_run[r.id] for r in fit_runs}
     grid: dict[float, dict[str, RunResiduals]] = {}
-    values = list(cand.grid)
+    pending = dict(first)
     for _ in range(2):
-        say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
-        sims = resimulate_many(dataset.line, fit_runs * len(values),
-                               [cand.params(params, v) for v in values for _ in fit_runs], pool=pool, workers=1, residuals=True)
-        for k, v in enumerate(values):
-            res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
+        for v, sims in pending.items():
+            res = residuals_of(sub, sims)
             grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
             for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the base
                 grid[v][rid] = base_by_run[rid]
         values = beyond_the_ends(cand.name, base_by_run, grid)
         if not values:
             break
+        say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
+        sims = resimulate_many(dataset.line, fit_runs * len(values),
+                               [cand.params(params, v) for v in values for _ in fit_runs], pool=pool, workers=1,
+                               residuals=True)
+        pending = {v: sims[k * len(fit_runs):(k + 1) * len(fit_runs)] for k, v in enumerate(values)}
     return fit_plant_candidate(cand.name, z, base_by_run, grid, rng)
 
 
