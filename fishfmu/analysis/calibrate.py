@@ -11,22 +11,20 @@ Judged against that model, every effect drowns in it.
 So the base model is calibrated first, on the fish the data shows alone on a belt (their lag across
 a transfer is what friction decides):
 
-1. **Baseline.** Every run re-simulated with the model as given; residuals per fish and belt.
-2. **Fit runs.** The runs with the most fish riding alone (at least half of the runs; chosen from the
-   residual tables, not from names or notes).  The others are held out: the calibration never sees
-   them, and the error on them before and after is the check that it generalises.
-3. **Knobs** (:data:`KNOBS`), fitted one stage after the other on the fit runs, each at a few values
-   simulated around the model's and the minimum of its error curve taken between them: first the
-   gradient of fish-belt friction along the fish (which end grips more decides how a fish is taken
-   over by a faster belt: head first or tail first), then the fish-belt friction coefficient given
-   it.  Each value gets a 95 % interval from a bootstrap over the fit runs and a held-out gain from
-   folds of them.
-4. **Check.** A stage's values are kept only if, with them, every run re-simulated, the fish alone in
-   the held-out runs lag no worse across the transfers than before the stage: a knob fitted on the
-   runs with most fish alone must carry over to the fish alone in the other runs (bulk batches).
-   If they are worse, half the change is tried once; if that is worse too, the stage is dropped.  A knob whose held-out gain
-   interval (folds of the fit runs) does not exclude zero is not tried at all.  The error before and
-   after is reported for the fit runs and the held-out runs.
+1. **Fit runs.** The runs with the most fish riding alone (at least half of the runs; chosen from the
+   measured tracks, not from names or notes).  The others are held out: the calibration never sees
+   them, and their error before and after is the check that it generalises.
+2. **Baseline and gradient** (one batch): every run re-simulated with the model as given, the fit runs
+   also at two more values of the gradient of fish-belt friction along the fish (which end grips more
+   decides how a fish is taken over by a faster belt: head first or tail first), extended once past an
+   end where the error still falls; the gradient is applied at the simulated value nearest the minimum
+   of its error curve, so that those simulations are the next stage's base.
+3. **Levels** (:mod:`fishfmu.analysis.levels`): the fit runs at two more friction levels (belts and
+   guides; ``diagnose`` adds two joint-stiffening levels), extended past an end where a run's own best
+   level still lies; the constant level(s) that fit every run are the calibration.
+4. Every value gets a 95 % interval (bootstrap over the fit runs) and a held-out gain (each fit run
+   scored with values chosen on the others); it is applied only if that gain's interval is above zero.
+   The held-out runs are then re-simulated with the calibrated model.
 
 The result is a scenario fragment (``calibrated.toml``, only ``[plant]`` tables) that ``fishfmu
 compare`` and ``diagnose`` take with ``--scenario`` (and whose tables a scenario for ``run`` can take).

@@ -287,8 +287,8 @@ def calibrate_cmd(
     workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
-    """Fit the line's base parameters (friction by slip direction, fish-belt friction) on measured runs,
-    checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
+    """Fit the line's base parameters (fish-belt friction, its gradient along the fish) on the runs with most
+    fish alone, checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
     from fishfmu import commands
     from fishfmu.analysis.calibrate import summary_lines
     done = commands.calibrate(dataset, out, scenario, workers, overwrite, progress=lambda text: err_console.print(text))
