@@ -16,8 +16,7 @@ from plant.measured import Dataset, read_dataset, write_dataset
 from plant.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs, fit_knob, write_calibration
-from fishfmu.analysis.fitting import RunResiduals
-from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
+from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, typed_frame
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_SPEEDS, make_dataset
 
 ROOT = Path(__file__).resolve().parents[1]

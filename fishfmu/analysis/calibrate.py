@@ -43,10 +43,10 @@ from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
-from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
+from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
-from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, alone, belt_residuals,
-                                        track_errors, typed_frame)
+from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, alone,
+                                        belt_residuals, residuals_of, track_errors, typed_frame)
 from fishfmu.analysis.resim import pool_for, resimulate_many
 
 

@@ -37,10 +37,10 @@ from plant.params import PlantParams
 from fishfmu.analysis.calibrate import KNOBS, Calibration, calibrate_with_pool
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment, plant_tables, plant_value
 from fishfmu.analysis.evidence import evidence_table
-from fishfmu.analysis.fitting import RunResiduals, folds, gain_with_ci, residuals_of, vertex
+from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
-                               concat_typed, drive_residuals_averaged, pair_residuals)
+                               RunResiduals, concat_typed, drive_residuals_averaged, pair_residuals, residuals_of)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
 
 MIN_GAIN = 0.02

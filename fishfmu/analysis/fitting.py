@@ -1,76 +1,11 @@
 """What fitting a model to a measured dataset needs, whatever is fitted (a base parameter by
-``fishfmu calibrate``, a candidate cause by ``fishfmu diagnose``): the residuals of a run against its
-re-simulation, the error they make up, folds of runs for held-out scores, a bootstrap interval of a
-gain, and the minimum of an error curve over a grid of simulated values."""
+``fishfmu calibrate``, a candidate cause by ``fishfmu diagnose``): folds of runs for held-out scores, a
+bootstrap interval of a gain, and the minimum of an error curve over a grid of simulated values (the
+residuals they are computed on: :class:`fishfmu.analysis.residuals.RunResiduals`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
-import pandas as pd
-
-from plant.measured import Dataset
-
-from fishfmu.analysis.residuals import (PAIR_RESIDUAL_DTYPES, alone, belt_residuals, pair_residuals, track_errors,
-                                        typed_frame)
-from fishfmu.analysis.resim import Resim
-
-HEADING_SPLIT = 0.3
-"""|cos(yaw)| above which a fish rides clearly head first or tail first."""
-
-
-@dataclass
-class RunResiduals:
-    """One run's residuals against a re-simulation (:mod:`fishfmu.analysis.residuals`)."""
-
-    run_id: str
-    rows: pd.DataFrame
-    pairs: pd.DataFrame
-    track_rms_m: float
-    error: str | None = None
-
-    def squares(self, group: str | None = None) -> tuple[float, int]:
-        """(sum of squares, count) of this run's residuals: lags of fish alone, extra pair separation.
-
-        ``group``: ``head_first`` / ``tail_first`` rows only (no pairs), for direction friction;
-        ``alone``: every fish alone, no pairs; ``transfers``: fish alone after a transfer (not on the first
-        belt, where the lag is that of the drop), no pairs; ``pairs``: the pairs only, for adhesion."""
-        if group == "pairs":
-            d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
-            return float(np.sum(d**2)), len(d)
-        free = alone(self.rows)
-        if group == "head_first":
-            free = free[free["heading"] > HEADING_SPLIT]
-        elif group == "tail_first":
-            free = free[free["heading"] < -HEADING_SPLIT]
-        elif group == "transfers":
-            free = free[free["belt"] > 0]
-        ss = float(np.sum(free["lag_m"].to_numpy(float) ** 2))
-        n = len(free)
-        if group is None and len(self.pairs):
-            d = self.pairs["dsep_m"].to_numpy(float)
-            ss, n = ss + float(np.sum(d**2)), n + len(d)
-        return ss, n
-
-
-def residuals_of(dataset: Dataset, resims: list[Resim]) -> list[RunResiduals]:
-    """Residuals of each run against its re-simulation (a failed re-simulation has none, and says why)."""
-    out = []
-    for run, r in zip(dataset.runs, resims):
-        if r.residuals is not None:  # computed by the worker that re-simulated the run
-            out.append(r.residuals)
-            continue
-        if r.error:
-            empty = track_errors(run.tracks.iloc[0:0], run.tracks.iloc[0:0])
-            out.append(RunResiduals(run.id, belt_residuals(run, empty, dataset.line),
-                                    typed_frame([], PAIR_RESIDUAL_DTYPES), np.nan, r.error))
-            continue
-        errors = track_errors(run.tracks, r.sim.tracks)
-        rms = float(np.sqrt(np.mean(errors["ex_m"] ** 2))) if len(errors) else np.nan
-        out.append(RunResiduals(run.id, belt_residuals(run, errors, dataset.line),
-                                pair_residuals(run, r.sim.tracks, dataset.line), rms))
-    return out
 
 
 def folds(run_ids: list[str], k: int = 5) -> list[list[str]]:

@@ -42,8 +42,8 @@ import pandas as pd
 from plant.extensions import stiffening_limit_loss
 from plant.params import PlantParams
 
-from fishfmu.analysis.fitting import RunResiduals, gain_with_ci
-from fishfmu.analysis.residuals import alone
+from fishfmu.analysis.fitting import gain_with_ci
+from fishfmu.analysis.residuals import RunResiduals, alone
 
 
 rigor_limit_loss = stiffening_limit_loss

@@ -21,8 +21,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from dataclasses import dataclass
+
 from plant.line import Line
-from plant.measured import Run
+from plant.measured import Dataset, Run
 
 EDGE_M = 0.05
 """A fish counts as lying on a belt when its ends are this far inside the belt's ends."""
@@ -218,3 +220,61 @@ def drive_residuals_averaged(check: pd.DataFrame, window_s: float = 0.5, settle_
     g = binned.groupby("window")
     out = g[["t_s", "residual_mps", "load_force_n", "load_mass_kg", "setpoint_mps", "measured_mps", "model_mps"]].mean()
     return out[g.size() >= need].reset_index(drop=True)
+
+
+HEADING_SPLIT = 0.3
+"""|cos(yaw)| above which a fish rides clearly head first or tail first."""
+
+
+@dataclass
+class RunResiduals:
+    """One run's residuals against a re-simulation (:mod:`fishfmu.analysis.residuals`)."""
+
+    run_id: str
+    rows: pd.DataFrame
+    pairs: pd.DataFrame
+    track_rms_m: float
+    error: str | None = None
+
+    def squares(self, group: str | None = None) -> tuple[float, int]:
+        """(sum of squares, count) of this run's residuals: lags of fish alone, extra pair separation.
+
+        ``group``: ``head_first`` / ``tail_first`` rows only (no pairs), for direction friction;
+        ``alone``: every fish alone, no pairs; ``transfers``: fish alone after a transfer (not on the first
+        belt, where the lag is that of the drop), no pairs; ``pairs``: the pairs only, for adhesion."""
+        if group == "pairs":
+            d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
+            return float(np.sum(d**2)), len(d)
+        free = alone(self.rows)
+        if group == "head_first":
+            free = free[free["heading"] > HEADING_SPLIT]
+        elif group == "tail_first":
+            free = free[free["heading"] < -HEADING_SPLIT]
+        elif group == "transfers":
+            free = free[free["belt"] > 0]
+        ss = float(np.sum(free["lag_m"].to_numpy(float) ** 2))
+        n = len(free)
+        if group is None and len(self.pairs):
+            d = self.pairs["dsep_m"].to_numpy(float)
+            ss, n = ss + float(np.sum(d**2)), n + len(d)
+        return ss, n
+
+
+def residuals_of(dataset: Dataset, resims: list) -> list[RunResiduals]:
+    """Residuals of each run against its re-simulation (a :class:`~fishfmu.analysis.resim.Resim`; a failed
+    re-simulation has none, and says why)."""
+    out = []
+    for run, r in zip(dataset.runs, resims):
+        if r.residuals is not None:  # computed by the worker that re-simulated the run
+            out.append(r.residuals)
+            continue
+        if r.error:
+            empty = track_errors(run.tracks.iloc[0:0], run.tracks.iloc[0:0])
+            out.append(RunResiduals(run.id, belt_residuals(run, empty, dataset.line),
+                                    typed_frame([], PAIR_RESIDUAL_DTYPES), np.nan, r.error))
+            continue
+        errors = track_errors(run.tracks, r.sim.tracks)
+        rms = float(np.sqrt(np.mean(errors["ex_m"] ** 2))) if len(errors) else np.nan
+        out.append(RunResiduals(run.id, belt_residuals(run, errors, dataset.line),
+                                pair_residuals(run, r.sim.tracks, dataset.line), rms))
+    return out

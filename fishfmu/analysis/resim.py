@@ -32,6 +32,8 @@ from plant.plausibility import MAX_RESIM_S
 from plant.population import fish_from_frame
 from plant.simulate import SimulatedRun, simulate_plant
 
+from fishfmu.analysis.residuals import residuals_of
+
 
 @dataclass
 class Resim:
@@ -118,7 +120,6 @@ def _task(args: tuple) -> Resim:
     except SimulationError as exc:
         done = not_resimulated(run, str(exc))
     if residuals:
-        from fishfmu.analysis.fitting import residuals_of
         done.residuals = residuals_of(Dataset(run.id, "", line, None, [run]), [done])[0]
     return done
 
