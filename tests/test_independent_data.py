@@ -46,3 +46,27 @@ def test_a_drop_outside_the_line_in_independent_data_is_refused_naming_row_and_c
     text = str(info.value)
     # the header is line 1, so the third fish (index 2) is on line 4
     assert str(run / "fish.csv") in text and "row 4" in text and "drop_x_m" in text, text
+
+
+@pytest.mark.skipif(not TRUTHS, reason="../shared/data/dev not present")
+def test_photoeye_passages_show_rigor_in_independent_data() -> None:
+    # The signature that tells rigor from mucus, read from data nobody here made: in the rigor dataset the
+    # beams flicker over fish in rigor (8-36 h post mortem: stiff, they do not lie into the belt) and not over
+    # fresh or resolved ones (1 h, 72 h); in the dataset without an effect they block throughout at every age.
+    from fishfmu.analysis.residuals import photoeye_passages
+
+    def blocked_by_hours(name: str) -> pd.Series:
+        ds = read_dataset(DATA / "dev" / name)
+        shares = {}
+        for run in ds.runs:
+            p = photoeye_passages(run.tracks, run.photoeyes, run.fish, ds.line)
+            if len(p) >= 20:  # the sparse runs: most passages are of a fish alone
+                shares.setdefault(run.hours_post_mortem, []).extend(p["blocked"])
+        return pd.Series({h: float(pd.Series(v).mean()) for h, v in shares.items()}).sort_index()
+
+    rigor, none = blocked_by_hours("dev_rigor"), blocked_by_hours("dev_none")
+    in_rigor = rigor[(rigor.index >= 8) & (rigor.index <= 36)]
+    out_of_rigor = rigor[(rigor.index < 8) | (rigor.index > 36)]
+    assert len(in_rigor) >= 2 and len(out_of_rigor) >= 2
+    assert out_of_rigor.min() > 0.99 and in_rigor.max() < out_of_rigor.min() - 0.02
+    assert none.min() > 0.99

@@ -176,3 +176,32 @@ def test_a_fish_leaving_a_slow_belt_over_its_end_tail_first_has_left_the_line_no
     run = simulate_plant(line, [fish(x_m=0.55, yaw_rad=math.pi)], {"c1": 0.1}, 12.0)
     assert run.fish_status is not None and run.fish_status[0] == FishStatus.LEFT
     assert run.t_end_s < 12.0  # cleared: the run stopped once the fish had gone
+
+
+def test_stiff_joints_let_a_low_beam_flicker_under_a_fish_bridging_a_step():
+    """Rigor's signature at the photo-eyes (issue 16): a beam 1.5 cm above a belt, 10 cm before its end,
+    sees a fish while its front already reaches over the 2 cm step down to the next belt.  A limp fish
+    drapes over the edge and its back stays on the belt: the beam is blocked from the fish's first moment
+    there to its last.  With its joints stiffened (x9, and the range lost that goes with it) the fish
+    pivots on the edge as a beam would, its back lifts, and the beam flickers under it.  Six fish of
+    0.45-0.7 m, one at a time: the mean blocked share of their passages falls (measured: 0.98 limp, where
+    one fish of six flickers; 0.87 at x3 and 0.89 at x9, where five of six do)."""
+    from fishfmu.analysis.residuals import photoeye_passages
+
+    line = straight_line(("c1", 0.0, 2.0, 0.0), ("c2", 2.01, 1.5, -0.02), ("c3", 3.52, 1.5, -0.04),
+                         photoeyes=(("pe", 3.41, -0.005),))
+    lengths = (0.45, 0.5, 0.55, 0.6, 0.65, 0.7)
+
+    def blocked(stiffening: float) -> float:
+        params = PlantParams()
+        params.joints.stiffening = stiffening
+        batch = [fish(f"f{i}", length_m=L, x_m=1.0, t_s=0.05 + 3.0 * i) for i, L in enumerate(lengths)]
+        run = simulate_plant(line, batch, {"c1": 0.5, "c2": 0.8, "c3": 1.2}, 3.0 * len(lengths) + 6.0,
+                             params=params, stop_when_clear=True)
+        passages = photoeye_passages(run.tracks, run.photoeyes, run.fish, line)
+        assert len(passages) == len(lengths)  # every fish passed the beam alone, along the line
+        return float(passages["blocked"].mean())
+
+    soft, stiff = blocked(0.0), blocked(8.0)
+    assert soft > 0.95, soft
+    assert stiff < soft - 0.02, (soft, stiff)

@@ -13,8 +13,9 @@ import pandas as pd
 import pytest
 
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
-                               TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed, drive_residuals,
-                               drive_residuals_averaged, pair_residuals, track_errors, typed_frame)
+                               PASSAGE_RESIDUAL_DTYPES, TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed,
+                               drive_residuals, drive_residuals_averaged, pair_residuals, passage_residuals,
+                               photoeye_passages, track_errors, typed_frame, MIN_PASSAGE_SE)
 from plant.line import Line
 from plant.measured import Run
 
@@ -25,6 +26,7 @@ LINE = Line.model_validate({
         {"id": "a", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0},
         {"id": "b", "x_start_m": 2.0, "length_m": 4.0, "width_m": 0.5, "z_top_m": 0.0},
     ],
+    "photoeyes": [{"id": "pe", "x_m": 4.0, "z_m": 0.015}],
 })
 
 
@@ -397,3 +399,55 @@ def test_concat_keeps_bool_crowded_with_empty_parts():
     # alone() refuses an object 'crowded' column rather than negating it bitwise
     with pytest.raises(TypeError, match="crowded"):
         alone(rows.astype({"crowded": object}))
+
+
+# --------------------------------------------------------------------------------------------------
+# photo-eye passages
+# --------------------------------------------------------------------------------------------------
+
+def passing_fish(fid: str, t0: float, yaw: float = 0.0) -> pd.DataFrame:
+    # mid-point at x = 4 m (the beam) at t0 + 0.25 s, moving at 1 m/s, sampled at 25 Hz
+    t = np.round(np.arange(t0 - 1.0, t0 + 1.5, 0.04), 3)
+    return track(fid, t, 4.0 + (t - t0 - 0.25), yaw=yaw)
+
+
+def test_photoeye_passage_of_a_flickering_fish():
+    # A 0.5 m fish at 1 m/s: its passage past the beam lasts 0.5 s (t 10.0 .. 10.5).  The beam is blocked
+    # 10.00-10.20 and 10.25-10.50: one passage of two intervals, blocked 0.45 of 0.5 s = 0.9, and the
+    # passage's span 0.5 s x 1 m/s / 0.5 m = 1.0.
+    fish = fish_table({"fish_id": "f1", "length_m": 0.5})
+    pe = pd.DataFrame({"sensor_id": ["pe", "pe"], "t_on_s": [10.0, 10.25], "t_off_s": [10.2, 10.5]})
+    p = photoeye_passages(passing_fish("f1", 10.0), pe, fish, LINE)
+    assert len(p) == 1
+    row = p.iloc[0]
+    assert (row["fish_id"], row["sensor_id"], int(row["intervals"])) == ("f1", "pe", 2)
+    assert row["blocked"] == pytest.approx(0.9, abs=1e-9)
+    assert row["span"] == pytest.approx(1.0, abs=0.02)  # the speed from 25 Hz samples inside the passage
+
+
+def test_photoeye_passages_leave_out_crowded_and_crosswise_fish():
+    # f2 passes 0.2 m behind f1 (both within reach of the beam at f1's middle): not attributable;
+    # f3 rides crosswise (yaw 90 deg: its length is not along the line): left out too.
+    fish = fish_table({"fish_id": "f1", "length_m": 0.5}, {"fish_id": "f2", "length_m": 0.5},
+                      {"fish_id": "f3", "length_m": 0.5})
+    tracks = pd.concat([passing_fish("f1", 10.0), passing_fish("f2", 10.2), passing_fish("f3", 20.0, yaw=np.pi / 2)])
+    pe = pd.DataFrame({"sensor_id": ["pe", "pe"], "t_on_s": [10.0, 20.2], "t_off_s": [10.7, 20.3]})
+    assert photoeye_passages(tracks, pe, fish, LINE).empty
+
+
+def test_passage_residuals_compare_the_same_fish():
+    # Three fish alone; measured: each beam passage unbroken (blocked 1.0); simulated: each flickers, blocked
+    # 0.8 of its passage (0.1 s gap in 0.5 s).  The residual is -0.2 for the beam, over the 3 fish.
+    fish = fish_table(*({"fish_id": f"f{i}", "length_m": 0.5} for i in range(3)))
+    tracks = pd.concat([passing_fish(f"f{i}", 10.0 + 5 * i) for i in range(3)])
+    measured = pd.DataFrame({"sensor_id": "pe", "t_on_s": [10.0, 15.0, 20.0], "t_off_s": [10.5, 15.5, 20.5]})
+    simulated = pd.DataFrame({"sensor_id": "pe", "t_on_s": [10.0, 10.3, 15.0, 15.3, 20.0, 20.3],
+                              "t_off_s": [10.2, 10.5, 15.2, 15.5, 20.2, 20.5]})
+    run = Run(id="r01", hours_post_mortem=6.0, notes="", fish=fish, tracks=tracks, photoeyes=measured)
+    r = passage_residuals(run, tracks, simulated, LINE)
+    assert_dtypes(r, PASSAGE_RESIDUAL_DTYPES)
+    assert len(r) == 1 and int(r["n"].iloc[0]) == 3
+    assert r["dblocked"].iloc[0] == pytest.approx(-0.2, abs=1e-9)
+    assert r["se"].iloc[0] == MIN_PASSAGE_SE  # no spread over the fish on either side: the floor
+    # fewer than three fish at a beam in both: no row (a mean of one or two passages is mostly chance)
+    assert passage_residuals(run, tracks, simulated.iloc[:4], LINE).empty

@@ -13,6 +13,11 @@ From a measured run and its re-simulation (same fish, drops, belt speeds):
 - **pair residuals**: for two fish touching when the leading one crosses a transfer, how much
   further apart the simulation has them a little later than the measurement (adhesion keeps
   touching fish together);
+- **photo-eye passages**: the share of a fish's passage (riding alone) past a beam during which the
+  beam is blocked, per beam the simulated mean minus the measured one.  A fish that lies limp on
+  the belt blocks a low beam throughout; one stiff in rigor does not settle into the belt and lets
+  the beam through under an arched part, so the beam flickers.  Friction hardly changes it: the
+  signature that tells rigor from mucus;
 - **drive residuals**: logged belt speed minus the drive model's, against the belt load.
 """
 
@@ -21,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from plant.line import Line
 from plant.measured import Dataset, Run
@@ -39,6 +44,8 @@ BELT_RESIDUAL_DTYPES = {"run_id": object, "fish_id": object, "belt": "int64", "c
                         "hours_post_mortem": float, "length_m": float, "crowded": bool, "n_samples": "int64"}
 PAIR_RESIDUAL_DTYPES = {"run_id": object, "leader": object, "follower": object, "conveyor_id": object,
                         "t_s": float, "separation_m": float, "dsep_m": float}
+PASSAGE_RESIDUAL_DTYPES = {"run_id": object, "sensor_id": object, "n": "int64", "blocked_measured": float,
+                           "blocked_simulated": float, "dblocked": float, "se": float}
 DRIVE_RESIDUAL_DTYPES = {"run_id": object, "conveyor_id": object, "t_s": float, "residual_mps": float,
                          "load_force_n": float, "load_mass_kg": float}
 
@@ -172,6 +179,75 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
     return typed_frame(rows, PAIR_RESIDUAL_DTYPES)
 
 
+REACH_M = 0.4
+"""A fish is at a beam when its mid-point is this close (half the longest salmon of the contract's range)."""
+
+
+def photoeye_passages(tracks: pd.DataFrame, photoeyes: pd.DataFrame, fish: pd.DataFrame, line: Line,
+                   min_cos: float = 0.8) -> pd.DataFrame:
+    """Per passage of a fish alone past a beam, riding along the line (|cos yaw| >= ``min_cos``): from its first
+    blocked moment to its last, ``blocked`` the share of that time the beam was blocked (1: no flicker),
+    ``intervals`` how many blocked intervals, ``span`` the passage's time x the fish's speed over it / (its
+    length x |cos yaw|) (1 for a straight fish the beam sees whole).  A blocked interval is a fish's when it
+    is the only fish within ``REACH_M`` of the beam at the interval's middle (a tracked position within
+    0.03 s); a fish's intervals at one beam are one passage."""
+    beam_x = {p.id: p.x_m for p in line.photoeyes}
+    length = fish.set_index("fish_id")["length_m"]
+    dtypes = {"fish_id": object, "sensor_id": object, "t_s": float, "span": float, "blocked": float,
+              "intervals": "int64"}
+    if tracks.empty or photoeyes.empty:
+        return typed_frame([], dtypes)
+    order = np.argsort(tracks["t_s"].to_numpy(float), kind="stable")
+    tracks = tracks.iloc[order]
+    t_sorted = tracks["t_s"].to_numpy(float)
+    hits = []
+    for sensor, t_on, t_off in photoeyes[["sensor_id", "t_on_s", "t_off_s"]].itertuples(index=False):
+        xb = beam_x.get(sensor)
+        if xb is None or t_off <= t_on:
+            continue
+        tm = 0.5 * (t_on + t_off)
+        lo, hi = np.searchsorted(t_sorted, [tm - 0.03, tm + 0.03])
+        at = tracks.iloc[lo:hi]
+        at = at[np.abs(at["x_m"].to_numpy(float) - xb) < REACH_M]
+        if at["fish_id"].nunique() == 1 and at["fish_id"].iloc[0] in length.index:
+            yaw = at["yaw_rad"].iloc[int(np.argmin(np.abs(at["t_s"].to_numpy(float) - tm)))]
+            hits.append((at["fish_id"].iloc[0], sensor, float(t_on), float(t_off), abs(float(np.cos(yaw)))))
+    rows = []
+    for (fid, sensor), g in pd.DataFrame(hits, columns=["fish_id", "sensor_id", "t_on", "t_off", "cos"]).groupby(
+            ["fish_id", "sensor_id"], sort=False):
+        t_on, t_off, cos = g["t_on"].min(), g["t_off"].max(), float(g["cos"].median())
+        lo, hi = np.searchsorted(t_sorted, [t_on, t_off])
+        me = tracks.iloc[lo:hi]
+        me = me[me["fish_id"] == fid]
+        if cos < min_cos or len(me) < 3:
+            continue
+        speed = (me["x_m"].iloc[-1] - me["x_m"].iloc[0]) / (me["t_s"].iloc[-1] - me["t_s"].iloc[0])
+        rows.append({"fish_id": fid, "sensor_id": sensor, "t_s": float(t_on),
+                     "span": float((t_off - t_on) * speed / (float(length[fid]) * cos)),
+                     "blocked": float((g["t_off"] - g["t_on"]).sum() / (t_off - t_on)), "intervals": len(g)})
+    return typed_frame(rows, dtypes)
+
+
+MIN_PASSAGE_SE = 0.005
+"""Floor of a beam's standard error: passages that never flicker, measured or simulated, have no spread, but a
+share measured from 25 Hz tracks and a few fish is not known to better than half a percent."""
+
+
+def passage_residuals(run: Run, sim_tracks: pd.DataFrame, sim_photoeyes: pd.DataFrame, line: Line) -> pd.DataFrame:
+    """Per beam: the mean blocked share (:func:`photoeye_passages`) of the simulated passages minus that of
+    the measured ones, over the passages of the same fish at that beam found in both (at least three), and the
+    standard error of that difference from the spread over the fish (at least ``MIN_PASSAGE_SE``)."""
+    m = photoeye_passages(run.tracks, run.photoeyes, run.fish, line)
+    s = photoeye_passages(sim_tracks, sim_photoeyes, run.fish, line)
+    both = m.merge(s, on=["fish_id", "sensor_id"], suffixes=("_m", "_s"))
+    rows = [{"run_id": run.id, "sensor_id": sensor, "n": len(g), "blocked_measured": float(g["blocked_m"].mean()),
+             "blocked_simulated": float(g["blocked_s"].mean()),
+             "dblocked": float(g["blocked_s"].mean() - g["blocked_m"].mean()),
+             "se": max(float(np.sqrt((g["blocked_s"].var() + g["blocked_m"].var()) / len(g))), MIN_PASSAGE_SE)}
+            for sensor, g in both.groupby("sensor_id", sort=True) if len(g) >= 3]
+    return typed_frame(rows, PASSAGE_RESIDUAL_DTYPES)
+
+
 def _separation(tracks: pd.DataFrame, a: str, b: str, t: float) -> float | None:
     xs = []
     for fid in (a, b):
@@ -235,6 +311,8 @@ class RunResiduals:
     pairs: pd.DataFrame
     track_rms_m: float
     error: str | None = None
+    passages: pd.DataFrame = field(default_factory=lambda: typed_frame([], PASSAGE_RESIDUAL_DTYPES))
+    """Per beam, simulated minus measured blocked share of fish passing alone (:func:`passage_residuals`)."""
 
     def squares(self, group: str | None = None) -> tuple[float, int]:
         """(sum of squares, count) of this run's residuals: lags of fish alone, extra pair separation.
@@ -276,5 +354,6 @@ def residuals_of(dataset: Dataset, resims: list) -> list[RunResiduals]:
         errors = track_errors(run.tracks, r.sim.tracks)
         rms = float(np.sqrt(np.mean(errors["ex_m"] ** 2))) if len(errors) else np.nan
         out.append(RunResiduals(run.id, belt_residuals(run, errors, dataset.line),
-                                pair_residuals(run, r.sim.tracks, dataset.line), rms))
+                                pair_residuals(run, r.sim.tracks, dataset.line), rms,
+                                passages=passage_residuals(run, r.sim.tracks, r.sim.photoeyes, dataset.line)))
     return out
