@@ -89,7 +89,7 @@ class RigorMortis(Strict):
 class MucusFriction(Strict):
     """Friction on belts and guides against hours post mortem."""
 
-    gain: float = Field(0.0, ge=-0.8, le=2.0, description="relative change of friction once the mucus has dried")
+    gain: float = Field(0.0, ge=-0.8, le=10.0, description="relative change of friction once the mucus has dried")
     time_constant_h: float = Field(24.0, gt=0.5, le=500.0, description="how fast it dries (assumption)")
 
     @property

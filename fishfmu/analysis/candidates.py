@@ -36,13 +36,19 @@ from fishfmu.analysis.evidence_base import DriveSlope, PairSeparation, RunLevelS
 from fishfmu.analysis.levels import mucus_index, rigor_index, rigor_limit_loss
 
 # ---------------------------------------------------------------- what each candidate sets (fitted values)
-def _mucus(p: PlantParams, gain: float) -> None:
+def _mucus(p: PlantParams, gain: float, time_constant_h: float | None = None) -> None:
     p.extensions.mucus_friction.gain = gain
+    if time_constant_h is not None:
+        p.extensions.mucus_friction.time_constant_h = time_constant_h
 
 
-def _rigor(p: PlantParams, stiffness_gain: float) -> None:
+def _rigor(p: PlantParams, stiffness_gain: float, peak_h: float | None = None, width_h: float | None = None) -> None:
     p.extensions.rigor_mortis.stiffness_gain = stiffness_gain
     p.extensions.rigor_mortis.limit_loss = rigor_limit_loss(stiffness_gain)
+    if peak_h is not None:
+        p.extensions.rigor_mortis.peak_h = peak_h
+    if width_h is not None:
+        p.extensions.rigor_mortis.width_h = width_h
 
 
 def _adhesion(p: PlantParams, force_n: float) -> None:
@@ -90,8 +96,7 @@ class Candidate:
     off: float
     """The parameter value with the effect switched off."""
     grid: tuple[float, ...]
-    """Values simulated when fitting (besides ``off``); the fit interpolates between them.  A single value
-    sets every parameter.  Empty: fitted without a grid of its own (through the level responses, or drive
+    """Values simulated when fitting (besides ``off``); the fit interpolates between them.  Empty: fitted without a grid of its own (through the level responses, or drive
     candidates from the drive residuals)."""
     bounds: tuple[float, float]
     acts_on: Literal["plant", "drive"]
@@ -126,10 +131,10 @@ class Candidate:
         return all(g == "pairs" for g in self.groups)
 
     def _values(self, values: Sequence[float]) -> tuple[float, ...]:
+        """The values given, first parameters first (the ones left out keep the model's: a rigor strength alone
+        keeps the model's timing)."""
         values = tuple(values)
-        if len(values) == 1:
-            return values * len(self.parameters)
-        if len(values) != len(self.parameters):
+        if not 1 <= len(values) <= len(self.parameters):
             raise ValueError(f"candidate {self.name}: values for {', '.join(self.parameters)}, got {len(values)}")
         return values
 
@@ -177,15 +182,17 @@ def plant_tables(values: dict[str, float]) -> str:
 
 
 CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
-    Candidate("mucus_friction", "relative change of belt friction once the mucus has dried", ("gain",), "",
-              0.0, (), (-0.8, 2.0), "plant", _mucus, ("extensions.mucus_friction.gain",),
-              RunLevelShape(mucus_index, label="mucus index"), groups=("transfers",), level_model="mucus_friction",
-              synthetic=_hide_mucus),
-    Candidate("rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it)",
-              ("stiffness_gain",), "x", 0.0, (), (0.0, 50.0), "plant", _rigor,
-              ("extensions.rigor_mortis.stiffness_gain", "extensions.rigor_mortis.limit_loss"),
-              RunLevelShape(rigor_index, label="rigor index"), groups=("transfers",), level_model="rigor_mortis",
-              synthetic=_hide_rigor),
+    Candidate("mucus_friction", "relative change of belt friction once the mucus has dried, and how fast it dries",
+              ("gain", "time_constant_h"), "", 0.0, (), (-0.8, 8.0), "plant", _mucus,
+              ("extensions.mucus_friction.gain", "extensions.mucus_friction.time_constant_h"),
+              RunLevelShape(mucus_index, label="mucus index"), groups=("transfers", "transfers"),
+              level_model="mucus_friction", synthetic=_hide_mucus),
+    Candidate("rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it), when rigor "
+              "peaks and how long it lasts", ("stiffness_gain", "peak_h", "width_h"), "x", 0.0, (), (0.0, 50.0), "plant",
+              _rigor, ("extensions.rigor_mortis.stiffness_gain", "extensions.rigor_mortis.limit_loss",
+                       "extensions.rigor_mortis.peak_h", "extensions.rigor_mortis.width_h"),
+              RunLevelShape(rigor_index, label="rigor index"), groups=("transfers", "transfers", "transfers"),
+              level_model="rigor_mortis", synthetic=_hide_rigor),
     Candidate("adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N",
               0.0, (2.0, 6.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
               PairSeparation(), groups=("pairs",), synthetic=_hide_adhesion),

@@ -4,11 +4,21 @@ Friction that changes with hours post mortem (mucus) and joints that stiffen wit
 whole run through one number each: the run's friction multiplier on belts and guides, and its fish's
 extra joint stiffness.  So the fit runs (fish riding alone) are simulated a few times, each run at a
 few values of each **level** (:data:`FRICTION`, :data:`RIGOR`) around the calibrated model (once more
-beyond an end of the grid where a run still wants more), and for every residual row (one fish after one
-transfer) the lag is interpolated linearly between them, in log of the multiplier for friction and
-log(1 + stiffness) for rigor.
-Levels act on different things (how long a fish slips, how it bends over a gap); their changes of a
-row's lag are added.
+beyond an end of the grid where a run still wants more), and every response row is interpolated
+linearly between them, in log of the multiplier for friction and log(1 + stiffness) for rigor.  Levels
+act on different things (how long a fish slips, how it bends and lies); their changes of a row add up.
+
+Rows of two kinds (:data:`LAG`, :data:`PASSAGE`):
+
+- a fish's **lag** across a transfer (what friction decides, and stiffness a little);
+- a beam's **blocked share** of the passages of fish riding alone
+  (:func:`fishfmu.analysis.residuals.passage_residuals`): a limp fish lies in the belt and blocks a low
+  beam throughout, one stiff in rigor does not and the beam flickers.  Friction hardly changes it.  How a
+  beam sees our fish's outline differs from a real beam's by an offset of its own, so each beam's rows are
+  taken less their mean over the runs: only the differences between runs count.
+
+Each row is weighted by 1 / its noise variance (a beam's standard error over its fish; the lags' mean
+square at the best simulated constant level), so metres and shares add up as what they are worth.
 
 Every **model of the levels across runs** (:data:`MODELS`) is then a function from a few parameters and
 each run's hours post mortem to its levels, and is fitted and cross-validated on these interpolated
@@ -17,24 +27,27 @@ residuals without another simulation:
 - ``constant``: one friction multiplier and one joint stiffening k0 for every run (the base model's
   calibration, no effect: the independent simulator's fish land and bend as if stiffer than ours in
   every run, whatever their age);
-- ``mucus_friction``: that multiplier times (1 + gain x mucus index(hours)), friction that changes as
-  the mucus dries (monotone in hours post mortem), with the constant k0;
-- ``rigor_mortis``: the constant multiplier, and joints (1 + k0 + K x rigor index(hours)) times stiffer
-  (rigor sets in, peaks and resolves: not monotone).
+- ``mucus_friction``: that multiplier times (1 + gain x mucus index(hours, time constant)), friction
+  that changes as the mucus dries (monotone in hours post mortem), with the constant k0; judged on the
+  lags only (the rows friction changes);
+- ``rigor_mortis``: the constant multiplier, and joints (1 + k0 + K x rigor index(hours, peak, width))
+  times stiffer (rigor sets in, peaks and resolves: not monotone); judged on lags and beams.
 
-A model's parameters are chosen by exhaustive search over a fine grid; its held-out error is that of
-each run with the parameters chosen on the other runs (leave one run out).  A candidate's gain is the
-held-out error it removes relative to ``constant`` (which has one parameter fewer; choosing parameters
-on other runs is the penalty for having more).  The levels each run prefers on its own are kept as
-the signature a user can look at: mucus predicts friction rising with hours, rigor a stiffness that
-comes and goes, a base mismatch the same level everywhere.
+The timing of each effect (mucus's time constant, rigor's peak and width) is searched on a coarse grid
+with its strength: it depends on the slaughter and the cold chain, which no model knows.  A model's
+parameters are chosen by exhaustive search over the grid; its held-out error is that of each run with
+the parameters chosen on the other runs (leave one run out).  A candidate's gain is the held-out error
+it removes relative to ``constant`` on the same rows (choosing its extra parameters on other runs is
+the penalty for having them).  The levels each run prefers on its own are kept as the signature a user
+can look at: mucus predicts friction rising with hours, rigor a stiffness that comes and goes, a base
+mismatch the same level everywhere.
 """
 
 from __future__ import annotations
 
 import itertools
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -107,7 +120,14 @@ class Responses:
     row_run: np.ndarray
     """Index into ``runs`` of each row."""
     lag0: np.ndarray
-    """Each row's lag with every level off [m]."""
+    """Each row's residual with every level off (a lag [m], or a photo-eye blocked share)."""
+    row_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Per row: :data:`LAG` or :data:`PASSAGE`."""
+    row_beam: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """Per row: which beam (0, 1, ... for photo-eye rows; -1 for lags)."""
+    row_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
+    """Per row: 1 / its noise variance (a lag: the lags' mean square at the best simulated constant level; a
+    beam: its standard error squared), so that a lag in metres and a blocked share add up."""
     values: dict[str, np.ndarray] = field(default_factory=dict)
     """Per level: the simulated values (sorted, ``off`` among them)."""
     delta: dict[str, np.ndarray] = field(default_factory=dict)
@@ -116,9 +136,9 @@ class Responses:
     def range(self, name: str) -> tuple[float, float]:
         return float(self.values[name][0]), float(self.values[name][-1])
 
-    def run_ss(self, levels: dict[str, np.ndarray]) -> np.ndarray:
-        """Sum of squared lags per run with each run at the given levels (missing levels: off; outside the
-        simulated values: at the nearest end)."""
+    def residuals(self, levels: dict[str, np.ndarray]) -> np.ndarray:
+        """Every row's residual with each run at the given levels (missing levels: off; outside the simulated
+        values: at the nearest end); photo-eye rows less their beam's mean over all runs."""
         lag = self.lag0.copy()
         rows = np.arange(len(lag))
         for name, per_run in levels.items():
@@ -131,17 +151,53 @@ class Responses:
             j = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
             w = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
             lag += d[rows, j] * (1.0 - w) + d[rows, j + 1] * w
-        return np.bincount(self.row_run, weights=lag**2, minlength=len(self.runs))
+        for b in range(int(self.row_beam.max(initial=-1)) + 1):  # how a beam sees our outline is an offset per beam
+            rows_b = (self.row_beam == b) & (self.row_weight > 0)
+            if rows_b.any():
+                lag[rows_b] -= np.average(lag[rows_b], weights=self.row_weight[rows_b])
+        return lag
+
+    def only(self, kinds: tuple[int, ...]) -> "Responses":
+        """The same responses with the rows of other kinds left out (weight 0)."""
+        return replace(self, row_weight=np.where(np.isin(self.row_kind, kinds), self.row_weight, 0.0))
+
+    def run_ss(self, levels: dict[str, np.ndarray]) -> np.ndarray:
+        """Weighted sum of squared residuals per run (:attr:`row_weight`) at the given levels."""
+        r = self.residuals(levels)
+        return np.bincount(self.row_run, weights=self.row_weight * r**2, minlength=len(self.runs))
+
+    def lag_ss(self, levels: dict[str, np.ndarray]) -> np.ndarray:
+        """Sum of squared lags [m^2] per run at the given levels (no photo-eye rows, unweighted)."""
+        r = self.residuals(levels)
+        lag = self.row_kind == LAG
+        return np.bincount(self.row_run[lag], weights=r[lag] ** 2, minlength=len(self.runs))
+
 
     @property
     def counts(self) -> np.ndarray:
-        return np.bincount(self.row_run, minlength=len(self.runs))
+        """Lag rows per run."""
+        return np.bincount(self.row_run[self.row_kind == LAG], minlength=len(self.runs))
 
 
-def _rows(res: RunResiduals) -> pd.DataFrame:
+LAG, PASSAGE = 0, 1
+"""Kinds of response rows: a fish's lag across a transfer, a beam's blocked share of passages (per run)."""
+
+
+def _rows(res: RunResiduals) -> tuple[pd.Series, pd.Series]:
+    """A run's response rows, ("lag", fish, belt) and ("blocked", beam, ""), and their standard errors (lags: NaN,
+    set from all lags)."""
     free = alone(res.rows)
     free = free[free["belt"] > 0]  # after a transfer: on the first belt the lag is the drop's
-    return free.set_index(["fish_id", "belt"])["lag_m"].astype(float)
+    lags = pd.Series(free["lag_m"].to_numpy(float),
+                     index=pd.MultiIndex.from_arrays([["lag"] * len(free), free["fish_id"].astype(str),
+                                                      free["belt"].astype(str)]))
+    p = res.passages
+    at = pd.MultiIndex.from_arrays([["blocked"] * len(p), p["sensor_id"].astype(str), [""] * len(p)])
+    beams = pd.Series(p["dblocked"].to_numpy(float), index=at)
+    if not len(beams):
+        return lags, pd.Series(np.nan, index=lags.index)
+    return pd.concat([lags, beams]), pd.concat([pd.Series(np.nan, index=lags.index),
+                                                pd.Series(p["se"].to_numpy(float), index=at)])
 
 
 def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], dict[str, RunResiduals]],
@@ -149,14 +205,20 @@ def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], d
     """Rows of ``off`` (the fit runs with every level off) and their lags at each simulated (level, value);
     a row a simulation lost (or a failed simulation) keeps its lag from ``off``."""
     runs = sorted(off)
-    row_run, lag0, keys = [], [], []
+    row_run, lag0, keys, kind, se = [], [], [], [], []
     for i, r in enumerate(runs):
-        s = _rows(off[r]).dropna()
+        s, e = _rows(off[r])
+        s = s.dropna()
         row_run += [i] * len(s)
         lag0 += list(s.to_numpy())
+        se += list(e.reindex(s.index).to_numpy(float))
+        kind += [PASSAGE if k == "blocked" else LAG for k in s.index.get_level_values(0)]
         keys.append(s.index)
     resp = Responses(runs, np.array([hours[r] for r in runs], float), np.array(row_run, dtype=np.int64),
-                     np.array(lag0, float))
+                     np.array(lag0, float), np.array(kind, dtype=np.int64))
+    beam_of = [k[1] if k[0] == "blocked" else None for idx in keys for k in idx]
+    beams = sorted({b for b in beam_of if b is not None})
+    resp.row_beam = np.array([beams.index(b) if b is not None else -1 for b in beam_of], dtype=np.int64)
     for name in sorted({n for n, _ in simulated}):
         lv = LEVELS[name]
         values = sorted({lv.off, *(v for n, v in simulated if n == name)})
@@ -168,13 +230,26 @@ def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], d
             col = []
             for r, idx in zip(runs, keys):
                 res = simulated[(name, value)].get(r)
-                s = _rows(res).reindex(idx) if res is not None and not res.error else pd.Series(np.nan, index=idx)
+                s = _rows(res)[0].reindex(idx) if res is not None and not res.error else pd.Series(np.nan, index=idx)
                 col.append(s.to_numpy(float))
             v = np.concatenate(col) if col else np.zeros(0)
             lags.append(np.where(np.isfinite(v), v, resp.lag0))
         resp.values[name] = np.array(values, float)
         resp.delta[name] = np.array(lags).T - resp.lag0[:, None]  # rows x values, zero at off
+    resp.row_weight = _row_weights(resp, np.array(se, float))
     return resp
+
+
+def _row_weights(resp: Responses, se: np.ndarray) -> np.ndarray:
+    """1 / noise variance of each row: a beam's from its standard error; the lags' their mean square at the best
+    simulated pair of constant levels (what no level removes is taken for noise)."""
+    lag = resp.row_kind == LAG
+    resp.row_weight = np.where(lag, 1.0, 1.0 / np.square(np.where(np.isfinite(se), se, 1.0)))
+    best = np.inf
+    for combo in itertools.product(*(resp.values[n] for n in sorted(resp.values))):
+        r = resp.residuals({n: np.full(len(resp.runs), v) for n, v in zip(sorted(resp.values), combo)})
+        best = min(best, float(np.mean(r[lag] ** 2)) if lag.any() else np.inf)
+    return np.where(lag, 1.0 / max(best, 1e-12) if np.isfinite(best) else 1.0, resp.row_weight)
 
 
 @dataclass(frozen=True)
@@ -187,15 +262,18 @@ class LevelModel:
     """Values searched per parameter, given the levels simulated."""
     levels: Callable[..., dict[str, np.ndarray]]
     """``levels(hours, *values) -> {level: per-run value}``."""
+    kinds: tuple[int, ...] = (LAG, PASSAGE)
+    """The rows it is judged on (:data:`LAG`, :data:`PASSAGE`): the ones its levels change (friction hardly
+    changes how a beam sees a fish; rows a model cannot change only add noise to its gain)."""
 
 
 def mucus_index(hours: np.ndarray, time_constant_h: float = 24.0) -> np.ndarray:
-    """How far the mucus has dried (0 fresh, towards 1) at the plant's default time constant."""
+    """How far the mucus has dried (0 fresh, towards 1); by default at the plant's default time constant."""
     return 1.0 - np.exp(-np.asarray(hours, dtype=float) / time_constant_h)
 
 
 def rigor_index(hours: np.ndarray, peak_h: float = 24.0, width_h: float = 20.0) -> np.ndarray:
-    """How far rigor has set in (0..1, 1 at its peak) at the plant's default onset and duration."""
+    """How far rigor has set in (0..1, 1 at its peak); by default at the plant's default peak and duration."""
     return np.exp(-(((np.asarray(hours, dtype=float) - peak_h) / width_h) ** 2))
 
 
@@ -210,6 +288,19 @@ def _stiffness_values(resp: Responses) -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(0.3, resp.range("rigor")[1], 15)])
 
 
+MUCUS_GAINS = np.concatenate([np.linspace(-0.8, 2.0, 15), np.geomspace(2.5, 8.0, 6)])
+"""Mucus gains searched: friction once dried up to 9 x that of a fresh fish (fresh slaughter mucus can make a
+fish slide on a belt it grips a day later)."""
+
+
+MUCUS_TIME_CONSTANTS_H = np.array([8.0, 24.0, 72.0])
+"""How fast the mucus dries, searched with the gain: within hours in a dry hall, over days on ice."""
+RIGOR_PEAKS_H = np.array([12.0, 24.0, 36.0])
+RIGOR_WIDTHS_H = np.array([10.0, 20.0, 40.0])
+"""When rigor is strongest and how long it lasts, searched with its strength: rigor's timing depends on the
+fish's stress at slaughter and its temperature, from half a day to two days to its peak."""
+
+
 def _const(h: np.ndarray, value: float) -> np.ndarray:
     return np.full(len(h), float(value))
 
@@ -217,12 +308,13 @@ def _const(h: np.ndarray, value: float) -> np.ndarray:
 MODELS: dict[str, LevelModel] = {m.name: m for m in (
     LevelModel("constant", ("friction_level", "joint_stiffening"), lambda r: (_friction_values(r), _stiffness_values(r)),
                lambda h, a, k0: {"friction": _const(h, a), "rigor": _const(h, k0)}),
-    LevelModel("mucus_friction", ("friction_level", "joint_stiffening", "gain"),
-               lambda r: (_friction_values(r), _stiffness_values(r), np.linspace(-0.8, 2.0, 29)),
-               lambda h, a, k0, g: {"friction": a * (1.0 + g * mucus_index(h)), "rigor": _const(h, k0)}),
-    LevelModel("rigor_mortis", ("friction_level", "joint_stiffening", "stiffness_gain"),
-               lambda r: (_friction_values(r), _stiffness_values(r), _stiffness_values(r)),
-               lambda h, a, k0, k: {"friction": _const(h, a), "rigor": k0 + k * rigor_index(h)}),
+    LevelModel("mucus_friction", ("friction_level", "joint_stiffening", "gain", "time_constant_h"),
+               lambda r: (_friction_values(r), _stiffness_values(r), MUCUS_GAINS, MUCUS_TIME_CONSTANTS_H),
+               lambda h, a, k0, g, tau: {"friction": a * (1.0 + g * mucus_index(h, tau)), "rigor": _const(h, k0)},
+               kinds=(LAG,)),
+    LevelModel("rigor_mortis", ("friction_level", "joint_stiffening", "stiffness_gain", "peak_h", "width_h"),
+               lambda r: (_friction_values(r), _stiffness_values(r), _stiffness_values(r), RIGOR_PEAKS_H, RIGOR_WIDTHS_H),
+               lambda h, a, k0, k, peak, width: {"friction": _const(h, a), "rigor": k0 + k * rigor_index(h, peak, width)}),
 )}
 """The models of levels across runs; ``constant`` is the reference (no effect)."""
 

@@ -1,0 +1,73 @@
+"""Fast tests of fishfmu.analysis.levels' responses on hand-made residuals (issue 16).
+
+Two runs, each with two lag rows (a fish after a transfer) and one photo-eye row, simulated with every
+level off and at a friction level of 1.4; the expected numbers are worked out in the comments.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fishfmu.analysis.levels import LAG, MODELS, PASSAGE, fit_model, responses
+from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, PASSAGE_RESIDUAL_DTYPES,
+                                        RunResiduals, typed_frame)
+
+
+def residuals(run_id: str, lags: list[float], dblocked: float) -> RunResiduals:
+    rows = typed_frame([{"run_id": run_id, "fish_id": f"f{i}", "belt": 1, "conveyor_id": "b", "t_start_s": 1.0,
+                         "t_end_s": 2.0, "offset_m": lag, "lag_m": lag, "heading": 1.0, "hours_post_mortem": 6.0,
+                         "length_m": 0.6, "crowded": False, "n_samples": 10} for i, lag in enumerate(lags)],
+                       BELT_RESIDUAL_DTYPES)
+    passages = typed_frame([{"run_id": run_id, "sensor_id": "pe", "n": 5, "blocked_measured": 1.0,
+                             "blocked_simulated": 1.0 + dblocked, "dblocked": dblocked, "se": 0.05}],
+                           PASSAGE_RESIDUAL_DTYPES)
+    return RunResiduals(run_id, rows, typed_frame([], PAIR_RESIDUAL_DTYPES), 0.0, passages=passages)
+
+
+# level off: lags r1 (0.10, 0.20), r2 (0.30, 0.00); beams -0.10 (r1), -0.30 (r2)
+# friction 1.4: every lag 0.10 m less, beams unchanged
+OFF = {"r1": residuals("r1", [0.1, 0.2], -0.1), "r2": residuals("r2", [0.3, 0.0], -0.3)}
+HIGH = {"r1": residuals("r1", [0.0, 0.1], -0.1), "r2": residuals("r2", [0.2, -0.1], -0.3)}
+RESP = responses(OFF, {("friction", 1.4): HIGH}, {"r1": 6.0, "r2": 30.0})
+
+
+def test_rows_and_kinds():
+    assert list(RESP.row_kind) == [LAG, LAG, PASSAGE, LAG, LAG, PASSAGE]
+    assert list(RESP.counts) == [2, 2]  # lag rows per run
+
+
+def test_rows_are_weighted_by_their_noise():
+    # a beam's weight is 1 / se^2 = 1 / 0.05^2 = 400; the lags' is 1 / their mean square at the best simulated
+    # level: at off (0.01 + 0.04 + 0.09 + 0) / 4 = 0.035 m^2, at 1.4 (0 + 0.01 + 0.04 + 0.01) / 4 = 0.015 m^2.
+    assert RESP.row_weight == pytest.approx([1 / 0.015, 1 / 0.015, 400.0] * 2)
+    # r1 at off: lags (0.01 + 0.04) / 0.015; its beam less the beams' mean (-0.2): +0.1, so 0.01 x 400
+    ss = RESP.run_ss({})
+    assert ss[0] == pytest.approx(0.05 / 0.015 + 4.0)
+    assert RESP.lag_ss({}) == pytest.approx([0.05, 0.09])
+    # rows of other kinds can be left out (a model judged on what it changes): the beams weigh nothing then
+    assert RESP.only((LAG,)).run_ss({})[0] == pytest.approx(0.05 / 0.015)
+
+
+def test_a_common_beam_offset_is_no_error():
+    # the beams' mean mismatch is the outline's, one offset for the line: shifting every beam row by the
+    # same amount changes nothing
+    shifted = responses({r: residuals(r, list(OFF[r].rows["lag_m"]), float(OFF[r].passages["dblocked"].iloc[0]) + 0.5)
+                         for r in OFF}, {("friction", 1.4): HIGH}, {"r1": 6.0, "r2": 30.0})
+    assert shifted.residuals({})[[2, 5]] == pytest.approx(RESP.residuals({})[[2, 5]])
+
+
+def test_levels_interpolate_in_log_of_the_multiplier():
+    # friction sqrt(1.4) is half-way between 1 and 1.4 in log: every lag 0.05 m less than at off
+    half = np.full(2, np.sqrt(1.4))
+    assert RESP.residuals({"friction": half})[[0, 1, 3, 4]] == pytest.approx([0.05, 0.15, 0.25, -0.05])
+    # beyond the simulated values: held at the nearest end
+    assert RESP.residuals({"friction": np.full(2, 3.0)})[[0, 1]] == pytest.approx([0.0, 0.1])
+
+
+def test_constant_model_picks_the_level_that_fits_both_runs():
+    # lags of both runs fall by 0.1 m between 1 and 1.4; the sum of squares is least where the mean lag
+    # (0.15 at off) is gone, beyond 1.4: the grid's end, 1.4 (values outside are held at the end)
+    fit = fit_model(MODELS["constant"], RESP, np.random.default_rng(0))
+    assert fit.values["friction_level"] == pytest.approx(1.4)
+    assert fit.values["joint_stiffening"] == 0.0  # rigor not simulated: off
