@@ -314,21 +314,27 @@ def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
     for name in names:
         v = m.values[name]
         f = KnobFit(name, v, v, m.ci95[name], gain, ci, kept=bool(ci[0] > 0.0))
-        f.errors = {KNOBS[name].off: float(off.sum() / n), v: float(m.ss.sum() / n)}
+        at = {"friction": np.full(len(resp.runs), m.values["friction_level"]),
+              "rigor": np.full(len(resp.runs), m.values.get("joint_stiffening", 0.0))}
+        f.errors = {KNOBS[name].off: float(resp.lag_ss({}).sum() / n), v: float(resp.lag_ss(at).sum() / n)}
         fits.append(f)
     return fits
 
 
 def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
                         levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True, heldout_before: bool = True,
-                        extra: Callable[[PlantParams, list[Run]], list[tuple[Run, PlantParams]]] | None = None
-                        ) -> Calibration:
+                        extra: Callable[[Callable[[Run], PlantParams], list[Run]], list[tuple[Run, PlantParams]]]
+                        | None = None,
+                        heldout_levels: Callable[[Responses, PlantParams], Callable[[Run], PlantParams] | None]
+                        | None = None) -> Calibration:
     """:func:`calibrate` with the re-simulations on ``pool``.  ``levels``: the level responses to simulate
     on the fit runs (``diagnose`` adds rigor); ``fit_base`` False: measure the responses but change nothing
     (a dataset this simulator made).  ``heldout_before`` False: the held-out runs are not re-simulated with
     the model as given (their error before is then unknown; ``diagnose`` saves the time).  ``extra``: more
-    re-simulations that need the calibrated model (``extra(params, heldout_runs)`` -> (run, parameters) pairs), run in the
-    same batch as the held-out runs; they come back in :attr:`Calibration.extra_sims`."""
+    re-simulations that need the calibrated model (``extra(params_of_run, heldout_runs)`` -> (run, parameters)
+    pairs), run in the same batch as the held-out runs; they come back in :attr:`Calibration.extra_sims`.
+    ``heldout_levels(responses, level_base)``: each held-out run's parameters when a run-level effect holds on
+    the fit runs (``diagnose``: the held-out runs are then judged with it), or None: the calibrated model."""
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -418,14 +424,16 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
     # the held-out runs with the calibrated model (the fit runs' level-off simulations are the gradient stage's)
     t1 = time.perf_counter()
     held_runs = [r for r in runs if r.id in set(heldout_ids)]
-    resim_held = [r for r in held_runs if params != base or r.id not in sim_of]
-    extra_jobs = extra(params, held_runs) if extra is not None else []
+    per_run = heldout_levels(resp, level_base) if heldout_levels is not None else None
+    params_of = per_run or (lambda run: params)
+    resim_held = [r for r in held_runs if per_run or params != base or r.id not in sim_of]
+    extra_jobs = extra(params_of, held_runs) if extra is not None else []
     extra_sims: list = []
     if resim_held or extra_jobs:
         say(f"held-out runs: re-simulating {len(resim_held)} with the calibrated model"
-            + (f", and {len(extra_jobs)} more" if extra_jobs else ""))
+            + (" and the run-level effect" if per_run else "") + (f", and {len(extra_jobs)} more" if extra_jobs else ""))
         done = resimulate_many(dataset.line, resim_held + [r for r, _ in extra_jobs],
-                               [params] * len(resim_held) + [p for _, p in extra_jobs], pool=pool, workers=1,
+                               [params_of(r) for r in resim_held] + [p for _, p in extra_jobs], pool=pool, workers=1,
                                residuals=True)
         held_sims, extra_sims = done[:len(resim_held)], done[len(resim_held):]
         sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, resim_held)
@@ -445,7 +453,7 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
         levels_fit = {"friction": np.full(len(resp.runs), kept.get("friction_level", 1.0))}
         if "joint_stiffening" in kept:
             levels_fit["rigor"] = np.full(len(resp.runs), kept["joint_stiffening"])
-        ss_fit = float(resp.run_ss(levels_fit).sum())
+        ss_fit = float(resp.lag_ss(levels_fit).sum())
         rms_after["fit"] = float(np.sqrt(ss_fit / n))
         held = [r for r in after if r.run_id in groups["heldout"] and not r.error]
         ss_h, n_h = sum(r.squares("transfers")[0] for r in held), sum(r.squares("transfers")[1] for r in held)

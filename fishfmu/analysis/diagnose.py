@@ -7,14 +7,16 @@ fitted on the runs that carry its signal, mostly from simulations it shares with
 1. **Calibration** (:mod:`fishfmu.analysis.calibrate`): every run re-simulated with the model as given;
    the runs with most fish alone are the fit runs; the friction gradient along a fish is fitted on them
    (``--no-calibrate``: not fitted), then each fit run is simulated at two more friction levels and two
-   rigor levels (:mod:`fishfmu.analysis.levels`), and the constant friction level fitted from those
-   responses; the other runs are re-simulated with the calibrated model.
+   rigor levels (:mod:`fishfmu.analysis.levels`: the fish's lags and the photo-eyes' blocked shares), and
+   the constant friction level and joint stiffening fitted from those responses.
 2. **Run-level candidates** (mucus friction, rigor): models of the runs' levels against hours post
    mortem, fitted on the level responses without more simulation; each run's error with parameters
-   chosen on the other runs (leave one run out) against that of the constant friction level (the
-   calibrated model, one parameter fewer).
-3. **Adhesion**: the runs with touching pairs simulated at a few attraction forces around the calibrated
-   model; the extra separation of close pairs, held-out by folds of runs.
+   chosen on the other runs (leave one run out) against that of the constant levels (the calibrated
+   model).  The other runs are then re-simulated with the calibrated model, or, when a run-level
+   candidate is significant, with its levels for each run's hours: what it explains in them is not left
+   for adhesion to explain (fresh, slippery fish part from a neighbour late, as sticky ones do).
+3. **Adhesion**: the runs with touching pairs simulated at a few attraction forces on top of that model;
+   the extra separation of close pairs, held-out by folds of runs.
 4. **Drive droop**: from the drive logs against the simulated belt loads, no simulation (linear).
 5. **Decision**: a candidate is *significant* when it removes at least ``MIN_GAIN`` of its held-out error
    and the 95 % interval of that gain (a bootstrap over runs) is above zero; of the significant ones, the
@@ -31,14 +33,15 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.measured import Dataset
+from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, Calibration, calibrate_with_pool
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment, plant_tables, plant_value
 from fishfmu.analysis.evidence import evidence_table
 from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
-from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
+from fishfmu.analysis.levels import (FRICTION, MODELS, RIGOR, LevelModel, ModelFit, Responses, fit_model, gain_over,
+                                     run_levels)
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                RunResiduals, concat_typed, drive_residuals_averaged, pair_residuals, residuals_of)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
@@ -48,8 +51,9 @@ MIN_GAIN = 0.02
 zero): measurement noise that no model removes can be most of the error, as with noisy drive logs."""
 
 DECISION_RULE = (f"every candidate is fitted; significant = held-out gain >= {MIN_GAIN:.0%} of its residuals' "
-                 "held-out error with the 95 % bootstrap interval (over runs) above zero; the cause is the "
-                 "significant candidate with the highest lower end of that interval; none significant: none")
+                 "held-out error with the 95 % bootstrap interval (over runs) above zero; adhesion is judged on top "
+                 "of a significant run-level effect (mucus, rigor); the cause is the significant candidate with the "
+                 "highest lower end of that interval; none significant: none")
 
 
 def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, float] | None = None) -> pd.DataFrame:
@@ -246,12 +250,21 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
         return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate)
 
 
+def level_params(level_base: PlantParams, model: LevelModel, values: dict[str, float], hours: float) -> PlantParams:
+    """The parameters of a run ``hours`` post mortem under a run-level model with these fitted values."""
+    levels = model.levels(np.array([hours]), *[values[k] for k in model.parameters])
+    p = FRICTION.params(level_base, float(levels["friction"][0]), hours)
+    RIGOR.apply(p, float(levels["rigor"][0]), hours)
+    return p
+
+
 def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFit, resp: Responses,
                         rng: np.random.Generator) -> CandidateFit:
     """A run-level candidate's fit from its level model, judged against the constant friction level."""
-    fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95))
+    fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95),
+                       error_unit="x noise (lags and photo-eye passages, each over its noise)")
     fit.heldout_gain, fit.heldout_gain_ci95 = gain_over(reference, model, rng)
-    n = max(int(resp.counts.sum()), 1)
+    n = max(int(np.count_nonzero(resp.row_weight)), 1)
     fit.heldout_rms_before = float(np.sqrt(reference.cv_ss.sum() / n))
     fit.heldout_rms_after = float(np.sqrt(model.cv_ss.sum() / n))
     return fit
@@ -266,17 +279,38 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     # calibrated re-simulation, on the held-out runs where the measurement shows touching pairs
     grid_cands = [c for c in CANDIDATES.values() if c.grid]
     grid_runs: dict[str, list] = {}
+    level_fits: list[CandidateFit] = []
+    applied: dict[str, Callable[[Run], PlantParams]] = {}
 
-    def first_grid(params: PlantParams, held: list) -> list:
+    def first_grid(params_of: Callable[[Run], PlantParams], held: list) -> list:
         jobs = []
         for cand in grid_cands:
             grid_runs[cand.name] = [r for r in held if not cand.needs_pairs
                                     or len(pair_residuals(r, r.tracks, dataset.line))]
-            jobs += [(r, cand.params(params, v)) for v in cand.grid for r in grid_runs[cand.name]]
+            jobs += [(r, cand.params(params_of(r), v)) for v in cand.grid for r in grid_runs[cand.name]]
+        applied["params_of"] = params_of
         return jobs
 
+    def run_level_effect(resp: Responses, level_base: PlantParams) -> Callable[[Run], PlantParams] | None:
+        """Fit the run-level candidates on the fit runs' responses; when one is significant, the held-out runs are
+        simulated with its levels, so that what it explains is not left for adhesion to explain."""
+        for cand in CANDIDATES.values():
+            if cand.level_model is not None:  # judged on the rows its levels change, against the constant levels there
+                on = resp.only(MODELS[cand.level_model].kinds)
+                reference = fit_model(MODELS["constant"], on, rng)
+                model = fit_model(MODELS[cand.level_model], on, rng)
+                level_fits.append(level_candidate_fit(cand.name, z_of.get(cand.name, 0.0), model, reference, on, rng))
+        best = max((f for f in level_fits if f.significant), key=lambda f: f.heldout_gain_ci95[0], default=None)
+        if best is None:
+            return None
+        say(f"held-out runs judged with {best.name} (held-out gain on the fit runs {best.heldout_gain:.0%}, "
+            f"{best.heldout_gain_ci95[0]:.0%} to {best.heldout_gain_ci95[1]:.0%})")
+        return lambda run: level_params(level_base, MODELS[CANDIDATES[best.name].level_model], best.values,
+                                        run.hours_post_mortem if run.hours_post_mortem is not None else 24.0)
+
+    z_of: dict[str, float] = {}
     cal = calibrate_with_pool(dataset, base, pool, seed, say, levels=(FRICTION, RIGOR), fit_base=calibrate,
-                              heldout_before=False, extra=first_grid)
+                              heldout_before=False, extra=first_grid, heldout_levels=run_level_effect)
     timing["calibration"] = time.perf_counter() - t0
     sims = cal.sims_after
     current = cal.after
@@ -284,23 +318,19 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     rows = concat_typed([b.rows for b in current], BELT_RESIDUAL_DTYPES)
     pairs = concat_typed([b.pairs for b in current], PAIR_RESIDUAL_DTYPES)
     evidence = evidence_table(rows, pairs, drive, seed)
-    z_of = evidence.set_index("candidate")["evidence"].astype(float).to_dict()
+    z_of.update(evidence.set_index("candidate")["evidence"].astype(float).to_dict())
+    for f in level_fits:  # fitted before the evidence was at hand
+        f.evidence_z = z_of.get(f.name, 0.0)
     say("evidence (an explanation, not a gate): " + ", ".join(f"{c} z={z:.1f}" for c, z in z_of.items()))
 
-    fits: list[CandidateFit] = []
+    fits: list[CandidateFit] = list(level_fits)
     resp = cal.responses
-    reference = fit_model(MODELS["constant"], resp, rng)
-    for cand in CANDIDATES.values():
-        if cand.level_model is not None:
-            model = fit_model(MODELS[cand.level_model], resp, rng)
-            fits.append(level_candidate_fit(cand.name, z_of.get(cand.name, 0.0), model, reference, resp, rng))
-
     t1 = time.perf_counter()
     cur_by_run = {b.run_id: b for b in current if not b.error}
     done = iter(cal.extra_sims)
     for cand in grid_cands:  # simulated on the runs that carry its signal (adhesion: runs with touching pairs)
         first = {v: [next(done) for _ in grid_runs[cand.name]] for v in cand.grid}
-        fits.append(_fit_on_grid(dataset, cand, cal.params, cur_by_run, grid_runs[cand.name], first,
+        fits.append(_fit_on_grid(dataset, cand, applied["params_of"], cur_by_run, grid_runs[cand.name], first,
                                  z_of.get(cand.name, 0.0), pool, rng, say))
         timing[f"fit_{cand.name}"] = time.perf_counter() - t1
     for cand in CANDIDATES.values():  # fitted without simulation
@@ -316,7 +346,8 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
                      {b.run_id: b.track_rms_m for b in current}, timing, current, drive, cal, run_levels(resp))
 
 
-def _fit_on_grid(dataset: Dataset, cand: Candidate, params: PlantParams, cur_by_run: dict[str, RunResiduals],
+def _fit_on_grid(dataset: Dataset, cand: Candidate, params_of: Callable[[Run], PlantParams],
+                 cur_by_run: dict[str, RunResiduals],
                  fit_runs: list, first: dict[float, list], z: float, pool, rng: np.random.Generator,
                  say: Callable[[str], None]) -> CandidateFit:
     """A candidate at its grid of strengths (``first``: the grid's re-simulations of ``fit_runs``, done), extended
@@ -339,7 +370,7 @@ def _fit_on_grid(dataset: Dataset, cand: Candidate, params: PlantParams, cur_by_
             break
         say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
         sims = resimulate_many(dataset.line, fit_runs * len(values),
-                               [cand.params(params, v) for v in values for _ in fit_runs], pool=pool, workers=1,
+                               [cand.params(params_of(r), v) for v in values for r in fit_runs], pool=pool, workers=1,
                                residuals=True)
         pending = {v: sims[k * len(fit_runs):(k + 1) * len(fit_runs)] for k, v in enumerate(values)}
     return fit_plant_candidate(cand.name, z, base_by_run, grid, rng)

@@ -82,7 +82,10 @@ def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None
                      "calibration": d.calibration.changed(d.calibration.base) if d.calibration else {},
                      "wall_s": time.perf_counter() - t0})
         if on_row is not None:
-            on_row({k: rows[-1][k] for k in ("dataset", "effect", "cause", "heldout_gain", "wall_s")})
+            row = rows[-1]
+            on_row({k: row[k] for k in ("dataset", "effect", "cause", "heldout_gain", "wall_s")}
+                   | {"gains": {n: f"{c['gain']:.0%} [{c['ci95'][0]:.0%}, {c['ci95'][1]:.0%}]"
+                                for n, c in row["candidates"].items()}})
     table = pd.DataFrame(rows)
     if table.empty:
         return {"runs": [], "accuracy": {}, "overall": float("nan"), "confusion": {}}
