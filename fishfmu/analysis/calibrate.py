@@ -20,7 +20,7 @@ a transfer is what friction decides):
    end where the error still falls; the gradient is applied at the simulated value nearest the minimum
    of its error curve, so that those simulations are the next stage's base.
 3. **Levels** (:mod:`fishfmu.analysis.levels`): the fit runs at two more friction levels (belts and
-   guides; ``diagnose`` adds one joint-stiffening level), extended past an end where a run's own best
+   guides; ``diagnose`` adds two joint-stiffening levels), extended past an end where a run's own best
    level still lies; the constant level(s) that fit every run are the calibration.
 4. Every value gets a 95 % interval (bootstrap over the fit runs) and a held-out gain (each fit run
    scored with values chosen on the others); it is applied only if that gain's interval is above zero.

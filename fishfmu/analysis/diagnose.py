@@ -6,8 +6,8 @@ fitted on the runs that carry its signal, mostly from simulations it shares with
 
 1. **Calibration** (:mod:`fishfmu.analysis.calibrate`): every run re-simulated with the model as given;
    the runs with most fish alone are the fit runs; the friction gradient along a fish is fitted on them
-   (``--no-calibrate``: not fitted), then each fit run is simulated at two more friction levels and one
-   rigor level (:mod:`fishfmu.analysis.levels`: the fish's lags and the photo-eyes' blocked shares), and
+   (``--no-calibrate``: not fitted), then each fit run is simulated at two more friction levels and two
+   rigor levels (:mod:`fishfmu.analysis.levels`: the fish's lags and the photo-eyes' blocked shares), and
    the constant friction level and joint stiffening fitted from those responses.
 2. **Run-level candidates** (mucus friction, rigor): models of the runs' levels against hours post
    mortem, fitted on the level responses without more simulation; each run's error with parameters
