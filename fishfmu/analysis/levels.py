@@ -80,7 +80,7 @@ class Level:
     name: str
     off: float
     grid: tuple[float, ...]
-    """Values simulated besides ``off``: one below and one above, or one above when ``off`` is a bound."""
+    """Values simulated besides ``off``: on both sides of it, or above it when ``off`` is the lower bound."""
     bounds: tuple[float, float]
     """How far the grid may be extended."""
     to_x: Callable[[np.ndarray], np.ndarray]
@@ -173,7 +173,6 @@ class Responses:
         r = self.residuals(levels)
         lag = self.row_kind == LAG
         return np.bincount(self.row_run[lag], weights=r[lag] ** 2, minlength=len(self.runs))
-
 
     @property
     def counts(self) -> np.ndarray:
