@@ -71,3 +71,25 @@ def test_constant_model_picks_the_level_that_fits_both_runs():
     fit = fit_model(MODELS["constant"], RESP, np.random.default_rng(0))
     assert fit.values["friction_level"] == pytest.approx(1.4)
     assert fit.values["joint_stiffening"] == 0.0  # rigor not simulated: off
+
+
+def test_a_run_not_simulated_at_an_extended_value_is_held_at_its_own_end():
+    # the grid extended to 2.0 for r1 alone (its own best lay at the end): r1's lags 0.05 m less again at 2.0;
+    # r2, not simulated there, keeps its change at 1.4 (-0.1 m), not its lag at off
+    r1_at_2 = {"r1": residuals("r1", [-0.05, 0.05], -0.1)}
+    resp = responses(OFF, {("friction", 1.4): HIGH, ("friction", 2.0): r1_at_2}, {"r1": 6.0, "r2": 30.0})
+    assert list(resp.values["friction"]) == [1.0, 1.4, 2.0]
+    assert resp.residuals({"friction": np.full(2, 2.0)})[[0, 1, 3, 4]] == pytest.approx([-0.05, 0.05, 0.2, -0.1])
+
+
+def test_a_gain_carried_by_one_run_is_told_as_such():
+    from fishfmu.analysis.diagnose import CandidateFit
+    # 8 of the 10 units of error removed come from r3: 80 %, more than half
+    fit = CandidateFit("mucus_friction", 0.0, heldout_gain=0.3, heldout_gain_ci95=(-0.05, 0.5),
+                       gain_by_run={"r1": 1.0, "r2": 1.0, "r3": 8.0})
+    assert fit.carried_by() == ("r3", pytest.approx(0.8))
+    # spread over the runs (4 of 10 at most), or too small a gain to matter: nothing to tell
+    fit.gain_by_run = {"r1": 3.0, "r2": 3.0, "r3": 4.0}
+    assert fit.carried_by() is None
+    fit.gain_by_run, fit.heldout_gain = {"r1": 1.0, "r2": 1.0, "r3": 8.0}, 0.01
+    assert fit.carried_by() is None

@@ -392,10 +392,11 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
     level_base = params.model_copy(deep=True)
     hours = {r.id: (r.hours_post_mortem if r.hours_post_mortem is not None else 24.0) for r in fit_runs}
     simulated: dict[tuple[str, float], dict[str, RunResiduals]] = {}
-    pending = [(lv, v) for lv in levels for v in lv.grid]
-    for _ in range(3):  # the grid, then up to twice beyond an end where a run's own best level still lies
-        jobs = [(lv, v, r) for lv, v in pending for r in fit_runs]
-        say("levels: " + "; ".join(f"{lv.name} {v:g}" for lv, v in pending) + f" on {len(fit_runs)} runs")
+    pending = [(lv, v, fit_runs) for lv in levels for v in lv.grid]
+    for _ in range(3):  # the grid, then up to twice beyond an end for the runs whose own best level lies there
+        jobs = [(lv, v, r) for lv, v, on in pending for r in on]
+        say("levels: " + "; ".join(f"{lv.name} {v:g} on " + (f"{len(on)} runs" if len(on) > 1 else on[0].id)
+                                   for lv, v, on in pending))
         level_sims = resimulate_many(dataset.line, [r for _, _, r in jobs],
                                      [lv.params(params, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1, residuals=True)
         for (lv, v, r), s in zip(jobs, level_sims):
@@ -409,9 +410,10 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
             values = list(resp.values[lv.name])
             best = own[f"{lv.name}_level"].to_numpy(float)
             for low, end in ((True, values[0]), (False, values[-1])):
-                nxt = lv.beyond(values, low) if np.isclose(best, end, rtol=1e-6).any() else None
-                if nxt is not None:
-                    pending.append((lv, nxt))
+                at_end = [r for r in fit_runs if np.isclose(best[resp.runs.index(r.id)], end, rtol=1e-6)]
+                nxt = lv.beyond(values, low) if at_end else None
+                if nxt is not None:  # the others are held at the end (see levels.responses): far from their best
+                    pending.append((lv, nxt, at_end))
         if not pending:
             break
     timing["levels"] = time.perf_counter() - t1

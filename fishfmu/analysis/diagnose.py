@@ -82,10 +82,22 @@ class CandidateFit:
     error_unit: str = "m"
     grid: pd.DataFrame | None = None
     """Error per run and grid value (plant candidates)."""
+    gain_by_run: dict[str, float] = field(default_factory=dict)
+    """Held-out error each run's residuals lose with the candidate (in the squares of ``error_unit``)."""
 
     @property
     def significant(self) -> bool:
         return bool(self.heldout_gain >= MIN_GAIN and self.heldout_gain_ci95[0] > 0.0)
+
+    def carried_by(self) -> tuple[str, float] | None:
+        """(run, its share of the gain) when one run carries more than half of a gain of at least ``MIN_GAIN``:
+        the bootstrap over runs leaves that run out of a third of its samples, so the interval reaches below zero
+        whatever the size of the gain; more runs like it decide (a user should know that, not only "none")."""
+        total = sum(self.gain_by_run.values())
+        if not self.gain_by_run or self.heldout_gain < MIN_GAIN or total <= 0.0:
+            return None
+        run, u = max(self.gain_by_run.items(), key=lambda kv: kv[1])
+        return (run, u / total) if u > 0.5 * total else None
 
 
 def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]],
@@ -112,7 +124,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
             e0[test] += ss[g][0, test]
     gain, ci = gain_with_ci(u, e0, rng)
     n_total = sum(nn[g][0].sum() for g in groups)
-    fit = CandidateFit(name, z, heldout_gain=gain, heldout_gain_ci95=ci,
+    fit = CandidateFit(name, z, heldout_gain=gain, heldout_gain_ci95=ci, gain_by_run=dict(zip(runs, map(float, u))),
                        heldout_rms_before=float(np.sqrt(e0.sum() / max(n_total, 1))),
                        heldout_rms_after=float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / max(n_total, 1))))
     # fitted values on all runs, with a bootstrap over runs
@@ -202,6 +214,7 @@ def fit_drive_candidate(cand: Candidate, z: float, drive: pd.DataFrame, rng: np.
                 e0[j] = float(np.sum(base**2))
                 u[j] = e0[j] - float(np.sum(moved**2))
     fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(u, e0, rng)
+    fit.gain_by_run = dict(zip(runs, map(float, u)))
     fit.heldout_rms_before = float(np.sqrt(e0.sum() / len(d)))
     fit.heldout_rms_after = float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / len(d)))
     per = slopes(d)
@@ -264,6 +277,7 @@ def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFi
     fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95),
                        error_unit="x noise (lags and photo-eye passages, each over its noise)")
     fit.heldout_gain, fit.heldout_gain_ci95 = gain_over(reference, model, rng)
+    fit.gain_by_run = dict(zip(resp.runs, map(float, reference.cv_ss - model.cv_ss)))
     n = max(int(np.count_nonzero(resp.row_weight)), 1)
     fit.heldout_rms_before = float(np.sqrt(reference.cv_ss.sum() / n))
     fit.heldout_rms_after = float(np.sqrt(model.cv_ss.sum() / n))

@@ -27,12 +27,25 @@ def decision_text(d: Diagnosis) -> str:
         return ("No fitted candidate removed at least {:.0%} of the held-out error with a 95 % interval above zero: "
                 "no significant discrepancy was found ({}).".format(MIN_GAIN, "; ".join(
                     f"{f.name}: gain {f.heldout_gain:.1%} [{f.heldout_gain_ci95[0]:.1%}, {f.heldout_gain_ci95[1]:.1%}]"
-                    for f in fitted)))
+                    for f in fitted))) + "".join(f" {line}" for line in undecided_lines(d))
     w = next(f for f in d.fits if f.name == d.cause)
     values = ", ".join(f"{k} = {v:.4g} [{w.ci95[k][0]:.4g}, {w.ci95[k][1]:.4g}]" for k, v in w.values.items())
     return (f"{d.cause}: {CANDIDATES[d.cause].description}. Fitted {values}. On held-out runs it removes "
             f"{w.heldout_gain:.1%} of the error (95 % interval {w.heldout_gain_ci95[0]:.1%} to "
             f"{w.heldout_gain_ci95[1]:.1%}): RMS {w.heldout_rms_before:.4g} -> {w.heldout_rms_after:.4g} {w.error_unit}.")
+
+
+def undecided_lines(d: Diagnosis) -> list[str]:
+    """Candidates with a gain that one run carries: what more data would decide."""
+    hours = dict(zip(d.run_levels["run_id"], d.run_levels["hours_post_mortem"])) if len(d.run_levels) else {}
+    lines = []
+    for f in d.fits:
+        one = f.carried_by() if not f.significant else None
+        if one:
+            at = f" ({hours[one[0]]:g} h post mortem)" if one[0] in hours else ""
+            lines.append(f"{f.name}'s gain comes {one[1]:.0%} from run {one[0]}{at}: one run cannot establish it, "
+                         "more runs like it would decide.")
+    return lines
 
 
 def candidate_lines(d: Diagnosis) -> list[str]:
@@ -63,7 +76,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
                 "parameters": {k: {"value": v, "ci95": list(f.ci95.get(k, (None, None)))} for k, v in f.values.items()},
                 "heldout_gain": f.heldout_gain, "heldout_gain_ci95": list(f.heldout_gain_ci95),
                 "heldout_rms_before": f.heldout_rms_before, "heldout_rms_after": f.heldout_rms_after,
-                "error_unit": f.error_unit, "significant": f.significant})
+                "error_unit": f.error_unit, "significant": f.significant, "gain_by_run": f.gain_by_run})
         candidates.append(entry)
     winner = fits.get(d.cause)
     base_rms = [v for v in d.base_rms_m.values() if v == v]

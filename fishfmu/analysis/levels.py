@@ -203,8 +203,10 @@ def _rows(res: RunResiduals) -> tuple[pd.Series, pd.Series]:
 
 def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], dict[str, RunResiduals]],
               hours: dict[str, float]) -> Responses:
-    """Rows of ``off`` (the fit runs with every level off) and their lags at each simulated (level, value);
-    a row a simulation lost (or a failed simulation) keeps its lag from ``off``."""
+    """Rows of ``off`` (the fit runs with every level off) and their lags at each simulated (level, value).
+    A run need not be simulated at every value (a grid is extended only for the runs whose own best level lies at
+    its end); a row without a lag at a value (not simulated there, lost by the simulation, or a failed simulation)
+    takes its change from the nearest value it has, ``off`` at least: held at its end, as beyond the grid."""
     runs = sorted(off)
     row_run, lag0, keys, kind, se = [], [], [], [], []
     for i, r in enumerate(runs):
@@ -233,12 +235,21 @@ def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], d
                 res = simulated[(name, value)].get(r)
                 s = _rows(res)[0].reindex(idx) if res is not None and not res.error else pd.Series(np.nan, index=idx)
                 col.append(s.to_numpy(float))
-            v = np.concatenate(col) if col else np.zeros(0)
-            lags.append(np.where(np.isfinite(v), v, resp.lag0))
+            lags.append(np.concatenate(col) if col else np.zeros(0))
         resp.values[name] = np.array(values, float)
-        resp.delta[name] = np.array(lags).T - resp.lag0[:, None]  # rows x values, zero at off
+        resp.delta[name] = _nearest_filled(np.array(lags).T - resp.lag0[:, None], lv.to_x(resp.values[name]))
     resp.row_weight = _row_weights(resp, np.array(se, float))
     return resp
+
+
+def _nearest_filled(delta: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """``delta`` (rows x values) with each missing entry taken from the nearest value (in ``xs``) of its row that
+    has one (the ``off`` column always has: zero)."""
+    out = delta.copy()
+    for i, j in zip(*np.nonzero(~np.isfinite(delta))):
+        have = np.flatnonzero(np.isfinite(delta[i]))
+        out[i, j] = delta[i, have[int(np.argmin(np.abs(xs[have] - xs[j])))]]
+    return out
 
 
 def _row_weights(resp: Responses, se: np.ndarray) -> np.ndarray:
