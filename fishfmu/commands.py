@@ -114,6 +114,18 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
     return RunOutcome(result, out_dir, replay_path, stop.exit_code if result.status == "partial" else None)
 
 
+def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Everything a run checks before it starts (the scenario, every FMU's archive, parameters and start values,
+    the wiring, units, [record] and [expect]), without running: the stepping order, delayed links, conversions,
+    setpoints and recorded variables.  Raises InputError naming what is wrong; writes nothing."""
+    from fishfmu.cosim.build import checked
+    from fishfmu.scenario.schema import load_scenario
+    sc = load_scenario(scenario_file, overrides)
+    with checked(sc, scenario_file) as c:
+        return {"scenario": str(scenario_file), "fmus": {n: {"path": str(o.path), "fmi": o.model_description.fmiVersion}
+                                                         for n, o in c.opened.items()}, **c.wiring.describe()}
+
+
 def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = None,
               overrides: dict[str, Any] | None = None, *, junit: str | Path | None = None, overwrite: bool = False,
               scheduler: str | None = None, workers: int | None = None, progress: bool = False):

@@ -118,9 +118,9 @@ SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
                                                     "drive_c1.speed_setpoint -> plant.c1.speed")),
                                           ("wiring.connections[4]", "'drive_c1.speed_setpoint' is an input")),
     "connection of the wrong type": (_replace(("plant.pe_c1.blocked -> controller.pe_1",
-                                               "plant.pe_c1.blocked -> controller.belt_speed_1")),
-                                     ("wiring.connections", "'plant.pe_c1.blocked' is Boolean but "
-                                                            "'controller.belt_speed_1' is Real")),
+                                               "drive_c1.belt_speed -> controller.pe_1")),
+                                     ("wiring.connections", "'drive_c1.belt_speed' is Real but "
+                                                            "'controller.pe_1' is Boolean: no conversion")),
     "input connected twice": (_replace(("drive_c2.belt_speed -> controller.belt_speed_2",
                                         "drive_c1.belt_speed -> controller.belt_speed_1")),
                               ("'controller.belt_speed_1' is connected twice",)),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zlib
 from pathlib import Path
 
 import pytest
@@ -16,7 +17,8 @@ PAPER = Path(__file__).parents[1] / "scenarios" / "paper_test.toml"
 
 
 def var(name: str, causality: str, type_: str = "Real") -> FmuVariable:
-    return FmuVariable(name, causality, type_, "continuous", 0, None, None)
+    # a distinct value reference per name: one reference would make them aliases of one variable
+    return FmuVariable(name, causality, type_, "continuous", zlib.crc32(name.encode()), None, None)
 
 
 def drive_vars() -> dict[str, FmuVariable]:
@@ -52,8 +54,9 @@ def test_paper_wiring_orders_controller_before_drives_and_breaks_the_speed_feedb
     ("drive_c9.belt_speed -> plant.c1.speed", "no FMU or plant named 'drive_c9'"),
     ("drive_c1.speed_setpoint -> plant.c1.speed", "is an input; a connection needs an output as source"),
     ("drive_c1.belt_speed -> drive_c2.belt_speed", "is an output; a connection needs an input as target"),
-    ("plant.pe_c1.blocked -> drive_c1.speed_setpoint", "'plant.pe_c1.blocked' is Boolean but 'drive_c1.speed_setpoint' is Real"),
-    ("plant.c1.load_force -> plant.c2.speed", "connected twice"),
+    ("drive_c1.belt_speed -> controller.pe_1", "'drive_c1.belt_speed' is Real but 'controller.pe_1' is Boolean: no conversion"),
+    ("drive_c2.belt_speed -> plant.c1.speed", "connected twice"),
+    ("plant.c1.load_force -> plant.c2.speed", "'plant.c1.load_force' is in N but 'plant.c2.speed' in m/s"),
     ("drive_c1.belt_speed -> plant.c1.sped", "did you mean 'plant.c1.speed'"),
     ("plant.c1.load_force -> plant.c1.load_mass", "is an output, it cannot be a target"),
 ])

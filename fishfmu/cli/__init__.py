@@ -137,6 +137,36 @@ def run(
         raise typer.Exit(EXIT_EXPECT_FAILED)
 
 
+@app.command("check")
+def check_cmd(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML)."),
+    set_: list[str] = typer.Option([], "--set", help="Override a scenario value: --set fish.count=30 (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the outcome as JSON."),
+) -> None:
+    """Check a scenario without running it: exit 0 and the stepping order, delayed links, conversions,
+    setpoints and recorded variables; exit 2 and what is wrong."""
+    import json
+
+    from fishfmu import commands
+    from fishfmu.scenario.schema import parse_assignments
+    doc = commands.check(scenario, parse_assignments(set_))
+    if as_json:
+        print(json.dumps(doc, indent=2))
+        return
+    console = literal_console()
+    console.print(f"{scenario}: ok ({len(doc['fmus'])} FMUs, {doc['coupling']} coupling)")
+    console.print("stepping order: " + " -> ".join(doc["stepping_order"]))
+    for d in doc["delayed_links"]:
+        console.print(f"one step late: {d['connection']} ({d['why']})")
+    for c in doc["conversions"]:
+        extra = ", ".join(f"{k} {c[k]:g}" for k in ("gain", "offset") if c[k] is not None) + (", rounded" if c["round"] else "")
+        console.print(f"converted: {c['connection']}: {c['from']} -> {c['to']}" + (f" ({extra})" if extra else ""))
+    for cid, key in doc["setpoints"].items():
+        console.print(f"setpoint of {cid} in belts.csv: {key}")
+    if doc["recorded"]:
+        console.print("recorded besides the connections: " + ", ".join(doc["recorded"]))
+
+
 def _print_seeds(result, scenario: Path, out_dir: Path) -> None:
     from plant.kpis import SHOWN_KPI_KEYS
 

@@ -30,7 +30,7 @@ from plant.plant import Plant
 from plant.population import FishSpec, sample_fish
 from plant.recorder import RunRecorder
 
-from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock, setpoint_sources
+from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock
 from fishfmu.cosim.preflight import describe, preflight
 from fishfmu.fmu.archive import OpenedFmu, open_fmu
 from fishfmu.scenario.schema import FmuInstance as FmuEntry, Scenario
@@ -117,7 +117,7 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
             fmus = instantiate(sc, checked_scenario.opened, stack)
             cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event,
                                  sc.run.comm_step_s, jacobi=sc.run.coupling == "jacobi", recorder=recorder,
-                                 setpoint_sources=setpoint_sources(wiring, plant.conveyor_ids), clock=clock)
+                                 clock=clock)
         except SimulationError as exc:
             raise BuildFailed(exc, plant, recorder) from exc
         yield cosim

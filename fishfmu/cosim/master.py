@@ -23,7 +23,6 @@ text.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -37,7 +36,7 @@ from plant.state import PlantOutputs
 from plant.recorder import RunRecorder
 
 from fishfmu.scenario.schema import Event
-from fishfmu.scenario.wiring import PLANT, Connection, Wiring
+from fishfmu.scenario.wiring import PLANT, Connection, Wiring, signal_names
 
 
 STAGES = ("events", "fmus", "belt_speeds", "plant", "energy_check", "record")
@@ -97,8 +96,6 @@ class CoSimulation:
     comm_step_s: float
     jacobi: bool = False
     recorder: RunRecorder | None = None
-    setpoint_sources: dict[str, str] = field(default_factory=dict)
-    """Per conveyor, the variable recorded as its setpoint in belts.csv."""
     values: dict[str, Any] = field(default_factory=dict)
     overrides: dict[str, tuple[str, Any]] = field(default_factory=dict)
     signals: list[tuple] = field(default_factory=list)
@@ -108,8 +105,12 @@ class CoSimulation:
 
     def __post_init__(self) -> None:
         self._inputs_of = {name: self.wiring.into(name) for name in list(self.fmus) + [PLANT]}
+        # what is read of each FMU after its step: its connected outputs and its [record]ed variables
         self._outputs_of = {name: sorted({c.source.variable for c in self.wiring.connections
-                                          if c.source.component == name}) for name in self.fmus}
+                                          if c.source.component == name}
+                                         | {k.partition(".")[2] for k in self.wiring.recorded
+                                            if k.partition(".")[0] == name}) for name in self.fmus}
+        self.setpoint_sources = self.wiring.setpoints
         self._events = sorted(self.events, key=lambda e: e.t_s)
         self._next_event = 0
         self.signal_names = signal_names(self.wiring)
@@ -180,10 +181,12 @@ class CoSimulation:
         return value
 
     def _transmit(self, c: Connection, held: dict[str, Any]) -> Any:
+        """The source's value as the target gets it: an event on the source, the connection's conversion, an
+        event on the target (in the target's unit)."""
         if not self.overrides:
-            return held[c.source.key]
+            return c.convert(held[c.source.key]) if c.converts else held[c.source.key]
         value = self._with_event(c.source.key, held[c.source.key])
-        return self._with_event(c.target.key, value)
+        return self._with_event(c.target.key, c.convert(value) if c.converts else value)
 
     def _with_event(self, key: str, value: Any) -> Any:
         ov = self.overrides.get(key)
@@ -209,7 +212,7 @@ class CoSimulation:
         sent, values = self._sent, self.values
         self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
         if self.recorder is not None:
-            setpoints = {c: float(values.get(self.setpoint_sources.get(c, ""), speeds[c])) for c in speeds}
+            setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
             self.recorder.record(self.t_s, self.plant.fish_state, out.photoeyes, setpoints, speeds,
                                  self.plant.body_poses)
 
@@ -222,34 +225,15 @@ class CoSimulation:
             fmu.terminate()
 
 
-def signal_names(wiring: Wiring) -> list[str]:
-    """The recorded signals: both ends of each connection in order, then the constant inputs."""
-    names: list[str] = []
-    for c in wiring.connections:
-        for key in (c.source.key, c.target.key):
-            if key not in names:
-                names.append(key)
-    names += [k for k in wiring.constants if k not in names]
-    return names
-
-
 def signal_frame(rows: list[tuple], names: list[str]) -> pd.DataFrame:
     """``t_s`` and the signals ``names``; with no rows (a run that failed in its first step) an empty
     table with those columns."""
     return pd.DataFrame(rows, columns=["t_s", *names])
 
 
-def setpoint_sources(wiring: Wiring, conveyor_ids: list[str],
-                     setpoint_name: Callable[[str], bool] = lambda v: "setpoint" in v) -> dict[str, str]:
-    """Per conveyor, the value to log as its setpoint: the input of its drive whose name says setpoint."""
-    out: dict[str, str] = {}
-    for cid in conveyor_ids:
-        feed = next((c for c in wiring.connections if c.target.key == f"{PLANT}.{cid}.speed"), None)
-        if feed is None or feed.source.component == PLANT:
-            continue
-        drive = feed.source.component
-        sp = next((c for c in wiring.connections if c.target.component == drive and setpoint_name(c.target.variable)),
-                  None)
-        if sp is not None:
-            out[cid] = sp.source.key
-    return out
+def setpoint_value(key: str | None, sent: dict[str, Any], values: dict[str, Any], speed: float) -> Any:
+    """A conveyor's setpoint for belts.csv: the signal ``key`` as it was sent (an input) or is (an output); the
+    belt's speed where it has none (a belt driven by a plant output)."""
+    if key is None:
+        return speed
+    return sent[key] if key in sent else values.get(key, speed)

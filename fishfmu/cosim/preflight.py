@@ -20,7 +20,7 @@ from typing import Any
 
 from plant.errors import InputError
 
-from fishfmu.fmu.archive import FmuVariable
+from fishfmu.fmu.archive import FmuVariable, variables_of
 from fishfmu.fmu.instance import check_parameters
 from fishfmu.scenario.schema import Scenario
 from fishfmu.scenario.wiring import Wiring, direct_feedthrough, resolve_wiring
@@ -51,9 +51,7 @@ def describe_file(path: str | Path) -> FmuDescription:
         md = read_model_description(str(path))
     except Exception as exc:  # fmpy raises what the XML parser or zipfile raise
         raise InputError(f"cannot read the FMU's modelDescription: {exc}", file=path) from None
-    variables = {v.name: FmuVariable(v.name, v.causality, v.type, v.variability, v.valueReference, v.unit, v.start)
-                 for v in md.modelVariables}
-    return describe(path, md, variables)
+    return describe(path, md, variables_of(md))
 
 
 def preflight(scenario: Scenario, scenario_file: str | Path | None,

@@ -64,6 +64,9 @@ class RunResult:
     energy_watch: dict[str, float] = field(default_factory=dict)
     """The energy watch's largest rise without a source (:mod:`plant.health`): J, and as a fraction
     of the allowed reserve (a blow-up is reported at 1)."""
+    wiring: dict[str, Any] = field(default_factory=dict)
+    """The stepping order, delayed links, conversions, setpoints and recorded variables
+    (:meth:`fishfmu.scenario.wiring.Wiring.describe`)."""
 
     @property
     def expect_ok(self) -> bool:

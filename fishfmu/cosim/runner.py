@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from plant.errors import SimulationError
 from plant.kpis import compute_kpis
@@ -28,9 +29,10 @@ from plant.simulate import run_loop
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, checked, scenario_fish
 from fishfmu.cosim.stop import StopRequest
-from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock, signal_frame, signal_names
+from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock, setpoint_value, signal_frame
 from fishfmu.cosim.results import ExpectResult, RunResult
-from fishfmu.scenario.schema import Scenario
+from fishfmu.scenario.schema import Bound, Scenario
+from fishfmu.scenario.wiring import signal_names
 
 
 def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
@@ -51,8 +53,10 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
         try:
             cosim = stack.enter_context(build(checked_scenario, fish, record_poses, clock))
         except BuildFailed as exc:  # an FMU failing while instantiated and initialised fails the run
-            return collect(scenario, fish, exc.plant, exc.recorder, None, "failed", str(exc),
-                           {"setup": time.perf_counter() - t0}, 0.0, signal_names(checked_scenario.wiring))
+            failed = collect(scenario, fish, exc.plant, exc.recorder, None, "failed", str(exc),
+                             {"setup": time.perf_counter() - t0}, 0.0, signal_names(checked_scenario.wiring))
+            failed.wiring = checked_scenario.wiring.describe()
+            return failed
         timings = {"setup": time.perf_counter() - t0}
         t_run = time.perf_counter()
         status, error = "ok", None
@@ -62,8 +66,10 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
             status, error = "failed", str(exc)
         except _Stopped as exc:
             status, error = "partial", str(exc)
-        return collect(scenario, fish, cosim.plant, cosim.recorder, cosim, status, error, timings,
-                       time.perf_counter() - t_run)
+        result = collect(scenario, fish, cosim.plant, cosim.recorder, cosim, status, error, timings,
+                         time.perf_counter() - t_run)
+    result.wiring = checked_scenario.wiring.describe()
+    return result
 
 
 def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: RunRecorder,
@@ -79,12 +85,15 @@ def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: Ru
               notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
               photoeyes=tables["photoeyes"], belts=tables["belts"])
     kpis = compute_kpis(run, scenario.line, scenario.kpi)
-    expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items()]
     if cosim is None:
         signals, t_end, worst = signal_frame([], signal_columns or []), 0.0, (0.0, 0.0)
     else:
         watch = cosim.energy_watch
         signals, t_end, worst = cosim.signal_frame(), cosim.t_s, (watch.worst_excess_j, watch.worst_ratio)
+    expect = [ExpectResult(k, _number(kpis.get(k)), b.min, b.max) for k, b in scenario.expect.items() if "." not in k]
+    for k, b in scenario.expect.items():
+        if "." in k:
+            expect += signal_expectations(k, b, signals)
     timings_s = {**timings_s, **{f"plant_{k}": v for k, v in plant.timings_s.items()}}
     return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall_s,
                      timings_s, list(plant.drop_adjustments), pose_record(recorder, plant),
@@ -99,12 +108,29 @@ def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | Non
     speeds = {c: 0.0 for c in plant.conveyor_ids}
     values = cosim.values if cosim is not None else {}
     sources = cosim.setpoint_sources if cosim is not None else {}
+    constants = cosim.wiring.constants if cosim is not None else {}
     setpoints = {}
     for c, v in speeds.items():
-        sp = values.get(sources.get(c, ""), v)
+        sp = setpoint_value(sources.get(c), constants, values, v)
         setpoints[c] = float(sp) if isinstance(sp, (int, float)) and np.isfinite(sp) else v
     recorder.record(0.0, plant.fish_state, {p: False for p in plant.photoeye_ids}, setpoints, speeds,
                     plant.body_poses)
+
+
+def signal_expectations(key: str, bound: Bound, signals: pd.DataFrame) -> list[ExpectResult]:
+    """A recorded signal's bounds as checks: its lowest value against ``min``, its highest against ``max``, its last
+    against ``final`` +- ``tolerance`` (a signal not recorded in this run, or a run without steps: undefined)."""
+    values = signals[key].astype(float).to_numpy() if key in signals and len(signals) else np.zeros(0)
+    has = len(values) > 0
+    out = []
+    if bound.min is not None:
+        out.append(ExpectResult(f"{key} (lowest)", float(values.min()) if has else None, bound.min, None))
+    if bound.max is not None:
+        out.append(ExpectResult(f"{key} (highest)", float(values.max()) if has else None, None, bound.max))
+    if bound.final is not None:
+        out.append(ExpectResult(f"{key} (final)", float(values[-1]) if has else None,
+                                bound.final - bound.tolerance, bound.final + bound.tolerance))
+    return out
 
 
 def _number(value: Any) -> float | None:

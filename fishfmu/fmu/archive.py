@@ -35,6 +35,17 @@ from plant.validation import suggest
 MAX_UNPACKED_BYTES = 1 << 30  # 1 GiB: far above any real FMU, far below filling a disk
 MAX_MEMBERS = 20_000
 LINUX_BINARY_DIR = "binaries/linux64"
+"""Where an FMI 2.0 FMU keeps its Linux library."""
+FMI3_PLATFORMS = {"x86_64": "x86_64-linux", "amd64": "x86_64-linux", "aarch64": "aarch64-linux",
+                  "arm64": "aarch64-linux"}
+
+
+def binary_dir(fmi_version: str) -> str:
+    """The archive folder of this machine's library: ``binaries/linux64`` (FMI 2.0) or ``binaries/<arch>-linux``
+    (FMI 3.0's platform tuple)."""
+    if fmi_version.startswith("3"):
+        return f"binaries/{FMI3_PLATFORMS.get(platform.machine().lower(), platform.machine().lower() + '-linux')}"
+    return LINUX_BINARY_DIR
 _CHUNK_BYTES = 1 << 20
 _DRIVE_LETTER = re.compile(r"^[A-Za-z]:")
 
@@ -45,11 +56,47 @@ class FmuVariable:
 
     name: str
     causality: str  # parameter, calculatedParameter, input, output, local, independent
-    type: str  # Real, Integer, Boolean, String, Enumeration
+    type: str
+    """Real, Integer, Boolean, String or Enumeration (FMI 3.0's types mapped onto them, see :data:`FMI3_TYPES`);
+    an FMI 3.0 Binary, Clock or array variable keeps that kind and connects to nothing."""
     variability: str
     value_reference: int
     unit: str | None
+    """The variable's unit, or its declared type's (FMI lets a type carry it: ``<Real declaredType="Length"/>``)."""
     start: Any
+    unit_base: tuple[float, ...] | None = None
+    """The unit's definition in SI base units, (kg, m, s, A, K, mol, cd, rad exponents, factor, offset), where the
+    modelDescription gives one: "m/s" and "m.s-1" are the same unit."""
+    initial: str | None = None
+    """exact, approx or calculated (FMI 2.0 section 2.2.7); None where FMI has none."""
+    fmi_type: str | None = None
+    """The type as the modelDescription names it (FMI 3.0: Float64, Int32, UInt8, ...): which get and set call."""
+
+
+BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+FMI3_TYPES = {"Float32": "Real", "Float64": "Real", "Int8": "Integer", "UInt8": "Integer", "Int16": "Integer",
+              "UInt16": "Integer", "Int32": "Integer", "UInt32": "Integer", "Int64": "Integer", "UInt64": "Integer",
+              "Boolean": "Boolean", "String": "String", "Enumeration": "Enumeration", "Binary": "Binary",
+              "Clock": "Clock"}
+"""FMI 3.0 types onto the kinds of values fishfmu passes (Python float, int, bool, str): every float a Real,
+every integer width an Integer (an int holds each exactly), Binary and Clock kept apart (not connectable)."""
+
+
+def variables_of(md: Any) -> dict[str, FmuVariable]:
+    """Every variable of a modelDescription (fmpy's), by name, with its unit from its declared type where it has
+    none of its own and that unit's definition in base units."""
+    bases = {u.name: tuple(float(getattr(u.baseUnit, k)) for k in (*BASE_UNITS, "factor", "offset"))
+             for u in md.unitDefinitions if u.baseUnit is not None}
+    out = {}
+    fmi3 = md.fmiVersion.startswith("3")
+    for v in md.modelVariables:
+        unit = v.unit or (v.declaredType.unit if v.declaredType is not None else None) or None
+        kind = FMI3_TYPES.get(v.type, v.type) if fmi3 else v.type
+        if fmi3 and getattr(v, "dimensions", None):
+            kind = "Array"  # an array variable: fishfmu passes scalars
+        out[v.name] = FmuVariable(v.name, v.causality, kind, v.variability, v.valueReference, unit, v.start,
+                                  bases.get(unit) if unit else None, v.initial, v.type)
+    return out
 
 
 class DescribedFmu(Protocol):
@@ -62,7 +109,7 @@ class DescribedFmu(Protocol):
 
 @dataclass(frozen=True)
 class OpenedFmu:
-    """An unpacked, checked FMI 2.0 co-simulation FMU; ``unzip_dir`` exists inside ``open_fmu`` only."""
+    """An unpacked, checked FMI 2.0 or 3.0 co-simulation FMU; ``unzip_dir`` exists inside ``open_fmu`` only."""
 
     path: Path
     unzip_dir: Path
@@ -146,26 +193,41 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
     except Exception as exc:  # fmpy raises ValidationError, lxml errors, ValueError...
         reason = "; ".join(line.strip(" -\t") for line in str(exc).splitlines() if line.strip(" -\t"))
         raise InputError(f"invalid modelDescription.xml: {reason}", file=path) from exc
-    if md.fmiVersion != "2.0":
-        raise InputError(f"modelDescription.xml is FMI {md.fmiVersion}; only FMI 2.0 is supported", file=path)
+    if md.fmiVersion not in ("2.0", "3.0"):
+        raise InputError(f"modelDescription.xml is FMI {md.fmiVersion}; FMI 2.0 and 3.0 are supported", file=path)
     if md.coSimulation is None:
-        raise InputError("the FMU offers no co-simulation interface (model exchange only); "
-                         "export it for co-simulation", file=path)
+        kind = "scheduled execution" if getattr(md, "scheduledExecution", None) else "model exchange"
+        raise InputError(f"the FMU offers no co-simulation interface ({kind} only); export it for co-simulation",
+                         file=path)
+    where = binary_dir(md.fmiVersion)
     identifier_problem = model_identifier_problem(md.coSimulation.modelIdentifier)
     if identifier_problem:
         raise InputError(f"modelDescription.xml: CoSimulation modelIdentifier {md.coSimulation.modelIdentifier!r} "
                          f"{identifier_problem}; it must be a plain file name (the library is "
-                         f"{LINUX_BINARY_DIR}/<modelIdentifier>.so inside the archive)", file=path)
-    binary = unzip_dir / LINUX_BINARY_DIR / f"{md.coSimulation.modelIdentifier}.so"
+                         f"{where}/<modelIdentifier>.so inside the archive)", file=path)
+    binary = unzip_dir / where / f"{md.coSimulation.modelIdentifier}.so"
     if not binary.is_file():
         found = sorted(p.name for p in (unzip_dir / "binaries").iterdir()) if (unzip_dir / "binaries").is_dir() else []
-        raise InputError(f"no Linux binary {LINUX_BINARY_DIR}/{binary.name} in the archive (binaries for: "
-                         f"{', '.join(found) or 'none'}); rebuild or re-export the FMU for linux64", file=path)
+        raise InputError(f"no Linux binary {where}/{binary.name} in the archive (binaries for: "
+                         f"{', '.join(found) or 'none'}); rebuild or re-export the FMU for {where.split('/')[1]}",
+                         file=path)
     problem = binary_problem(binary)
     if problem:
-        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{binary.name}' {problem}; rebuild or re-export the FMU "
+        raise InputError(f"archive member '{where}/{binary.name}' {problem}; rebuild or re-export the FMU "
                          f"for Linux on {platform.machine()}", file=path)
+    if md.fmiVersion == "3.0":
+        _refuse_fmi3_features(md, path)
     return md
+
+
+def _refuse_fmi3_features(md: Any, path: Path) -> None:
+    """What fishfmu's master does not do with an FMI 3.0 FMU, refused with the reason: clocks (they need event
+    mode, which fishfmu does not enter) and a co-simulation that cannot run without event mode."""
+    clocks = [v.name for v in md.modelVariables if v.type == "Clock"]
+    if clocks:
+        raise InputError(f"the FMU has clocks ({', '.join(clocks[:3])}{', ...' if len(clocks) > 3 else ''}): clocked "
+                         "co-simulation needs event mode, which fishfmu does not use; export it without clocks",
+                         file=path)
 
 
 _IDENTIFIER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]*")
@@ -216,12 +278,13 @@ def library_path(fmu: OpenedFmu) -> Path:
         raise InputError(f"modelDescription.xml: CoSimulation modelIdentifier {identifier!r} {problem}; refusing to "
                          "load a library from outside the archive", file=fmu.path)
     root = Path(fmu.unzip_dir).resolve()
-    binary = (root / LINUX_BINARY_DIR / f"{identifier}.so").resolve()
+    where = binary_dir(fmu.model_description.fmiVersion)
+    binary = (root / where / f"{identifier}.so").resolve()
     if root not in binary.parents:
-        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{identifier}.so' resolves to {binary}, outside the "
+        raise InputError(f"archive member '{where}/{identifier}.so' resolves to {binary}, outside the "
                          "unpacked archive; refusing to load it", file=fmu.path)
     if not binary.is_file():
-        raise InputError(f"archive member '{LINUX_BINARY_DIR}/{identifier}.so' is missing from the unpacked archive",
+        raise InputError(f"archive member '{where}/{identifier}.so' is missing from the unpacked archive",
                          file=fmu.path)
     return binary
 
@@ -268,7 +331,7 @@ def header_problem(head: bytes) -> str | None:
 @contextmanager
 def open_fmu(path: str | Path, *, max_unpacked_bytes: int = MAX_UNPACKED_BYTES,
              max_members: int = MAX_MEMBERS) -> Iterator[OpenedFmu]:
-    """Check, unpack into a temporary folder and describe an FMI 2.0 co-simulation FMU.
+    """Check, unpack into a temporary folder and describe an FMI 2.0 or 3.0 co-simulation FMU.
 
     The folder is removed when the ``with`` block ends or any check fails.
     """
@@ -333,9 +396,7 @@ def _unpacked(path: Path, fh: Any, max_unpacked_bytes: int, max_members: int) ->
                 ValueError) as exc:  # what zipfile raises for damaged, encrypted or unsupported members
             raise InputError(f"corrupt or unreadable zip archive: {exc}", file=path) from exc
         md = _read_checked_description(path, unzip_dir)
-        variables = {v.name: FmuVariable(v.name, v.causality, v.type, v.variability, v.valueReference, v.unit, v.start)
-                     for v in md.modelVariables}
-        yield OpenedFmu(path, unzip_dir, md, variables)
+        yield OpenedFmu(path, unzip_dir, md, variables_of(md))
     finally:
         shutil.rmtree(unzip_dir, ignore_errors=True)
 

@@ -37,7 +37,7 @@ from fmpy.fmi2 import FMU2Slave
 from plant.errors import InputError, SimulationError
 from plant.validation import suggest
 
-from fishfmu.fmu.archive import DescribedFmu, OpenedFmu, library_path
+from fishfmu.fmu.archive import DescribedFmu, FmuVariable, OpenedFmu, library_path
 
 FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 SETTABLE_BEFORE_INIT = ("parameter", "input")
@@ -103,6 +103,14 @@ class FmuLog:
         return one_line(worst[-1][3])
 
 
+def settable_before_init(var: FmuVariable) -> bool:
+    """Whether FMI lets an importer give the variable a start value: a parameter or an input, or any variable
+    (a state, an output) declared with initial = exact or approx; never a constant (FMI 2.0 section 4.2.4)."""
+    if var.variability == "constant":
+        return False
+    return var.causality in SETTABLE_BEFORE_INIT or var.initial in ("exact", "approx")
+
+
 def check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any],
                      scenario_file: str | Path | None = None, where: str | None = None) -> None:
     """Every parameter a scenario sets must exist, be a parameter (or input start value) and fit its type.
@@ -125,8 +133,10 @@ def _check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any
         if var is None:
             raise InputError(f"FMU '{name}' has no variable '{key}'{suggest(key, fmu.variables)}", file=fmu.path,
                              where=f"fmu.{name}.parameters.{key}")
-        if var.causality not in SETTABLE_BEFORE_INIT:
-            raise InputError(f"'{key}' of FMU '{name}' is an {var.causality}, not a parameter: it cannot be set",
+        if not settable_before_init(var):
+            why = ("a constant" if var.variability == "constant" else
+                   f"an {var.causality} computed by the FMU (initial = {var.initial or 'calculated'})")
+            raise InputError(f"'{key}' of FMU '{name}' is {why}: FMI lets no start value be given to it",
                              file=fmu.path, where=f"fmu.{name}.parameters.{key}")
         ok = {"Real": isinstance(value, (int, float)) and not isinstance(value, bool),
               "Integer": isinstance(value, int) and not isinstance(value, bool),
@@ -138,8 +148,34 @@ def _check_parameters(name: str, fmu: DescribedFmu, parameters: Mapping[str, Any
                              file=fmu.path, where=f"fmu.{name}.parameters.{key}")
 
 
+def _as(kind: str, value: Any) -> Any:
+    """A value as the FMU's setter takes it."""
+    if kind == "Real":
+        return float(value)
+    if kind == "Integer":
+        return int(value)
+    if kind == "Boolean":
+        return bool(value)
+    if kind == "String":
+        return value.decode("utf-8", "replace") if isinstance(value, bytes) else str(value)
+    return value  # Binary: bytes
+
+
+def _from(kind: str, value: Any) -> Any:
+    """A value as the FMU's getter gave it, as fishfmu passes it (fmpy gives C ints and UTF-8 bytes)."""
+    if kind == "Boolean":
+        return bool(value)
+    if kind == "String":
+        return value.decode("utf-8", "replace") if isinstance(value, bytes) else ("" if value is None else str(value))
+    if kind == "Integer":
+        return int(value)
+    if kind == "Real":
+        return float(value)
+    return value
+
+
 class FmuInstance:
-    """An instantiated, initialised FMU; ``set``/``get`` take variable names."""
+    """An instantiated, initialised FMI 2.0 or 3.0 co-simulation FMU; ``set``/``get`` take variable names."""
 
     def __init__(self, name: str, fmu: OpenedFmu, parameters: Mapping[str, Any], start_time_s: float = 0.0) -> None:
         check_parameters(name, fmu, parameters)
@@ -151,11 +187,17 @@ class FmuInstance:
         self._fatal = False
         self.log = FmuLog()
         binary = library_path(fmu)  # inside the unpacked archive, checked right before loading
+        self._fmi3 = md.fmiVersion.startswith("3")
         cwd = os.getcwd()
         try:
-            self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
-                                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name,
-                                    libraryPath=str(binary))
+            if self._fmi3:  # fmpy joins the same path (binaries/<platform tuple>/<modelIdentifier>.so) itself
+                from fmpy.fmi3 import FMU3Slave
+                self._slave = FMU3Slave(guid=md.instantiationToken, unzipDirectory=str(fmu.unzip_dir),
+                                        modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+            else:
+                self._slave = FMU2Slave(guid=md.guid, unzipDirectory=str(fmu.unzip_dir),
+                                        modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name,
+                                        libraryPath=str(binary))
         except Exception as exc:  # fmpy: "Failed to load shared library ..." (dlopen's reason) or a missing function
             reason = str(exc)
             for root in {str(Path(fmu.unzip_dir).resolve()), str(fmu.unzip_dir)}:
@@ -165,17 +207,25 @@ class FmuInstance:
                              file=fmu.path) from None
         finally:
             os.chdir(cwd)  # fmpy changes into the binary's folder to load it and stays there if that fails
-        self._callbacks = self._logging_callbacks()  # kept alive as long as the instance
         try:
-            self._call("instantiate", self._slave.instantiate, loggingOn=False, callbacks=self._callbacks)
+            if self._fmi3:
+                self._log_key = 0
+                # fmpy keeps the C callback alive on the slave; messages go to this instance's log
+                self._call("instantiate", self._slave.instantiate, loggingOn=False,
+                           logMessage=lambda env, status, category, message: self.log.add(status, category, message))
+            else:
+                self._callbacks = self._logging_callbacks()  # kept alive as long as the instance
+                self._call("instantiate", self._slave.instantiate, loggingOn=False, callbacks=self._callbacks)
         except BaseException:
-            _LOGS.pop(self._log_key, None)
+            _LOGS.pop(getattr(self, "_log_key", 0), None)
             raise
         self._instantiated = True
         try:
-            self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
-            self._call("enterInitializationMode", self._slave.enterInitializationMode)
-            self.set(parameters)
+            if not self._fmi3:
+                self._call("setupExperiment", self._slave.setupExperiment, startTime=start_time_s)
+            self.set(parameters)  # start values: before initialisation, where FMI allows every one (approx too)
+            self._call("enterInitializationMode", self._slave.enterInitializationMode,
+                       **({"startTime": start_time_s} if self._fmi3 else {}))
             self._call("exitInitializationMode", self._slave.exitInitializationMode)
         except BaseException:
             self.terminate()  # nobody else holds this instance yet
@@ -222,51 +272,41 @@ class FmuInstance:
                 detail += f': "{said}"'
             raise SimulationError(f"FMU '{self.name}': {what} returned {text}{detail}", self._time) from None
 
-    def _refs(self, names: Iterable[str]) -> dict[str, list[tuple[str, int]]]:
+    def _refs(self, names: Iterable[str]) -> dict[tuple[str, str], list[tuple[str, int]]]:
+        """The names grouped by (the FMI call's type: Real or Float64, ...; the kind of Python value)."""
         key = tuple(names)
         cached = self._ref_cache.get(key)
         if cached is not None:
             return cached
-        by_type: dict[str, list[tuple[str, int]]] = {}
+        by_type: dict[tuple[str, str], list[tuple[str, int]]] = {}
         for n in key:
             v = self.variables[n]
-            t = "Integer" if v.type == "Enumeration" else v.type
-            by_type.setdefault(t, []).append((n, v.value_reference))
+            kind = "Integer" if v.type == "Enumeration" else v.type
+            call = (("Int64" if v.fmi_type == "Enumeration" else v.fmi_type) if self._fmi3 and v.fmi_type
+                    else kind)
+            by_type.setdefault((call, kind), []).append((n, v.value_reference))
         self._ref_cache[key] = by_type
         return by_type
 
     def set(self, values: Mapping[str, Any]) -> None:
-        for t, refs in self._refs(values).items():
+        for (call, kind), refs in self._refs(values).items():
             vrs = [vr for _, vr in refs]
-            vals = [values[n] for n, _ in refs]
-            if t == "Real":
-                self._call("setReal", self._slave.setReal, vrs, [float(v) for v in vals])
-            elif t == "Integer":
-                self._call("setInteger", self._slave.setInteger, vrs, [int(v) for v in vals])
-            elif t == "Boolean":
-                self._call("setBoolean", self._slave.setBoolean, vrs, [bool(v) for v in vals])
-            elif t == "String":
-                self._call("setString", self._slave.setString, vrs,
-                           [v.decode("utf-8", "replace") if isinstance(v, bytes) else str(v) for v in vals])
+            self._call(f"set{call}", getattr(self._slave, f"set{call}"), vrs, [_as(kind, values[n]) for n, _ in refs])
 
     def get(self, names: Iterable[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        for t, refs in self._refs(names).items():
-            vrs = [vr for _, vr in refs]
-            getter = {"Real": self._slave.getReal, "Integer": self._slave.getInteger,
-                      "Boolean": self._slave.getBoolean, "String": self._slave.getString}[t]
-            vals = self._call(f"get{t}", getter, vrs)
-            if t == "Boolean":
-                vals = [bool(v) for v in vals]
-            elif t == "String":
-                vals = [v.decode("utf-8", "replace") if isinstance(v, bytes) else ("" if v is None else str(v))
-                        for v in vals]
-            out.update({n: v for (n, _), v in zip(refs, vals)})
+        for (call, kind), refs in self._refs(names).items():
+            vals = self._call(f"get{call}", getattr(self._slave, f"get{call}"), [vr for _, vr in refs])
+            out.update({n: _from(kind, v) for (n, _), v in zip(refs, vals)})
         return out
 
     def do_step(self, t_s: float, dt_s: float) -> None:
         self._time = t_s
-        self._call("doStep", self._slave.doStep, currentCommunicationPoint=t_s, communicationStepSize=dt_s)
+        result = self._call("doStep", self._slave.doStep, currentCommunicationPoint=t_s, communicationStepSize=dt_s)
+        if self._fmi3 and result is not None and result[1]:  # terminateSimulation
+            said = self.log.last_problem()
+            raise SimulationError(f"FMU '{self.name}': doStep asked to end the simulation"
+                                  + (f': "{said}"' if said else ""), t_s + dt_s)
         self._time = t_s + dt_s
 
     def terminate(self) -> None:

@@ -129,6 +129,7 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
         seed=result.scenario.run.seed,
         drops_raised=[{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
         energy_watch={k: round(v, 4) for k, v in result.energy_watch.items()},
+        wiring=result.wiring,
         versions={"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
     )
     return paths

@@ -223,7 +223,8 @@ def _walk(model: type[pydantic.BaseModel], prefix: str, heading: str, descriptio
     section = _Section(heading, model, description)
     out.append(section)
     below: list[tuple[type[pydantic.BaseModel], str, str, str]] = []
-    for name, field in model.model_fields.items():
+    for attr, field in model.model_fields.items():
+        name = field.alias or attr  # the key as written in TOML (from, not from_)
         key = f"{prefix}.{name}" if prefix else name
         bare, _ = _without_none(_strip_annotated(field.annotation)[0])
         origin = typing.get_origin(bare)

@@ -28,9 +28,11 @@ from __future__ import annotations
 import copy
 import math
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import pydantic
 import tomli_w
 from pydantic import AfterValidator, Field, field_validator, model_validator
 
@@ -54,6 +56,7 @@ def _finite(value: Any) -> Any:
 FmuValue = Annotated[float | int | bool | str, AfterValidator(_finite)]
 """A parameter value for an FMU: finite numbers, booleans, strings."""
 CONNECTION_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*->\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*$")
+ENDPOINT_RE = re.compile(r"^\s*([A-Za-z_][\w]*)\.([\w.\[\]]+)\s*$")
 
 
 class RunSettings(Strict):
@@ -88,10 +91,11 @@ class FmuInstance(Strict):
         "an FMU fishfmu builds (conveyor_drive: a gearmotor on an inverter driving a belt; "
         "singulation_controller: PLC-style speed profile, gap control and jam detection); give this or path"))
     path: str | None = Field(None, description=(
-        "an FMI 2.0 co-simulation .fmu file, relative to the scenario file; give this or builtin"))
+        "an FMI 2.0 or 3.0 co-simulation .fmu file, relative to the scenario file; give this or builtin"))
     step_multiple: int = Field(1, ge=1, le=10000, description="the FMU steps every this many base steps")
     parameters: dict[str, FmuValue] = Field(default_factory=dict, description=(
-        "start values of the FMU's parameters by variable name, checked against its modelDescription; "
+        "start values by variable name: parameters, inputs, and states or outputs declared with initial = exact "
+        "or approx (what FMI allows), checked against its modelDescription; "
         "finite numbers, booleans or strings"))
 
     @model_validator(mode="after")
@@ -120,6 +124,37 @@ class Event(Strict):
         return self
 
 
+class ConnectionTable(Strict):
+    """One connection in table form (``[[wiring.connection]]``), with an optional linear transformation."""
+
+    model_config = pydantic.ConfigDict(populate_by_name=True)
+    from_: str = Field(alias="from", pattern=ENDPOINT_RE.pattern, description=(
+        "the source, an output: '<fmu>.<variable>' or 'plant.<id>.<signal>'"))
+    to: str = Field(pattern=ENDPOINT_RE.pattern, description="the target, an input: '<fmu>.<variable>' or 'plant.<id>.speed'")
+    gain: Annotated[float, AfterValidator(_finite)] | None = Field(None, description=(
+        "the target gets gain x source + offset (SSP's LinearTransformation factor); giving it states the "
+        "conversion between the two ends' units"))
+    offset: Annotated[float, AfterValidator(_finite)] | None = Field(None, description=(
+        "added after the gain, in the target's unit (SSP's LinearTransformation offset)"))
+    round: bool = Field(False, description=(
+        "a Real value into an Integer input: rounded to the nearest integer (halves away from zero); a "
+        "narrowing conversion is refused without it"))
+
+
+@dataclass(frozen=True)
+class ConnectionSpec:
+    """A connection as the scenario gives it (either form), before it is checked against the FMUs."""
+
+    source: tuple[str, str]
+    """(component, variable)"""
+    target: tuple[str, str]
+    gain: float | None
+    offset: float | None
+    round: bool
+    where: str
+    """The scenario key it came from, for errors: ``wiring.connections[2]`` or ``wiring.connection[0]``."""
+
+
 class WiringSpec(Strict):
     """Connections between FMU variables and plant ports, and constants for unconnected inputs."""
 
@@ -127,9 +162,16 @@ class WiringSpec(Strict):
         "'source.variable -> target.variable' pairs between FMU variables and plant ports "
         "('plant.<id>.<signal>'), checked against each modelDescription and the plant's ports "
         "(names, causality, types)"))
+    connection: list[ConnectionTable] = Field(default_factory=list, max_length=2000, description=(
+        "connections in table form, '[[wiring.connection]]' with 'from', 'to' and optionally 'gain', "
+        "'offset' (a linear transformation) and 'round' (Real into Integer)"))
     inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict, description=(
         "constants for inputs left unconnected, by '<fmu>.<variable>' or 'plant.<id>.<signal>' "
         "(e.g. \"plant.c1.speed\" = 0.3)"))
+    setpoints: dict[str, str] = Field(default_factory=dict, description=(
+        "per conveyor id, the signal logged as its setpoint in belts.csv (e.g. c1 = \"drive_c1.speed_setpoint\"); "
+        "where not given: the one input of the component driving the belt that another FMU or a constant "
+        "feeds, or that component's output when it has none (several: name it here)"))
 
     @field_validator("connections")
     @classmethod
@@ -141,18 +183,30 @@ class WiringSpec(Strict):
 
 
 class Bound(Strict):
-    """A bound on one KPI for CI: ``min``, ``max`` or both; a run outside it exits with 1."""
+    """A bound for CI on one KPI (``min``, ``max`` or both) or on one recorded signal (also ``final``); a run
+    outside it exits with 1."""
 
-    min: float | None = Field(None, description="the KPI must be at least this")
-    max: float | None = Field(None, description="the KPI must be at most this")
+    min: float | None = Field(None, description="the KPI (a signal: every recorded value) must be at least this")
+    max: float | None = Field(None, description="the KPI (a signal: every recorded value) must be at most this")
+    final: float | None = Field(None, description="a signal only: its value at the end of the run, within tolerance")
+    tolerance: float = Field(0.0, ge=0.0, description="a signal's final value may differ from final by this much")
 
     @model_validator(mode="after")
     def _some(self) -> "Bound":
-        if self.min is None and self.max is None:
-            raise ValueAtKey("min", "give min, max or both")
+        if self.min is None and self.max is None and self.final is None:
+            raise ValueAtKey("min", "give min, max or both (a signal: or final)")
         if self.min is not None and self.max is not None and self.min > self.max:
             raise ValueAtKey("min", f"min ({self.min}) is above max ({self.max})")
         return self
+
+
+class RecordSpec(Strict):
+    """FMU variables and plant ports recorded in ``signals.csv`` besides the connected ones."""
+
+    variables: list[Annotated[str, Field(min_length=3, pattern=r"^[A-Za-z_][\w]*\.")]] = Field(
+        default_factory=list, max_length=1000, description=(
+            "'<fmu>.<variable>' or 'plant.<id>.<signal>' names, or wildcards ('vdp.*', 'drive_*.motor_speed'); "
+            "each must match some variable; an FMU's variables are read after each of its steps"))
 
 
 class Scenario(Strict):
@@ -166,15 +220,22 @@ class Scenario(Strict):
     wiring: WiringSpec = Field(default_factory=WiringSpec)
     event: list[Event] = Field(default_factory=list, max_length=10000)
     kpi: KpiSettings
+    record: RecordSpec = Field(default_factory=RecordSpec)
     expect: dict[str, Bound] = Field(default_factory=dict, description=(
-        "bounds by KPI (contracts/kpis.md): " + ", ".join(KPI_KEYS)))
+        "bounds by KPI (contracts/kpis.md): " + ", ".join(KPI_KEYS) + "; or by recorded signal "
+        "('\"drive_c1.belt_speed\" = { max = 1.5 }', a connected or [record]ed name)"))
 
     @field_validator("expect")
     @classmethod
     def _expect_keys(cls, value: dict[str, Bound]) -> dict[str, Bound]:
-        for k in value:
+        for k, b in value.items():
+            if "." in k:  # a signal, checked against the wiring when the FMUs are open
+                continue
             if k not in KPI_KEYS:
-                raise ValueError(f"unknown KPI '{k}'{suggest(k, KPI_KEYS, allowed='KPIs')}")
+                raise ValueError(f"unknown KPI '{k}'{suggest(k, KPI_KEYS, allowed='KPIs')} (a signal is named "
+                                 "'<component>.<variable>')")
+            if b.final is not None:
+                raise ValueError(f"'{k}': final bounds a signal's last value; a KPI takes min and max")
         return value
 
     @model_validator(mode="after")
@@ -200,13 +261,19 @@ class Scenario(Strict):
                                  f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
         return self
 
-    def connection_pairs(self) -> list[tuple[str, str, str, str]]:
-        """(source component, source variable, target component, target variable) per connection."""
+    def connection_specs(self) -> list[ConnectionSpec]:
+        """Every connection, the string form's first, then the table form's."""
         out = []
-        for c in self.wiring.connections:
+        for i, c in enumerate(self.wiring.connections):
             m = CONNECTION_RE.match(c)
             assert m is not None
-            out.append((m.group(1), m.group(2), m.group(3), m.group(4)))
+            out.append(ConnectionSpec((m.group(1), m.group(2)), (m.group(3), m.group(4)), None, None, False,
+                                      f"wiring.connections[{i}]"))
+        for i, t in enumerate(self.wiring.connection):
+            src, dst = ENDPOINT_RE.match(t.from_), ENDPOINT_RE.match(t.to)
+            assert src is not None and dst is not None
+            out.append(ConnectionSpec((src.group(1), src.group(2)), (dst.group(1), dst.group(2)), t.gain, t.offset,
+                                      t.round, f"wiring.connection[{i}]"))
         return out
 
 
@@ -294,7 +361,7 @@ def parse_assignments(items: list[str], option: str = "--set") -> dict[str, Any]
 
 def resolved_toml(scenario: Scenario) -> str:
     """The scenario with every default filled in, as TOML (what a run actually used)."""
-    data = scenario.model_dump(mode="json", exclude_none=True)
+    data = scenario.model_dump(mode="json", exclude_none=True, by_alias=True)
     return tomli_w.dumps(_drop_empty(copy.deepcopy(data)))
 
 
