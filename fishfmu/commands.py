@@ -123,7 +123,8 @@ def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) ->
     sc = load_scenario(scenario_file, overrides)
     with checked(sc, scenario_file) as c:
         return {"scenario": str(scenario_file), "fmus": {n: {"path": str(o.path), "fmi": o.model_description.fmiVersion}
-                                                         for n, o in c.opened.items()}, **c.wiring.describe()}
+                                                         for n, o in c.opened.items()}, **c.wiring.describe(),
+                "ssp_not_imported": list(sc.ssp_not_imported)}
 
 
 def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = None,

@@ -268,3 +268,177 @@ def test_an_fmi3_unit_declared_through_a_type_is_checked_and_its_state_matches_f
     assert s["shaft.speed"].to_numpy() == pytest.approx(ref["speed"][1:], rel=1e-12)
     # the shaft steps before the plant: the belt runs at its speed of the same step, converted
     assert s["plant.c1.speed"].to_numpy() == pytest.approx(s["shaft.speed"].to_numpy() * 2 * math.pi * 0.1 / 60)
+
+
+# --- SSP: a system of FMUs with a linear transformation and parameter values, as another tool hands it over ---
+# The SSD and SSV below are written to the SSP 1.0 standard by hand (not by fishfmu) and validated on import
+# against the standard's schemas; the FMUs inside are pythonfmu's.
+
+SSD = """<?xml version="1.0" encoding="UTF-8"?>
+<ssd:SystemStructureDescription version="1.0" name="controls"
+    xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon"
+    xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription"
+    xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues">
+  <ssd:System name="controls">
+    <ssd:Connectors><ssd:Connector name="level" kind="output"/></ssd:Connectors>
+    <ssd:ParameterBindings>
+      <ssd:ParameterBinding prefix="stair.">
+        <ssd:ParameterValues>
+          <ssv:ParameterSet version="1.0" name="system">
+            <ssv:Parameters>
+              <ssv:Parameter name="period_s"><ssv:Real value="0.5" unit="s"/></ssv:Parameter>
+            </ssv:Parameters>
+          </ssv:ParameterSet>
+        </ssd:ParameterValues>
+      </ssd:ParameterBinding>
+    </ssd:ParameterBindings>
+    <ssd:Elements>
+      <ssd:Component name="stair" source="{dir}Counter.fmu" type="application/x-fmu-sharedlibrary">
+        <ssd:Connectors><ssd:Connector name="counter" kind="output"><ssc:Integer/></ssd:Connector></ssd:Connectors>
+      </ssd:Component>
+      <ssd:Component name="lag" source="{dir}FirstOrder.fmu">
+        <ssd:Connectors>
+          <ssd:Connector name="u" kind="input"><ssc:Real/></ssd:Connector>
+          <ssd:Connector name="x" kind="output"><ssc:Real/></ssd:Connector>
+        </ssd:Connectors>
+        <ssd:ParameterBindings><ssd:ParameterBinding source="{dir}lag.ssv"/></ssd:ParameterBindings>
+      </ssd:Component>
+    </ssd:Elements>
+    <ssd:Connections>
+      <ssd:Connection startElement="stair" startConnector="counter" endElement="lag" endConnector="u">
+        <ssc:LinearTransformation factor="0.1" offset="0.05"/>
+      </ssd:Connection>
+      <ssd:Connection startElement="lag" startConnector="x" endConnector="level"/>
+    </ssd:Connections>
+  </ssd:System>
+</ssd:SystemStructureDescription>
+"""
+
+SSV = """<?xml version="1.0" encoding="UTF-8"?>
+<ssv:ParameterSet version="1.0" name="{name}" xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues">
+  <ssv:Parameters>{parameters}
+  </ssv:Parameters>
+</ssv:ParameterSet>
+"""
+
+
+def ssv(name: str, **values: float | tuple[float, str]) -> str:
+    rows = []
+    for key, v in values.items():
+        value, unit = v if isinstance(v, tuple) else (v, None)
+        rows.append(f'\n    <ssv:Parameter name="{key}"><ssv:Real value="{value}"'
+                    f'{f" unit={chr(34)}{unit}{chr(34)}" if unit else ""}/></ssv:Parameter>')
+    return SSV.format(name=name, parameters="".join(rows))
+
+
+def ssp_archive(folder: Path, fmus: dict[str, Path], ssd: str = SSD) -> Path:
+    import zipfile
+    path = folder / "controls.ssp"
+    with zipfile.ZipFile(path, "w") as zf:
+        zf.writestr("SystemStructure.ssd", ssd.format(dir="resources/"))
+        zf.write(fmus["counter"], "resources/Counter.fmu")
+        zf.write(fmus["first_order"], "resources/FirstOrder.fmu")
+        zf.writestr("resources/lag.ssv", ssv("lag", tau=0.2, x=0.0))
+    return path
+
+
+def check_lag_follows_the_counter_through_the_transformation(s: pd.DataFrame) -> None:
+    h = 0.01
+    # the counter with its period from the system's binding (0.5 s, not its own 1 s)
+    assert s["stair.counter"].to_numpy() == pytest.approx(np.floor(s["t_s"].to_numpy() / 0.5 + 1e-9))
+    # the connection's LinearTransformation: u = 0.1 counter + 0.05
+    assert s["lag.u"].to_numpy() == pytest.approx(0.1 * s["stair.counter"].to_numpy() + 0.05)
+    # tau = 0.2 s and x(0) = 0 from lag.ssv (the FMU's own are 0.4 s and 0.5): the exact step of the lag with the
+    # input it was sent for that step (the counter steps first)
+    x, u = s["lag.x"].to_numpy(), s["lag.u"].to_numpy()
+    expected = u + (np.concatenate([[0.0], x[:-1]]) - u) * np.exp(-h / 0.2)
+    assert x == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    # the lag's output drives belt c1 (unitless into m/s: allowed), and belts.csv logs it as c1's setpoint
+    assert s["drive_c1.speed_setpoint"].to_numpy() == pytest.approx(x)
+
+
+def ssp_scenario(tmp_path: Path, fmus: dict[str, Path], ssp: str) -> Path:
+    return scenario(tmp_path, fmus, {}, drop=("drive_c1.speed_setpoint",), system={"ssp": ssp},
+                    wiring={"connection": [{"from": "lag.x", "to": "drive_c1.speed_setpoint"}]},
+                    record={"variables": ["stair.counter", "lag.u"]})
+
+
+def test_an_ssp_archive_brings_fmus_connections_with_a_linear_transformation_and_parameter_values(tmp_path, fmus):
+    ssp_archive(tmp_path, fmus)
+    path = ssp_scenario(tmp_path, fmus, "controls.ssp")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    result = run(path)
+    check_lag_follows_the_counter_through_the_transformation(result.signals)
+    assert {"connection": "stair.counter -> lag.u", "from": "Integer [-]", "to": "Real [-]", "gain": 0.1,
+            "offset": 0.05, "round": False} in result.wiring["conversions"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing unpacked beside the user's files
+    cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "check", str(path), "--json"], capture_output=True,
+                         text=True)
+    assert json.loads(cli.stdout)["ssp_not_imported"] == ["lag.x -> controls.level"]
+    # the resolved scenario keeps [system] ssp and does not repeat what it brought in
+    from fishfmu.scenario.schema import resolved_toml
+    resolved = tomllib.loads(resolved_toml(load_scenario(path)))
+    assert resolved["system"]["ssp"] == str(tmp_path / "controls.ssp")
+    assert [f["name"] for f in resolved["fmu"]] == ["controller", "drive_c1", "drive_c2", "drive_c3", "drive_c4"]
+
+
+def test_a_bare_ssd_names_fmus_and_parameter_files_beside_it(tmp_path, fmus):
+    folder = tmp_path / "system"
+    folder.mkdir()
+    (folder / "controls.ssd").write_text(SSD.format(dir="../fmus/"))
+    (tmp_path / "fmus").mkdir()
+    for name, fmu in (("Counter.fmu", "counter"), ("FirstOrder.fmu", "first_order")):
+        (tmp_path / "fmus" / name).write_bytes(fmus[fmu].read_bytes())
+    (tmp_path / "fmus" / "lag.ssv").write_text(ssv("lag", tau=0.2, x=0.0))
+    check_lag_follows_the_counter_through_the_transformation(
+        run(ssp_scenario(tmp_path, fmus, "system/controls.ssd")).signals)
+
+
+@pytest.mark.parametrize("change, message", [
+    (("<ssc:LinearTransformation factor=\"0.1\" offset=\"0.05\"/>",
+      "<ssc:BooleanMappingTransformation><ssc:MapEntry source=\"true\" target=\"false\"/>"
+      "</ssc:BooleanMappingTransformation>"), "stair.counter -> controls.lag.u|mapping transformations"),
+    (('name="lag" source', 'name="stair" source'), "component 'stair' appears twice"),
+    (("</ssd:Elements>", '<ssd:System name="inner"/></ssd:Elements>'), "nested systems are not supported"),
+    (('<ssv:Real value="0.5" unit="s"/>', '<ssv:Real value="half"/>'), "'half' is not a valid"),
+    (('startConnector="counter" endElement="lag"', 'startConnector="counter" endElement="lga"'),
+     "'lga' is not a component"),
+    (('startConnector="counter" endElement="lag"', 'startConnectr="counter" endElement="lag"'),
+     "does not conform to the SSP 1.0 schema"),
+])
+def test_a_bad_ssp_is_refused_naming_the_file_and_what_is_wrong(tmp_path, fmus, change, message):
+    ssp_archive(tmp_path, fmus, SSD.replace(*change))
+    path = ssp_scenario(tmp_path, fmus, "controls.ssp")
+    cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "check", str(path)], capture_output=True, text=True)
+    assert cli.returncode == 2, cli.stderr
+    lines = cli.stderr.strip().splitlines()
+    assert len(lines) == 1 and "controls.ssp" in lines[0], lines
+    assert any(m in lines[0] for m in message.split("|")), lines[0]
+
+
+def test_a_parameter_file_gives_start_values_and_its_units_are_checked(tmp_path, fmus):
+    # TOML: the lag's state starts at 0.8, tau 0.2 s; the inline value wins over the file's
+    (tmp_path / "lag.toml").write_text("x = 0.8\ntau = 0.3\n")
+    path = scenario(tmp_path, fmus, {"lag": "first_order"}, wiring={"inputs": {"lag.u": 1.0}},
+                    record={"variables": ["lag.x"]})
+    doc = tomllib.loads(path.read_text())
+    doc["fmu"][-1].update(parameter_file="lag.toml", parameters={"tau": 0.2})
+    path.write_text(tomli_w.dumps(doc))
+    s = run(path).signals
+    assert s["lag.x"].to_numpy() == pytest.approx(1.0 - 0.2 * np.exp(-s["t_s"].to_numpy() / 0.2), rel=1e-9)
+    # SSV with units: the shaft's speed is in rpm; given in rad/s it is refused, in rpm it is taken
+    for unit, ok in (("rad/s", False), ("rpm", True)):
+        (tmp_path / "shaft.ssv").write_text(ssv("shaft", speed=(500.0, unit), tau=0.5))
+        path = scenario(tmp_path, fmus, {"shaft": "shaft3"}, wiring={"inputs": {"shaft.u": 1000.0}},
+                        record={"variables": ["shaft.speed"]})
+        doc = tomllib.loads(path.read_text())
+        doc["fmu"][-1]["parameter_file"] = "shaft.ssv"
+        path.write_text(tomli_w.dumps(doc))
+        if not ok:
+            with pytest.raises(InputError, match=r"fmu\[5\]\.parameters\.speed.*gives 'speed' in rad/s but FMU "
+                                                 r"'shaft' has it in rpm"):
+                check_scenario(load_scenario(path), path)
+            continue
+        s = run(path).signals
+        t = s["t_s"].to_numpy()
+        assert s["shaft.speed"].to_numpy() == pytest.approx(1000.0 - 500.0 * np.exp(-t / 0.5), rel=1e-9)

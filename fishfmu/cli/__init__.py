@@ -165,6 +165,9 @@ def check_cmd(
         console.print(f"setpoint of {cid} in belts.csv: {key}")
     if doc["recorded"]:
         console.print("recorded besides the connections: " + ", ".join(doc["recorded"]))
+    for text in doc["ssp_not_imported"]:
+        console.print(f"not imported from [system] ssp: {text} (a connector of the system itself; wire the plant's "
+                      "links in [wiring])")
 
 
 def _print_seeds(result, scenario: Path, out_dir: Path) -> None:

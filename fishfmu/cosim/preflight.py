@@ -61,12 +61,19 @@ def preflight(scenario: Scenario, scenario_file: str | Path | None,
     sfile = str(scenario_file) if scenario_file else None
     for i, f in enumerate(scenario.fmu):
         described = fmus[f.name]
-        check_parameters(f.name, described, f.parameters, sfile, f"fmu[{i}]")
+        entry = f.origin or f"fmu[{i}]"  # an FMU brought in by [system] ssp is named by its component
+        check_parameters(f.name, described, f.parameters, sfile, entry)
         for key, value in f.parameters.items():
             lo, hi = described.ranges.get(key, (None, None))
             if isinstance(value, (int, float)) and not isinstance(value, bool) and (
                     (lo is not None and value < float(lo)) or (hi is not None and value > float(hi))):
                 raise InputError(f"{key} = {value} is outside the range [{lo}, {hi}] that FMU '{f.name}' declares",
-                                 file=sfile or described.path, where=f"fmu[{i}].parameters.{key}")
+                                 file=sfile or described.path, where=f"{entry}.parameters.{key}")
+        for key, unit in f.stated_units.items():  # a parameter file's stated unit must be the variable's
+            var = described.variables[key]
+            if var.unit and unit != var.unit:
+                raise InputError(f"the parameter file gives '{key}' in {unit} but FMU '{f.name}' has it in "
+                                 f"{var.unit}; give the value in {var.unit}", file=sfile or described.path,
+                                 where=f"{entry}.parameters.{key}")
     return resolve_wiring(scenario, {n: d.variables for n, d in fmus.items()}, sfile,
                           {n: d.feedthrough for n, d in fmus.items()})

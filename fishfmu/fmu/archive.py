@@ -140,7 +140,7 @@ def _member_problem(info: zipfile.ZipInfo) -> str | None:
     return None
 
 
-def _check_members(path: Path, zf: zipfile.ZipFile, max_unpacked_bytes: int, max_members: int) -> None:
+def check_members(path: Path, zf: zipfile.ZipFile, max_unpacked_bytes: int, max_members: int) -> None:
     members = zf.infolist()
     if len(members) > max_members:
         raise InputError(f"archive has {len(members)} members, more than the limit of {max_members}", file=path)
@@ -336,7 +336,7 @@ def open_fmu(path: str | Path, *, max_unpacked_bytes: int = MAX_UNPACKED_BYTES,
     The folder is removed when the ``with`` block ends or any check fails.
     """
     path = Path(path)
-    with _open_regular_file(path) as fh:
+    with open_regular_file(path) as fh:
         if not zipfile.is_zipfile(fh):
             raise InputError("not a zip archive (an FMU is a zip file)", file=path)
         with _unpacked(path, fh, max_unpacked_bytes, max_members) as fmu:
@@ -344,25 +344,25 @@ def open_fmu(path: str | Path, *, max_unpacked_bytes: int = MAX_UNPACKED_BYTES,
 
 
 @contextmanager
-def _open_regular_file(path: Path) -> Iterator[Any]:
+def open_regular_file(path: Path, what: str = "FMU", ext: str = ".fmu") -> Iterator[Any]:
     """``path`` opened for reading, if it is a regular file (following symbolic links); else an
     InputError saying what it is.  A FIFO or device is never read: the file is opened without
     blocking and checked with fstat on that very descriptor before a byte is read."""
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        raise InputError("FMU file not found", file=path) from None
+        raise InputError(f"{what} file not found", file=path) from None
     except OSError as exc:
-        raise InputError(f"FMU file cannot be read: {exc.strerror}", file=path) from None
-    problem = _not_regular(st.st_mode)
+        raise InputError(f"{what} file cannot be read: {exc.strerror}", file=path) from None
+    problem = _not_regular(st.st_mode, what, ext)
     if problem:
         raise InputError(problem, file=path)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
-        raise InputError(f"FMU file cannot be read: {exc.strerror}", file=path) from None
+        raise InputError(f"{what} file cannot be read: {exc.strerror}", file=path) from None
     try:
-        problem = _not_regular(os.fstat(fd).st_mode)  # what was opened, should it have been swapped since
+        problem = _not_regular(os.fstat(fd).st_mode, what, ext)  # what was opened, should it have been swapped since
         if problem:
             raise InputError(problem, file=path)
         os.set_blocking(fd, True)
@@ -374,14 +374,14 @@ def _open_regular_file(path: Path) -> Iterator[Any]:
         yield fh
 
 
-def _not_regular(mode: int) -> str | None:
+def _not_regular(mode: int, what: str = "FMU", ext: str = ".fmu") -> str | None:
     if stat.S_ISREG(mode):
         return None
     if stat.S_ISDIR(mode):
-        return "is a directory, not an .fmu file"
+        return f"is a directory, not an {ext} file"
     kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode) else
             "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "of an unknown kind")
-    return f"is not a regular file ({kind}); an FMU is a .fmu file"
+    return f"is not a regular file ({kind}); an {what} is a {ext} file"
 
 
 @contextmanager
@@ -390,7 +390,7 @@ def _unpacked(path: Path, fh: Any, max_unpacked_bytes: int, max_members: int) ->
     try:
         try:
             with zipfile.ZipFile(fh) as zf:
-                _check_members(path, zf, max_unpacked_bytes, max_members)
+                check_members(path, zf, max_unpacked_bytes, max_members)
                 _unpack(path, zf, unzip_dir, max_unpacked_bytes)
         except (zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError, EOFError, OSError,
                 ValueError) as exc:  # what zipfile raises for damaged, encrypted or unsupported members

@@ -7,14 +7,17 @@ A scenario is one TOML file (see ``scenarios/``).  Its tables:
 ``[line]``  the line, exactly as in contracts/measured-data.md (:class:`plant.line.Line`)
 ``[fish]``  the batch (:class:`plant.population.PopulationSpec`)
 ``[plant]`` physical and numerical plant parameters (:class:`plant.params.PlantParams`), optional
-``[[fmu]]`` FMU instances: a built-in one by name or any FMI 2.0 co-simulation ``.fmu`` by path,
-            with parameter start values and a step multiple
+``[[fmu]]`` FMU instances: a built-in one by name or any FMI 2.0/3.0 co-simulation ``.fmu`` by path,
+            with start values (inline or from a parameter file) and a step multiple
+``[system]`` ``ssp``: an SSP archive or SSD file whose components, connections and parameter values
+            join the scenario (:mod:`fishfmu.scenario.ssp`)
 ``[wiring]`` ``connections``: ``"source -> target"`` pairs between FMU variables and
-            ``plant.<id>.<signal>`` ports; ``inputs``: constants for inputs left unconnected
-            (e.g. ``"plant.c1.speed" = 0.3``)
+            ``plant.<id>.<signal>`` ports, or ``[[wiring.connection]]`` tables with a gain and offset;
+            ``inputs``: constants for inputs left unconnected (e.g. ``"plant.c1.speed" = 0.3``)
+``[record]`` more variables recorded in ``signals.csv``
 ``[[event]]`` timed events: at ``t_s`` override, bias or reset a variable (as libcosim's scenarios)
 ``[kpi]``   which photo-eye counts fish out, the gap a singulated fish needs
-``[expect]`` KPI bounds for CI: ``singulation_rate = { min = 0.4 }``
+``[expect]`` bounds for CI on KPIs (``singulation_rate = { min = 0.4 }``) and recorded signals
 ========== =====================================================================================
 
 Everything is validated by the pydantic models below: a bad file raises
@@ -34,7 +37,7 @@ from typing import Annotated, Any, Literal
 
 import pydantic
 import tomli_w
-from pydantic import AfterValidator, Field, field_validator, model_validator
+from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
 
 from plant.errors import InputError
 from plant.kpis import KPI_KEYS
@@ -97,6 +100,21 @@ class FmuInstance(Strict):
         "start values by variable name: parameters, inputs, and states or outputs declared with initial = exact "
         "or approx (what FMI allows), checked against its modelDescription; "
         "finite numbers, booleans or strings"))
+    parameter_file: str | None = Field(None, description=(
+        "start values from a file, relative to the scenario: an SSP parameter-value file (.ssv) or a TOML table of "
+        "'variable = value'; values in parameters win over the file's"))
+    _origin: str | None = PrivateAttr(None)
+    _units: dict[str, str] = PrivateAttr(default_factory=dict)
+
+    @property
+    def origin(self) -> str | None:
+        """Where an FMU imported from ``[system] ssp`` came from (for errors); None for a ``[[fmu]]`` of the file."""
+        return self._origin
+
+    @property
+    def stated_units(self) -> dict[str, str]:
+        """Units that a parameter file states for its values, by variable: checked against the FMU's."""
+        return self._units
 
     @model_validator(mode="after")
     def _one_source(self) -> "FmuInstance":
@@ -139,6 +157,12 @@ class ConnectionTable(Strict):
     round: bool = Field(False, description=(
         "a Real value into an Integer input: rounded to the nearest integer (halves away from zero); a "
         "narrowing conversion is refused without it"))
+    _origin: str | None = PrivateAttr(None)
+    """Where a connection imported from ``[system] ssp`` came from (for errors)."""
+
+    @property
+    def origin(self) -> str | None:
+        return self._origin
 
 
 @dataclass(frozen=True)
@@ -200,6 +224,15 @@ class Bound(Strict):
         return self
 
 
+class SystemSpec(Strict):
+    """FMUs, connections and parameter values from an SSP (System Structure and Parameterization) file."""
+
+    ssp: str | None = Field(None, description=(
+        "an .ssp archive or .ssd file, relative to the scenario: its FMU components (SSP 1.0) join [[fmu]] under "
+        "their component names, its connections (with linear transformations) join the wiring, and its "
+        "parameter values become start values; connections to the plant stay in [wiring]"))
+
+
 class RecordSpec(Strict):
     """FMU variables and plant ports recorded in ``signals.csv`` besides the connected ones."""
 
@@ -217,6 +250,13 @@ class Scenario(Strict):
     fish: PopulationSpec = Field(default_factory=PopulationSpec)
     plant: PlantParams = Field(default_factory=PlantParams)
     fmu: list[FmuInstance] = Field(default_factory=list, max_length=64)
+    system: SystemSpec = Field(default_factory=SystemSpec)
+    _ssp_not_imported: list[str] = PrivateAttr(default_factory=list)
+
+    @property
+    def ssp_not_imported(self) -> list[str]:
+        """Connections of ``[system] ssp`` to the system's own connectors, which are not imported (``fishfmu check``)."""
+        return self._ssp_not_imported
     wiring: WiringSpec = Field(default_factory=WiringSpec)
     event: list[Event] = Field(default_factory=list, max_length=10000)
     kpi: KpiSettings
@@ -273,7 +313,7 @@ class Scenario(Strict):
             src, dst = ENDPOINT_RE.match(t.from_), ENDPOINT_RE.match(t.to)
             assert src is not None and dst is not None
             out.append(ConnectionSpec((src.group(1), src.group(2)), (dst.group(1), dst.group(2)), t.gain, t.offset,
-                                      t.round, f"wiring.connection[{i}]"))
+                                      t.round, t._origin or f"wiring.connection[{i}]"))
         return out
 
 
@@ -282,14 +322,53 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
 
     Relative FMU paths are made absolute against the scenario's folder.
     """
+    from fishfmu.scenario.ssp import read_parameter_file
     path = Path(path)
     data = read_toml(path)
     for key, value in (overrides or {}).items():
         set_dotted(data, key, value, file=path)
     for i, f in enumerate(data.get("fmu", []) or []):
-        if isinstance(f, dict) and isinstance(f.get("path"), str) and not Path(f["path"]).is_absolute():
-            data["fmu"][i] = dict(f, path=str((path.parent / f["path"]).resolve()))
-    return validate(Scenario, data, file=path)
+        for key in ("path", "parameter_file"):
+            if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
+                data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
+    system = data.get("system")
+    if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
+        data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))
+    scenario = validate(Scenario, data, file=path)
+    for i, f in enumerate(scenario.fmu):
+        if f.parameter_file is not None:
+            values, units = read_parameter_file(Path(f.parameter_file), path, f"fmu[{i}].parameter_file")
+            inline = f.parameters
+            f.parameters = {**values, **inline}
+            f._units = {k: u for k, u in units.items() if k not in inline}
+    if scenario.system.ssp is not None:
+        _add_ssp_system(scenario, Path(scenario.system.ssp), path)
+    return scenario
+
+
+def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path) -> None:
+    """Add an SSP's FMUs and connections to a loaded scenario (checked like the file's own entries when the FMUs
+    are opened); their names must not clash with the scenario's."""
+    from fishfmu.scenario.ssp import read_ssp
+    system = read_ssp(ssp)
+    taken = {f.name for f in scenario.fmu} | {"plant"}
+    where = f"system.ssp ({ssp.name})"
+    for comp in system.components:
+        if comp.name in taken:
+            raise InputError(f"component '{comp.name}' of {ssp.name} has the name of an [[fmu]] of the scenario "
+                             "(or 'plant'); rename one", file=scenario_file, where="system.ssp")
+        try:
+            entry = FmuInstance(name=comp.name, path=str(comp.fmu), parameters=comp.parameters)
+        except pydantic.ValidationError as exc:
+            raise InputError(f"component '{comp.name}': {exc.errors()[0]['msg']}", file=scenario_file,
+                             where=where) from None
+        entry._origin, entry._units = f"{where}: component '{comp.name}'", dict(comp.units)
+        scenario.fmu.append(entry)
+    scenario._ssp_not_imported = list(system.boundary)
+    for conn in system.connections:
+        table = ConnectionTable(**{"from": conn.source, "to": conn.target, "gain": conn.gain, "offset": conn.offset})
+        table._origin = f"{where}: connection {conn.source} -> {conn.target}"
+        scenario.wiring.connection.append(table)
 
 
 def set_dotted(data: dict[str, Any], key: str, value: Any, file: str | Path | None = None) -> None:
@@ -362,6 +441,10 @@ def parse_assignments(items: list[str], option: str = "--set") -> dict[str, Any]
 def resolved_toml(scenario: Scenario) -> str:
     """The scenario with every default filled in, as TOML (what a run actually used)."""
     data = scenario.model_dump(mode="json", exclude_none=True, by_alias=True)
+    # what [system] ssp brought in is not written out: loading the resolved file imports it again
+    data["fmu"] = [d for d, f in zip(data["fmu"], scenario.fmu) if f.origin is None]
+    data["wiring"]["connection"] = [d for d, c in zip(data["wiring"]["connection"], scenario.wiring.connection)
+                                    if c._origin is None]
     return tomli_w.dumps(_drop_empty(copy.deepcopy(data)))
 
 
