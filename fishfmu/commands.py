@@ -29,10 +29,11 @@ def default_out(scenario_file: str | Path) -> Path:
     return Path("out") / Path(scenario_file).stem
 
 
-def _run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
+def run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
     """The files a run reads (never written over); checks ``junit`` against them and for ownership."""
     from fishfmu.output.ownership import check_single_file_target
-    inputs = [scenario_file, *(f.path for f in sc.fmu if f.path)]
+    inputs = [scenario_file, *(f.path for f in sc.fmu if f.path), *(f.parameter_file for f in sc.fmu if f.parameter_file),
+              *([sc.system.ssp] if sc.system.ssp else [])]
     if junit is not None:
         check_single_file_target(junit, inputs)
     return inputs
@@ -94,7 +95,7 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
     # every FMU opened and checked once: bad input is found before anything is written
     with checked(sc, scenario_file) as checked_scenario:
         out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
-                                  _run_inputs(scenario_file, sc, junit), "run")
+                                  run_inputs(scenario_file, sc, junit), "run")
         mark_running(out_dir, scenario_file)
         register_output(out_dir)
         with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
@@ -146,7 +147,7 @@ def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = 
     sc = load_scenario(scenario_file, overrides)
     check_scenario(sc, scenario_file)
     out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
-                              _run_inputs(scenario_file, sc, junit), "run")
+                              run_inputs(scenario_file, sc, junit), "run")
     register_output(out_dir, {"command": "run", "seeds": n_seeds})  # a signal: run_info.json says partial
     result = run_seeds_(scenario_file, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers,
                         progress=progress)

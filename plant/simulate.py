@@ -46,6 +46,26 @@ class SimulatedRun:
         return self.t_end_s / self.wall_s if self.wall_s > 0 else float("inf")
 
 
+class ClearWatch:
+    """When a run with ``stop_when_clear`` ends: ``clear_margin_s`` after every fish has left the line (the wait
+    starts over while a fish is still WAITING to be dropped); no fish, no end."""
+
+    def __init__(self, clear_margin_s: float) -> None:
+        self.margin_s = clear_margin_s
+        self.clear_since: float | None = None
+
+    def done(self, t: float, status: np.ndarray) -> bool:
+        """After the step that ended at ``t``, with the fish's ``status``: is the run over?"""
+        if not len(status):
+            return False
+        if np.all(status == FishStatus.LEFT):
+            self.clear_since = t if self.clear_since is None else self.clear_since
+            return t - self.clear_since >= self.margin_s - 1e-9
+        if np.any(status == FishStatus.WAITING):
+            self.clear_since = None
+        return False
+
+
 def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callable[[], np.ndarray],
              duration_s: float, dt_s: float, stop_when_clear: bool = True, clear_margin_s: float = 1.0,
              before_step: Callable[[], None] | None = None,
@@ -58,7 +78,7 @@ def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callabl
     (a stop request); ``on_progress(t, duration_s)`` after every 50th step from the first, and
     ``on_progress(t, t)`` at the end.  Returns the number of steps taken."""
     n_steps = int(round(duration_s / dt_s))
-    clear_since: float | None = None
+    clear = ClearWatch(clear_margin_s)
     steps = 0
     for k in range(n_steps):
         if before_step is not None:
@@ -68,15 +88,8 @@ def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callabl
         t = t_s()
         if on_progress is not None and k % 50 == 0:
             on_progress(t, duration_s)
-        if stop_when_clear:
-            st = status()
-            if len(st):
-                if np.all(st == FishStatus.LEFT):
-                    clear_since = t if clear_since is None else clear_since
-                    if t - clear_since >= clear_margin_s - 1e-9:
-                        break
-                elif np.any(st == FishStatus.WAITING):
-                    clear_since = None
+        if stop_when_clear and clear.done(t, status()):
+            break
     if on_progress is not None:
         on_progress(t_s(), t_s())
     return steps

@@ -104,11 +104,12 @@ LAYERS = [
     {"fishfmu.session"},
     {"fishfmu.batch", "fishfmu.analysis"},
     {"fishfmu.commands"},
+    {"fishfmu.serve"},
     {"fishfmu.bench"},
     {"fishfmu.cli"},
 ]
 """Each part may import only parts of lower layers (and itself): physics, FMUs, scenario, one run,
-what a run writes, the command's process, many runs and measured data, commands, benchmarks (which
+what a run writes, the command's process, many runs and measured data, commands, serving over OPC UA, benchmarks (which
 measure what the commands do), CLI."""
 
 

@@ -137,6 +137,57 @@ def run(
         raise typer.Exit(EXIT_EXPECT_FAILED)
 
 
+@app.command("serve")
+def serve_cmd(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML); [opcua] inputs names what clients write."),
+    endpoint: str = typer.Option("opc.tcp://127.0.0.1:4840", "--endpoint", help="Where to listen (loopback only "
+                                 "unless --allow-remote)."),
+    realtime: float | None = typer.Option(None, "--realtime", help="Pace to the wall clock, times this factor "
+                                          "(1 = real time); without it: lockstep, the line advances when a client "
+                                          "calls step(n)."),
+    lockstep: bool = typer.Option(False, "--lockstep", help="The line advances only when a client calls step(n) "
+                                  "(the default; say it to be explicit)."),
+    allow_remote: bool = typer.Option(False, "--allow-remote", help="Listen on a non-loopback address: any host that "
+                                      "reaches it can write the inputs (no encryption, no user check)."),
+    out: Path | None = typer.Option(None, "--out", help="Output folder (default: out/<scenario name>)."),
+    set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
+    overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
+    report: bool = typer.Option(True, "--report/--no-report", help="Write the HTML/PNG report."),
+) -> None:
+    """Serve the line over OPC UA for a PLC (lockstep, or real time with --realtime); when it ends (its duration in
+    real time, a client's stop(), Ctrl-C/SIGTERM) the run is written like any run."""
+    from fishfmu.commands import default_out
+    from fishfmu.scenario.schema import parse_assignments
+    from fishfmu.serve import serve_scenario
+    if lockstep and realtime is not None:
+        raise InputError("--lockstep and --realtime exclude each other: give one")
+    console = literal_console()
+
+    def ready(line) -> None:  # noqa: ANN001
+        mode = "lockstep (clients call step(n))" if line.realtime is None else f"real time x{line.realtime:g}"
+        console.print(f"serving {scenario} at {line.endpoint} (namespace urn:fishfmu, folder fishfmu), {mode}; "
+                      f"clients write: {', '.join(line.external) or 'nothing'}")
+
+    done = serve_scenario(scenario, out if out is not None else default_out(scenario), parse_assignments(set_),
+                          endpoint=endpoint, realtime=realtime, allow_remote=allow_remote, overwrite=overwrite,
+                          report=report, on_ready=ready)
+    result = done.result
+    pacing = (result.served or {}).get("pacing")
+    if pacing:
+        console.print(f"pacing x{pacing['factor']:g}: lateness p50 {1e3 * pacing['lateness_p50_s']:.2f} ms, p99 "
+                      f"{1e3 * pacing['lateness_p99_s']:.2f} ms, max {1e3 * pacing['lateness_max_s']:.2f} ms; "
+                      f"{pacing['overruns']} of {pacing['steps']} steps overran")
+    print_kpis(result, console)
+    console.print(f"outputs: {done.out_dir}")
+    if result.status == "partial":
+        err_console.print(labelled("stopped:", f"{result.error}; results written to {done.out_dir}", "bold yellow"))
+        raise typer.Exit(done.stop_exit_code)
+    if result.status != "ok":
+        raise SimulationError(f"{result.error} (results so far written to {done.out_dir})")
+    if not result.expect_ok:
+        raise typer.Exit(EXIT_EXPECT_FAILED)
+
+
 @app.command("check")
 def check_cmd(
     scenario: Path = typer.Argument(..., help="Scenario file (TOML)."),
@@ -165,6 +216,8 @@ def check_cmd(
         console.print(f"setpoint of {cid} in belts.csv: {key}")
     if doc["recorded"]:
         console.print("recorded besides the connections: " + ", ".join(doc["recorded"]))
+    if doc["external_inputs"]:
+        console.print("written by OPC UA clients (fishfmu serve): " + ", ".join(doc["external_inputs"]))
     for text in doc["ssp_not_imported"]:
         console.print(f"not imported from [system] ssp: {text} (a connector of the system itself; wire the plant's "
                       "links in [wiring])")

@@ -81,6 +81,21 @@ def bench_fmu_worker(
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
 
+@bench_app.command("serve")
+def bench_serve(
+    factor: float = typer.Option(1.0, "--factor", help="Real-time factor to serve at."),
+    continuous_s: float | None = typer.Option(None, "--continuous-s", help="Also this many seconds of the "
+                                              "continuous line."),
+    json_file: Path = typer.Option(Path("bench-results/serve_bench.json"), "--json", help="Results (JSON)."),
+) -> None:
+    """Real-time serving: each step's lateness against the wall clock, paper test and (optionally) continuous line."""
+    from fishfmu import commands
+    from fishfmu.bench.serve import bench, summary
+    commands.check_targets(json_file)
+    doc = bench(factor, continuous_s)
+    _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
 @bench_app.command("sweep")
 def bench_sweep(
     scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),

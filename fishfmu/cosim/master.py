@@ -117,7 +117,9 @@ class CoSimulation:
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
         self.energy_watch = EnergyWatch()
-        self._constants_of = {name: [(key, key.partition(".")[2], v) for key, v in self.wiring.constants.items()
+        # the constant inputs' values now: an external input (OPC UA) changes them between steps
+        self.constants = dict(self.wiring.constants)
+        self._constants_of = {name: [(key, key.partition(".")[2]) for key in self.wiring.constants
                                      if key.partition(".")[0] == name] for name in self.fmus}
         # initial values: FMU outputs after initialisation, the plant at rest
         for name, fmu in self.fmus.items():
@@ -163,8 +165,8 @@ class CoSimulation:
         inputs = {}
         for c in self._inputs_of[name]:
             inputs[c.target.variable] = self._sent[c.target.key] = self._transmit(c, held)
-        for key, var, value in self._constants_of[name]:
-            inputs[var] = self._sent[key] = self._with_event(key, value)
+        for key, var in self._constants_of[name]:
+            inputs[var] = self._sent[key] = self._with_event(key, self.constants[key])
         fmu.set(inputs)
         fmu.do_step(t, dt)
         for var, v in fmu.get(self._outputs_of[name]).items():
@@ -176,7 +178,7 @@ class CoSimulation:
         if key in self._feeding:
             value = self._transmit(self._feeding[key], held)
         else:
-            value = self._with_event(key, self.wiring.constants[key])
+            value = self._with_event(key, self.constants[key])
         self._sent[key] = value
         return value
 
@@ -187,6 +189,14 @@ class CoSimulation:
             return c.convert(held[c.source.key]) if c.converts else held[c.source.key]
         value = self._with_event(c.source.key, held[c.source.key])
         return self._with_event(c.target.key, c.convert(value) if c.converts else value)
+
+    def set_external(self, key: str, value: Any) -> None:
+        """An external input (``[opcua] inputs``) written from outside: used from the next step on, as a PLC's
+        outputs are on the next scan.  Converted to the type of its start value (a bool stays a bool)."""
+        if key not in self.wiring.external:
+            raise KeyError(f"'{key}' is not an external input")
+        old = self.constants[key]
+        self.constants[key] = type(old)(value) if isinstance(old, (bool, int, float)) else value
 
     def _with_event(self, key: str, value: Any) -> Any:
         ov = self.overrides.get(key)

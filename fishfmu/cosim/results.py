@@ -67,6 +67,9 @@ class RunResult:
     wiring: dict[str, Any] = field(default_factory=dict)
     """The stepping order, delayed links, conversions, setpoints and recorded variables
     (:meth:`fishfmu.scenario.wiring.Wiring.describe`)."""
+    served: dict[str, Any] | None = None
+    """A run served over OPC UA (``fishfmu serve``): its mode, endpoint, pacing and lateness, the values clients
+    wrote."""
 
     @property
     def expect_ok(self) -> bool:

@@ -137,6 +137,10 @@ def _number(value: Any) -> float | None:
     return None if value is None else float(value)
 
 
+CLEAR_MARGIN_S = 1.0
+"""With ``run.stop_when_clear``, a run ends this long after the last fish has left the line."""
+
+
 class _Stopped(Exception):
     """The run was asked to stop (a signal)."""
 
@@ -149,5 +153,5 @@ def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float,
                            f"({scenario.run.duration_s:g} s)")
 
     run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.status, scenario.run.duration_s,
-             scenario.run.comm_step_s, stop_when_clear=scenario.run.stop_when_clear, clear_margin_s=1.0,
+             scenario.run.comm_step_s, stop_when_clear=scenario.run.stop_when_clear, clear_margin_s=CLEAR_MARGIN_S,
              before_step=check_stop, on_progress=on_progress)

@@ -130,6 +130,7 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
         drops_raised=[{"fish_id": d.fish_id, "raised_by_m": round(d.raised_by_m, 4)} for d in result.drop_adjustments],
         energy_watch={k: round(v, 4) for k, v in result.energy_watch.items()},
         wiring=result.wiring,
+        **({"served": result.served} if result.served is not None else {}),
         versions={"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
     )
     return paths

@@ -233,6 +233,16 @@ class SystemSpec(Strict):
         "parameter values become start values; connections to the plant stay in [wiring]"))
 
 
+class OpcuaSpec(Strict):
+    """``fishfmu serve``: the line as an OPC UA server; which inputs its clients (a PLC) write."""
+
+    inputs: list[Annotated[str, Field(pattern=ENDPOINT_RE.pattern)]] = Field(default_factory=list, max_length=1000,
+                                                                              description=(
+        "'<fmu>.<variable>' or 'plant.<id>.speed' inputs written by OPC UA clients instead of a connection (e.g. "
+        "the drives' setpoints, replacing the controller FMU); checked like the wiring; a written value takes "
+        "effect at the next communication step. Outside serve they hold their start value"))
+
+
 class RecordSpec(Strict):
     """FMU variables and plant ports recorded in ``signals.csv`` besides the connected ones."""
 
@@ -261,6 +271,7 @@ class Scenario(Strict):
     event: list[Event] = Field(default_factory=list, max_length=10000)
     kpi: KpiSettings
     record: RecordSpec = Field(default_factory=RecordSpec)
+    opcua: OpcuaSpec = Field(default_factory=OpcuaSpec)
     expect: dict[str, Bound] = Field(default_factory=dict, description=(
         "bounds by KPI (contracts/kpis.md): " + ", ".join(KPI_KEYS) + "; or by recorded signal "
         "('\"drive_c1.belt_speed\" = { max = 1.5 }', a connected or [record]ed name)"))

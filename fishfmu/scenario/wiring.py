@@ -125,6 +125,8 @@ class Wiring:
     setpoints: dict[str, str] = field(default_factory=dict)
     """Per conveyor, the signal logged as its setpoint (declared, or derived: see :func:`setpoint_signals`)."""
     jacobi: bool = False
+    external: list[str] = field(default_factory=list)
+    """Inputs written from outside (``[opcua] inputs``): among ``constants``, with their start value until written."""
 
     def into(self, component: str) -> list[Connection]:
         return [c for c in self.connections if c.target.component == component]
@@ -157,6 +159,7 @@ class Wiring:
                              "round": c.round} for c in self.connections if c.converts],
             "setpoints": dict(self.setpoints),
             "recorded": list(self.recorded),
+            "external_inputs": list(self.external),
         }
 
 
@@ -241,6 +244,26 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
                              "(give it as a parameter start value instead)", file=scenario_file,
                              where=f"wiring.inputs.{key}")
         constants[port.key] = value
+    external = []
+    for i, key in enumerate(scenario.opcua.inputs):
+        comp, _, var = key.partition(".")
+        where = f"opcua.inputs[{i}]"
+        port = _lookup(scenario_file, comp, var, "input", fmu_variables, plant, where)
+        if port.key in taken or any(a == alias_key(port) for a, _ in taken.values()):
+            raise InputError(f"'{key}' is connected; an input written by OPC UA clients replaces a connection (remove "
+                             f"the one from '{taken.get(port.key, (None, '?'))[1]}')", file=scenario_file, where=where)
+        if port.key in constants:
+            raise InputError(f"'{key}' is also given a constant in wiring.inputs", file=scenario_file, where=where)
+        if port.type not in ("Real", "Integer", "Boolean", "Enumeration"):
+            raise InputError(f"'{key}' is a {port.type} input; OPC UA clients write numbers and booleans here",
+                             file=scenario_file, where=where)
+        start = fmu_variables[comp][var].start if comp != PLANT else None
+        zero = False if port.type == "Boolean" else 0.0 if port.type == "Real" else 0
+        try:
+            constants[port.key] = type(zero)(start) if start is not None else zero
+        except (TypeError, ValueError):
+            constants[port.key] = zero
+        external.append(port.key)
 
     missing = [f"plant.{c.id}.speed" for c in scenario.line.conveyors
                if f"plant.{c.id}.speed" not in taken and f"plant.{c.id}.speed" not in constants]
@@ -273,7 +296,7 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
         order = names
     else:
         order = _topological(names, connections, scenario_file, feedthrough)
-    wiring = Wiring(connections, order, constants, jacobi=scenario.run.coupling == "jacobi")
+    wiring = Wiring(connections, order, constants, jacobi=scenario.run.coupling == "jacobi", external=external)
     wiring.recorded = _recorded(scenario, wiring, fmu_variables, plant, scenario_file)
     signals = _signal_types(wiring, fmu_variables, plant)
     for key, bound in scenario.expect.items():

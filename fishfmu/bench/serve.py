@@ -1,0 +1,123 @@
+"""How well ``fishfmu serve --realtime`` keeps to the wall clock on this machine.
+
+    fishfmu bench serve                               # paper test (controller FMU inside) and over OPC UA
+    fishfmu bench serve --continuous-s 120            # also the first 120 s of the continuous line
+
+Each case serves a scenario in a subprocess at real time x ``factor`` on a free loopback port and reads the
+lateness the server measured (``run_info.json``, ``served.pacing``: each step's start against its due time,
+p50/p99/max and overruns, a step starting more than one communication step late).  The paper test runs
+twice: as shipped (the controller FMU steps inside the server, a passive client polls the photo-eyes every
+10 ms) and as ``paper_opcua.toml``, where a PLC stand-in in its own process writes the four setpoints every
+10 ms over OPC UA (the controller's fixed profile).  Results go to ``bench-results/serve_bench.json``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import platform
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0, scan_s: float = 0.01) -> int:
+    """A PLC stand-in: every ``scan_s`` of wall time read the time and the photo-eyes, and (``speeds``) write the
+    controller's fixed profile as setpoints, until the run ends; returns the scans made."""
+    import logging
+
+    from asyncua import Client, ua
+    logging.getLogger("asyncua").setLevel(logging.ERROR)  # session-timeout notices on every connect
+    deadline = time.monotonic() + 120.0
+    while True:
+        client = Client(url)
+        try:
+            await client.connect()
+            break
+        except (OSError, asyncio.TimeoutError):
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.2)
+    scans = 0
+    try:
+        idx = await client.get_namespace_index("urn:fishfmu")
+        node = lambda name: client.get_node(ua.NodeId(name, idx))  # noqa: E731
+        t_node, state = node("fishfmu.time_s"), node("fishfmu.run_state")
+        eyes = [node(f"plant.pe_c{i}.blocked") for i in range(1, 5)]
+        setpoints = [node(f"drive_c{i}.speed_setpoint") for i in range(1, 5)] if speeds else []
+        n = len(speeds or [])
+        while await state.read_value() == "running":
+            t = await t_node.read_value()
+            for eye in eyes:
+                await eye.read_value()
+            for i, sp in enumerate(setpoints, start=1):
+                on = t >= (n - i) * startup_delay_s - 1e-9
+                await sp.write_value(ua.Variant(speeds[i - 1] if on else 0.0, ua.VariantType.Double))
+            scans += 1
+            await asyncio.sleep(scan_s)
+    except (ua.UaError, OSError, asyncio.TimeoutError):
+        pass  # the server stopped between two reads: the run is over
+    finally:
+        try:
+            await client.disconnect()
+        except Exception:  # noqa: BLE001 - the server may be gone already
+            pass
+    return scans
+
+
+def serve_case(scenario: Path, factor: float, overrides: list[str], speeds: list[float] | None) -> dict[str, Any]:
+    url = f"opc.tcp://127.0.0.1:{_free_port()}"
+    with tempfile.TemporaryDirectory(prefix="fishfmu-serve-bench-") as tmp:
+        out = Path(tmp) / "out"
+        cmd = [sys.executable, "-m", "fishfmu.cli", "serve", str(scenario), "--endpoint", url, "--realtime",
+               str(factor), "--out", str(out), "--no-report", *overrides]
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        scans = asyncio.run(plc(url, speeds))
+        stdout, stderr = proc.communicate(timeout=3600)
+        wall = time.perf_counter() - t0
+        if proc.returncode not in (0, 1):
+            raise RuntimeError(f"serve failed ({proc.returncode}): {stderr.strip()[-500:]}")
+        info = json.loads((out / "run_info.json").read_text())
+        kpis = json.loads((out / "kpis.json").read_text())
+    return {"scenario": scenario.name, "overrides": overrides, "factor": factor, "client": "PLC writing setpoints"
+            if speeds else "passive reader", "client_scans": scans, "t_end_s": info["t_end_s"],
+            "wall_s": round(wall, 2), "pacing": info["served"]["pacing"], "behind": info["served"].get("behind"),
+            "fish_in": kpis.get("fish_in"), "singulation_rate": kpis.get("singulation_rate")}
+
+
+def bench(factor: float = 1.0, continuous_s: float | None = None) -> dict[str, Any]:
+    scenarios = ROOT / "scenarios"
+    cases = [serve_case(scenarios / "paper_test.toml", factor, [], None),
+             serve_case(scenarios / "paper_opcua.toml", factor, [], [0.25, 0.50, 0.80, 1.25])]
+    if continuous_s:
+        cases.append(serve_case(scenarios / "continuous.toml", factor, ["--set", f"run.duration_s={continuous_s:g}"],
+                                None))
+    return {"benchmark": "serve", "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
+                                              "python": platform.python_version()},
+            "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "cases": cases}
+
+
+def summary(doc: dict[str, Any]) -> list[str]:
+    lines = []
+    for c in doc["cases"]:
+        p = c["pacing"]
+        lines.append(f"{c['scenario']} {' '.join(c['overrides'])} x{c['factor']:g} ({c['client']}): "
+                     f"{p['steps']} steps to t = {c['t_end_s']:g} s in {c['wall_s']:g} s; lateness p50 "
+                     f"{1e3 * p['lateness_p50_s']:.2f} ms, p99 {1e3 * p['lateness_p99_s']:.2f} ms, max "
+                     f"{1e3 * p['lateness_max_s']:.1f} ms; {p['overruns']} overruns"
+                     + (f"; {c['behind']}" if c["behind"] else ""))
+    return lines
