@@ -64,6 +64,26 @@ def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] |
     return built
 
 
+def export_fmu(scenario_file: str | Path, dest: str | Path, overrides: dict[str, Any] | None = None) -> Path:
+    """The plant of a scenario as an FMI 2.0 co-simulation FMU at ``dest`` (see :mod:`fishfmu.cosim.plant_fmu`);
+    an existing file is replaced only if fishfmu wrote it."""
+    import tempfile
+
+    from fishfmu.cosim.plant_fmu import export_plant_fmu
+    from fishfmu.output.atomic import write_bytes_atomic
+    from fishfmu.output.ownership import check_single_file_target
+    from fishfmu.scenario.schema import load_scenario
+    dest = Path(dest)
+    if dest.suffix != ".fmu":
+        raise InputError(f"'{dest}': an FMU file ends in .fmu", where="--out")
+    sc = load_scenario(scenario_file, overrides or {})
+    check_single_file_target(dest, [scenario_file])
+    with tempfile.TemporaryDirectory(prefix="fishfmu-export-") as tmp:
+        built = export_plant_fmu(sc, Path(tmp))
+        write_bytes_atomic(dest, built.read_bytes())
+    return dest
+
+
 # ---------------------------------------------------------------- run
 
 @dataclass

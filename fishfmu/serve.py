@@ -23,15 +23,20 @@ Two ways to advance:
 The run ends at ``run.duration_s`` (real time), or when a client calls ``stop()``, or on Ctrl-C/SIGTERM; it is
 then written like any run (KPIs, signals with every value clients wrote, the run in the measured-data format).
 
-Security: the endpoint must be on the loopback interface unless ``allow_remote`` is given (no encryption, no
-user check: any host that reaches the port can then write the external inputs).
+Security: the endpoint must be on the loopback interface unless ``allow_remote`` is given.  With ``user`` (the
+password from the environment variable ``FISHFMU_OPCUA_PASSWORD``, never a command-line argument) anonymous
+sessions are refused and only that user may connect; the connection itself stays unencrypted (the NoSecurity
+policy: the password crosses the network in plain text), so a remote endpoint belongs on an isolated
+commissioning network.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import hmac
 import ipaddress
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,6 +58,7 @@ from fishfmu.scenario.wiring import PLANT, PLANT_UNITS, signal_names
 NAMESPACE = "urn:fishfmu"
 FOLDER = "fishfmu"
 DEFAULT_ENDPOINT = "opc.tcp://127.0.0.1:4840"
+PASSWORD_ENV = "FISHFMU_OPCUA_PASSWORD"
 
 # UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)
 _UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "RPM", "1/min": "RPM",
@@ -107,10 +113,16 @@ class LineServer:
     """The co-simulation of a checked scenario behind an asyncua server (see the module docstring)."""
 
     def __init__(self, checked: CheckedScenario, endpoint: str = DEFAULT_ENDPOINT, allow_remote: bool = False,
-                 realtime: float | None = None) -> None:
+                 realtime: float | None = None, user: str | None = None) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
+        self.user, self._password = user, None
+        if user is not None:
+            self._password = os.environ.get(PASSWORD_ENV)
+            if not self._password:
+                raise InputError(f"--user {user} needs the password in the environment variable {PASSWORD_ENV}",
+                                 where="--user")
         if realtime is not None and not (0.0 < realtime <= 1000.0):
             raise InputError(f"{realtime} is not a real-time factor in (0, 1000]", where="--realtime")
         self.checked, self.endpoint, self.realtime = checked, endpoint, realtime
@@ -261,8 +273,10 @@ class LineServer:
         from asyncua import Server, ua
         # asyncua warns on every start that a NoSecurity endpoint has no signing policy: what --allow-remote says
         logging.getLogger("asyncua").setLevel(logging.ERROR)
-        server = Server()
+        server = Server(user_manager=_OneUser(self.user, self._password) if self.user else None)
         await server.init()
+        if self.user:  # no anonymous sessions: only the named user
+            server.set_identity_tokens([ua.UserNameIdentityToken])
         server.set_endpoint(self.endpoint)
         server.set_server_name("fishfmu line")
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
@@ -327,6 +341,21 @@ class LineServer:
         return res
 
 
+class _OneUser:
+    """asyncua's user manager for one named user with a password (compared in constant time)."""
+
+    def __init__(self, name: str, password: str) -> None:
+        self.name, self.password = name, password
+
+    def get_user(self, iserver: Any, username: str | None = None, password: str | None = None,
+                 certificate: Any = None) -> Any:
+        from asyncua.crypto.permission_rules import User, UserRole
+        if username == self.name and password is not None and hmac.compare_digest(password.encode(),
+                                                                                   self.password.encode()):
+            return User(role=UserRole.User, name=username)
+        return None
+
+
 def _variant(value: Any, vtype: Any) -> Any:
     """``value`` as an OPC UA Variant of its node's type (a Real signal holding an int is still a Double)."""
     from asyncua import ua
@@ -354,6 +383,7 @@ def _signal_info(checked: CheckedScenario) -> dict[str, tuple[str, str | None, t
 
 def serve_scenario(scenario_file: str | Path, out: Path, overrides: dict[str, Any] | None = None, *,
                    endpoint: str = DEFAULT_ENDPOINT, realtime: float | None = None, allow_remote: bool = False,
+                   user: str | None = None,
                    overwrite: bool = False, report: bool = True, on_ready: Any = None) -> ServeOutcome:
     """Check the scenario, serve it until it ends or is stopped, write the run into ``out``."""
     from fishfmu.commands import run_inputs
@@ -368,7 +398,7 @@ def serve_scenario(scenario_file: str | Path, out: Path, overrides: dict[str, An
     if problem:
         raise InputError(problem, where="--endpoint")
     with checked(sc, scenario_file) as c:
-        line = LineServer(c, endpoint, allow_remote, realtime)
+        line = LineServer(c, endpoint, allow_remote, realtime, user)
         out_dir = prepare_out_dir(out, overwrite, run_inputs(scenario_file, sc, None), "serve")
         mark_running(out_dir, scenario_file)
         register_output(out_dir)

@@ -44,10 +44,14 @@ def start_server(out: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     return proc, url
 
 
-async def connect(url: str, proc: subprocess.Popen, timeout_s: float = 120.0) -> Client:
+async def connect(url: str, proc: subprocess.Popen, timeout_s: float = 120.0,
+                  with_user: tuple[str, str] | None = None) -> Client:
     deadline = time.monotonic() + timeout_s
     while True:
         client = Client(url)
+        if with_user:
+            client.set_user(with_user[0])
+            client.set_password(with_user[1])
         try:
             await client.connect()
             return client
@@ -206,3 +210,44 @@ def test_an_independent_client_node_opcua_browses_reads_writes_and_steps(tmp_pat
     assert 0.5 < seen["speed"] <= 1.25
     info = json.loads((tmp_path / "served" / "run_info.json").read_text())
     assert info["served"]["writes"] == [{"t_s": 0.0, "input": "drive_c4.speed_setpoint", "value": 1.25}]
+
+
+async def sessions(url: str, proc: subprocess.Popen) -> dict:
+    """Anonymous, wrong password, right password: which get a session."""
+    out = {}
+    await (await connect(url, proc, with_user=("plc", "right"))).disconnect()  # the server listens
+    for label, creds in (("anonymous", None), ("wrong", ("plc", "wrong")), ("right", ("plc", "right"))):
+        client = Client(url)
+        if creds:
+            client.set_user(creds[0])
+            client.set_password(creds[1])
+        try:
+            await client.connect()
+            idx = await client.get_namespace_index("urn:fishfmu")
+            out[label] = await client.get_node(ua.NodeId("fishfmu.time_s", idx)).read_value()
+            if label == "right":
+                await client.get_node(ua.NodeId("fishfmu", idx)).call_method(ua.QualifiedName("stop", idx))
+            await client.disconnect()
+        except (ua.UaError, OSError, asyncio.TimeoutError) as exc:
+            out[label] = type(exc).__name__
+    return out
+
+
+def test_with_a_user_anonymous_sessions_and_wrong_passwords_are_refused(tmp_path):
+    import os
+    env = {**os.environ, "FISHFMU_OPCUA_PASSWORD": "right"}
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint", url, "--out",
+                             str(tmp_path / "o"), "--user", "plc", *SHORT], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    seen = asyncio.run(sessions(url, proc))
+    proc.communicate(timeout=300)
+    assert seen["right"] == 0.0
+    # refused by the server with an OPC UA status (asyncua raises it as a class named after the status code)
+    assert seen["anonymous"].startswith("Bad") and seen["wrong"].startswith("Bad"), seen
+    # without the password in the environment: bad input, nothing written
+    cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--user", "plc", "--out",
+                          str(tmp_path / "p")], capture_output=True, text=True,
+                         env={k: v for k, v in os.environ.items() if k != "FISHFMU_OPCUA_PASSWORD"})
+    assert cli.returncode == 2 and "FISHFMU_OPCUA_PASSWORD" in cli.stderr
+    assert not (tmp_path / "p").exists()

@@ -147,8 +147,10 @@ def serve_cmd(
                                           "calls step(n)."),
     lockstep: bool = typer.Option(False, "--lockstep", help="The line advances only when a client calls step(n) "
                                   "(the default; say it to be explicit)."),
-    allow_remote: bool = typer.Option(False, "--allow-remote", help="Listen on a non-loopback address: any host that "
-                                      "reaches it can write the inputs (no encryption, no user check)."),
+    allow_remote: bool = typer.Option(False, "--allow-remote", help="Listen on a non-loopback address (unencrypted; "
+                                      "with --user only that user may connect)."),
+    user: str | None = typer.Option(None, "--user", help="Only this user may connect (password from the environment "
+                                    "variable FISHFMU_OPCUA_PASSWORD); anonymous sessions are refused."),
     out: Path | None = typer.Option(None, "--out", help="Output folder (default: out/<scenario name>)."),
     set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
@@ -169,7 +171,8 @@ def serve_cmd(
                       f"clients write: {', '.join(line.external) or 'nothing'}")
 
     done = serve_scenario(scenario, out if out is not None else default_out(scenario), parse_assignments(set_),
-                          endpoint=endpoint, realtime=realtime, allow_remote=allow_remote, overwrite=overwrite,
+                          endpoint=endpoint, realtime=realtime, allow_remote=allow_remote, user=user,
+                          overwrite=overwrite,
                           report=report, on_ready=ready)
     result = done.result
     pacing = (result.served or {}).get("pacing")
@@ -186,6 +189,20 @@ def serve_cmd(
         raise SimulationError(f"{result.error} (results so far written to {done.out_dir})")
     if not result.expect_ok:
         raise typer.Exit(EXIT_EXPECT_FAILED)
+
+
+@app.command("export-fmu")
+def export_fmu_cmd(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML): its line, fish, plant and kpi tables."),
+    out: Path = typer.Option(..., "--out", help="The .fmu to write (replaced only if fishfmu wrote it)."),
+    set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
+) -> None:
+    """The plant (line, fish, drops, extensions) as an FMI 2.0 co-simulation FMU for other masters; it needs Python
+    with fishfmu installed on the host (made with pythonfmu)."""
+    from fishfmu import commands
+    from fishfmu.scenario.schema import parse_assignments
+    path = commands.export_fmu(scenario, out, parse_assignments(set_))
+    literal_console().print(f"written: {path}")
 
 
 @app.command("check")
