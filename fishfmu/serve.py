@@ -25,9 +25,10 @@ then written like any run (KPIs, signals with every value clients wrote, the run
 
 Security: the endpoint must be on the loopback interface unless ``allow_remote`` is given.  With ``user`` (the
 password from the environment variable ``FISHFMU_OPCUA_PASSWORD``, never a command-line argument) anonymous
-sessions are refused and only that user may connect; the connection itself stays unencrypted (the NoSecurity
-policy: the password crosses the network in plain text), so a remote endpoint belongs on an isolated
-commissioning network.
+sessions are refused and only that user may connect.  Without certificates the connection is unencrypted (the
+NoSecurity policy: a password crosses the network in plain text).  With ``certificates`` (the server's certificate
+and private key, and a folder of trusted client certificates) the server offers only Basic256Sha256 with
+SignAndEncrypt and accepts only clients whose certificate is in that folder.
 """
 
 from __future__ import annotations
@@ -109,14 +110,39 @@ class Pacing:
                 "overrun_rule": "a step that starts more than one communication step (of wall time) after it was due"}
 
 
+@dataclass(frozen=True)
+class Certificates:
+    """The server's certificate (DER or PEM) and private key (PEM), and the folder of trusted client certificates."""
+
+    certificate: Path
+    private_key: Path
+    trusted_clients: Path
+
+    def problem(self) -> str | None:
+        for what, path in (("certificate", self.certificate), ("private key", self.private_key)):
+            if not path.is_file():
+                return f"the server's {what} '{path}' is not a file"
+        if not self.trusted_clients.is_dir():
+            return f"the trusted client certificates '{self.trusted_clients}' is not a folder"
+        return None
+
+
+APPLICATION_URI = "urn:fishfmu:server"
+"""The server's application URI: a server certificate names it (subjectAltName URI) for clients that check."""
+
+
 class LineServer:
     """The co-simulation of a checked scenario behind an asyncua server (see the module docstring)."""
 
     def __init__(self, checked: CheckedScenario, endpoint: str = DEFAULT_ENDPOINT, allow_remote: bool = False,
-                 realtime: float | None = None, user: str | None = None) -> None:
+                 realtime: float | None = None, user: str | None = None,
+                 certificates: Certificates | None = None) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
+        if certificates is not None and certificates.problem():
+            raise InputError(certificates.problem(), where="--certificate")
+        self.certificates = certificates
         self.user, self._password = user, None
         if user is not None:
             self._password = os.environ.get(PASSWORD_ENV)
@@ -145,6 +171,10 @@ class LineServer:
         self.behind: str | None = None
 
     # ---- the co-simulation ----------------------------------------------------------------------
+    def start(self) -> None:
+        """Build the co-simulation (its FMUs instantiated and initialised) before serving it."""
+        self._start_cosim()
+
     def _start_cosim(self) -> None:
         self._stack.close()
         self._stack = contextlib.ExitStack()
@@ -279,10 +309,27 @@ class LineServer:
             server.set_identity_tokens([ua.UserNameIdentityToken])
         server.set_endpoint(self.endpoint)
         server.set_server_name("fishfmu line")
-        server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
-        self._start_cosim()
+        await server.set_application_uri(APPLICATION_URI)
+        if self.certificates is None:
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        else:
+            from asyncua.crypto.truststore import TrustStore
+            from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
+            c = self.certificates
+            await server.load_certificate(str(c.certificate))
+            await server.load_private_key(str(c.private_key))
+            server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
+            store = TrustStore([c.trusted_clients], [])
+            await store.load()
+            validator = CertificateValidator(CertificateValidatorOptions.TRUSTED_VALIDATION
+                                             | CertificateValidatorOptions.PEER_CLIENT, store)
+            server.set_certificate_validator(validator.validate)
+        if self.cosim is None:
+            self._start_cosim()
         await self._address_space(server)
         await self._publish()
+        if stop is not None and stop.requested:  # a signal while starting: nothing to serve
+            return
         async with server:
             if on_ready is not None:
                 on_ready(self)
@@ -383,7 +430,7 @@ def _signal_info(checked: CheckedScenario) -> dict[str, tuple[str, str | None, t
 
 def serve_scenario(scenario_file: str | Path, out: Path, overrides: dict[str, Any] | None = None, *,
                    endpoint: str = DEFAULT_ENDPOINT, realtime: float | None = None, allow_remote: bool = False,
-                   user: str | None = None,
+                   user: str | None = None, certificates: Certificates | None = None,
                    overwrite: bool = False, report: bool = True, on_ready: Any = None) -> ServeOutcome:
     """Check the scenario, serve it until it ends or is stopped, write the run into ``out``."""
     from fishfmu.commands import run_inputs
@@ -398,21 +445,23 @@ def serve_scenario(scenario_file: str | Path, out: Path, overrides: dict[str, An
     if problem:
         raise InputError(problem, where="--endpoint")
     with checked(sc, scenario_file) as c:
-        line = LineServer(c, endpoint, allow_remote, realtime, user)
+        line = LineServer(c, endpoint, allow_remote, realtime, user, certificates)
         out_dir = prepare_out_dir(out, overwrite, run_inputs(scenario_file, sc, None), "serve")
-        mark_running(out_dir, scenario_file)
-        register_output(out_dir)
         t0 = time.perf_counter()
-        try:
-            with stop_on_signals() as stop:
+        # a signal from here on only sets a flag: the server ends at its next look and the run is written
+        with stop_on_signals() as stop:
+            mark_running(out_dir, scenario_file)
+            register_output(out_dir)
+            try:
+                line.start()
                 asyncio.run(line.serve(on_ready, stop))
-            # ended by the scenario's duration or by a client's stop(): a complete run; by a signal: partial
-            ended = line.state == "finished" or line.stop_requested.is_set()
-            status = "failed" if line.error else "ok" if ended else "partial"
-            result = line.result(status, time.perf_counter() - t0)
-            write_outputs(result, out_dir, report=report)
-        finally:
-            line.close()
+                # ended by the scenario's end or by a client's stop(): a complete run; by a signal: partial
+                ended = line.state == "finished" or line.stop_requested.is_set()
+                status = "failed" if line.error else "ok" if ended else "partial"
+                result = line.result(status, time.perf_counter() - t0)
+                write_outputs(result, out_dir, report=report)
+            finally:
+                line.close()
     return ServeOutcome(result, out_dir, stop.exit_code if status == "partial" else None)
 
 

@@ -251,3 +251,98 @@ def test_with_a_user_anonymous_sessions_and_wrong_passwords_are_refused(tmp_path
                          env={k: v for k, v in os.environ.items() if k != "FISHFMU_OPCUA_PASSWORD"})
     assert cli.returncode == 2 and "FISHFMU_OPCUA_PASSWORD" in cli.stderr
     assert not (tmp_path / "p").exists()
+
+
+async def make_certificate(folder: Path, name: str, uri: str, server: bool) -> tuple[Path, Path]:
+    from cryptography.x509.oid import ExtendedKeyUsageOID
+    from asyncua.crypto.cert_gen import setup_self_signed_certificate
+    key, cert = folder / f"{name}.pem", folder / f"{name}.der"
+    use = [ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH]
+    await setup_self_signed_certificate(key, cert, uri, "localhost", use, {"commonName": name})
+    return cert, key
+
+
+async def secured_sessions(url: str, proc: subprocess.Popen, certs: dict) -> dict:
+    from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+    out = {}
+    for label in ("trusted", "untrusted", "plain"):
+        deadline = time.monotonic() + 120
+        while True:
+            client = Client(url)
+            if label != "plain":
+                cert, key = certs[label]
+                client.application_uri = f"urn:test:{label}"
+                await client.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key),
+                                          server_certificate=str(certs["server"][0]))
+            try:
+                await client.connect()
+                idx = await client.get_namespace_index("urn:fishfmu")
+                out[label] = await client.get_node(ua.NodeId("fishfmu.time_s", idx)).read_value()
+                await client.disconnect()
+                break
+            except (ConnectionError, OSError) as exc:  # not listening yet
+                if time.monotonic() > deadline or proc.poll() is not None:
+                    out[label] = type(exc).__name__
+                    break
+                if label != "trusted":  # once the trusted client got in, the server is up: this is a refusal
+                    out[label] = type(exc).__name__
+                    break
+                await asyncio.sleep(0.3)
+            except (ua.UaError, asyncio.TimeoutError) as exc:
+                out[label] = type(exc).__name__
+                break
+    client = Client(url)
+    cert, key = certs["trusted"]
+    client.application_uri = "urn:test:trusted"
+    await client.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key),
+                              server_certificate=str(certs["server"][0]))
+    async with client:
+        idx = await client.get_namespace_index("urn:fishfmu")
+        await client.get_node(ua.NodeId("fishfmu", idx)).call_method(ua.QualifiedName("stop", idx))
+    return out
+
+
+def test_with_certificates_only_trusted_clients_get_an_encrypted_session(tmp_path):
+    trusted = tmp_path / "trusted"
+    trusted.mkdir()
+
+    async def make() -> dict:
+        return {"server": await make_certificate(tmp_path, "server", "urn:fishfmu:server", True),
+                "trusted": await make_certificate(trusted, "trusted", "urn:test:trusted", False),
+                "untrusted": await make_certificate(tmp_path, "untrusted", "urn:test:untrusted", False)}
+    certs = asyncio.run(make())
+    (trusted / "trusted.pem").rename(tmp_path / "trusted.pem")  # the folder holds certificates only
+    certs["trusted"] = (certs["trusted"][0], tmp_path / "trusted.pem")
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint", url, "--out",
+                             str(tmp_path / "o"), "--certificate", str(certs["server"][0]), "--private-key",
+                             str(certs["server"][1]), "--trusted-clients", str(trusted), *SHORT],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    seen = asyncio.run(secured_sessions(url, proc, certs))
+    out, err = proc.communicate(timeout=300)
+    assert seen["trusted"] == 0.0, (seen, err)
+    assert seen["untrusted"] == "BadCertificateUntrusted", seen  # the server refuses a certificate not in the folder
+    assert isinstance(seen["plain"], str), seen  # and a client without security finds no endpoint to use
+
+
+async def step_then_leave(url: str, proc: subprocess.Popen) -> float:
+    client = await connect(url, proc)
+    try:
+        idx = await client.get_namespace_index("urn:fishfmu")
+        return await client.get_node(ua.NodeId("fishfmu", idx)).call_method(ua.QualifiedName("step", idx),
+                                                                            ua.Variant(10, ua.VariantType.Int32))
+    finally:
+        await client.disconnect()
+
+
+def test_sigterm_ends_the_served_run_and_writes_it_as_partial(tmp_path):
+    import signal
+    proc, url = start_server(tmp_path / "served")
+    assert asyncio.run(step_then_leave(url, proc)) == pytest.approx(0.1)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143, err
+    info = json.loads((tmp_path / "served" / "run_info.json").read_text())
+    assert info["status"] == "partial" and info["t_end_s"] == pytest.approx(0.1)
+    assert info["served"]["ended"] == "a signal"
+    assert (tmp_path / "served" / "run" / "runs" / "paper_opcua" / "belts.csv").is_file()

@@ -151,6 +151,11 @@ def serve_cmd(
                                       "with --user only that user may connect)."),
     user: str | None = typer.Option(None, "--user", help="Only this user may connect (password from the environment "
                                     "variable FISHFMU_OPCUA_PASSWORD); anonymous sessions are refused."),
+    certificate: Path | None = typer.Option(None, "--certificate", help="The server's certificate (DER or PEM): "
+                                            "only Basic256Sha256 SignAndEncrypt is offered then."),
+    private_key: Path | None = typer.Option(None, "--private-key", help="The server's private key (PEM)."),
+    trusted_clients: Path | None = typer.Option(None, "--trusted-clients", help="Folder of the client certificates "
+                                                "that may connect (with --certificate)."),
     out: Path | None = typer.Option(None, "--out", help="Output folder (default: out/<scenario name>)."),
     set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
@@ -163,6 +168,11 @@ def serve_cmd(
     from fishfmu.serve import serve_scenario
     if lockstep and realtime is not None:
         raise InputError("--lockstep and --realtime exclude each other: give one")
+    from fishfmu.serve import Certificates
+    given = [certificate, private_key, trusted_clients]
+    if any(g is not None for g in given) and not all(g is not None for g in given):
+        raise InputError("--certificate, --private-key and --trusted-clients go together")
+    certificates = Certificates(certificate, private_key, trusted_clients) if certificate is not None else None
     console = literal_console()
 
     def ready(line) -> None:  # noqa: ANN001
@@ -172,6 +182,7 @@ def serve_cmd(
 
     done = serve_scenario(scenario, out if out is not None else default_out(scenario), parse_assignments(set_),
                           endpoint=endpoint, realtime=realtime, allow_remote=allow_remote, user=user,
+                          certificates=certificates,
                           overwrite=overwrite,
                           report=report, on_ready=ready)
     result = done.result
