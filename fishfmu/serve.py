@@ -209,15 +209,19 @@ class LineServer:
                                        self._clear.done(self.cosim.t_s, self.cosim.plant.status)):
             self.state = "finished"
 
+    async def _advance(self) -> bool:
+        """One communication step with what clients wrote since the last; False when the run failed in it."""
+        await self._take_writes()
+        try:
+            self._step_once()
+        except SimulationError:
+            return False
+        return True
+
     async def step(self, n: int) -> float:
         """Lockstep: ``n`` communication steps (fewer at the end of the run); the new time."""
         for _ in range(max(0, int(n))):
-            if self.state != "running":
-                break
-            await self._take_writes()
-            try:
-                self._step_once()
-            except SimulationError:
+            if self.state != "running" or not await self._advance():
                 break
         await self._publish()
         return self.cosim.t_s
@@ -356,10 +360,7 @@ class LineServer:
             else:
                 await asyncio.sleep(0)  # let clients in even when late
             self.pacing.lateness_s.append(now - due)
-            await self._take_writes()
-            try:
-                self._step_once()
-            except SimulationError:
+            if not await self._advance():
                 break
             await self._publish()
             k += 1

@@ -125,14 +125,19 @@ def run(
     result = done.result
     if done.replay is not None:
         console.print(f"replay: {done.replay}")
+    _finish(result, done.out_dir, done.stop_exit_code, console)
+
+
+def _finish(result, out_dir: Path, stop_exit_code: int | None, console) -> None:  # noqa: ANN001
+    """A written run's KPIs and where it is; its exit: stopped by a signal, failed, an [expect] bound missed."""
     print_kpis(result, console)
-    console.print(f"outputs: {done.out_dir}")
+    console.print(f"outputs: {out_dir}")
     if result.status == "partial":
-        err_console.print(labelled("stopped:", f"{result.error}; partial results written to {done.out_dir}",
+        err_console.print(labelled("stopped:", f"{result.error}; partial results written to {out_dir}",
                                    "bold yellow"))
-        raise typer.Exit(done.stop_exit_code)
+        raise typer.Exit(stop_exit_code)
     if result.status != "ok":
-        raise SimulationError(f"{result.error} (results so far written to {done.out_dir})")
+        raise SimulationError(f"{result.error} (results so far written to {out_dir})")
     if not result.expect_ok:
         raise typer.Exit(EXIT_EXPECT_FAILED)
 
@@ -191,15 +196,7 @@ def serve_cmd(
         console.print(f"pacing x{pacing['factor']:g}: lateness p50 {1e3 * pacing['lateness_p50_s']:.2f} ms, p99 "
                       f"{1e3 * pacing['lateness_p99_s']:.2f} ms, max {1e3 * pacing['lateness_max_s']:.2f} ms; "
                       f"{pacing['overruns']} of {pacing['steps']} steps overran")
-    print_kpis(result, console)
-    console.print(f"outputs: {done.out_dir}")
-    if result.status == "partial":
-        err_console.print(labelled("stopped:", f"{result.error}; results written to {done.out_dir}", "bold yellow"))
-        raise typer.Exit(done.stop_exit_code)
-    if result.status != "ok":
-        raise SimulationError(f"{result.error} (results so far written to {done.out_dir})")
-    if not result.expect_ok:
-        raise typer.Exit(EXIT_EXPECT_FAILED)
+    _finish(result, done.out_dir, done.stop_exit_code, console)
 
 
 @app.command("export-fmu")
