@@ -27,7 +27,7 @@ by that of leaving fish, and is lowered to E whenever E is below it (what was di
 come back).  ``E - B`` above the spring reserve is energy from nowhere: a blow-up, reported within
 the communication step in which it happens, naming the fish that gained the most.
 
-Calibration: in the shipped scenarios (``paper_test`` seeds 1-4 and a 50-fish drop,
+Calibration: in the shipped scenarios (``paper_dump`` seeds 1-4 and a 50-fish drop,
 ``gap_control`` seeds 1-3) the largest ``E - B`` was 1.6 J; with every model extension on, or a
 5 degree incline, 2.5 J (``pytest -m slow`` keeps the shipped scenarios, seeds 1-3, below 30 % of
 the reserve); an integration step of 5 or 10 ms

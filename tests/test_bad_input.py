@@ -26,7 +26,7 @@ from tests.test_measured import BAD_INPUTS as BAD_DATASETS
 from tests.test_measured import _edit_toml, small_dataset  # noqa: F401 (a fixture, used by name)
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 USER_FMU = ROOT / "scenarios" / "user_fmu.toml"
 
 

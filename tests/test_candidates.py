@@ -23,7 +23,7 @@ from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYP
 from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
-SCENARIO = ROOT / "scenarios" / "paper_test.toml"
+SCENARIO = ROOT / "scenarios" / "paper_dump.toml"
 
 VALUES = {  # a fitted value per parameter (exact in four digits), and what the plant (or drive) must then hold
     "mucus_friction": ({"gain": -0.25, "time_constant_h": 8.0},

@@ -16,7 +16,7 @@ from plant.errors import InputError
 from fishfmu import commands
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 SHORT = {"fish.count": 3, "run.duration_s": 6.0, "fish.first_drop_s": 3.0, "run.stop_when_clear": False}
 
 
@@ -30,7 +30,7 @@ def test_commands_run_writes_what_fishfmu_run_writes(tmp_path: Path) -> None:
                           "--no-report", *sets], capture_output=True, text=True, cwd=tmp_path,
                          env={**os.environ, "CI": "1"})
     assert cli.returncode in (0, 1), cli.stderr  # 1: the paper's [expect] bounds on a 6 s run
-    for name in ("kpis.json", "signals.csv", "run/runs/paper_test/tracks.csv", "run/runs/paper_test/belts.csv"):
+    for name in ("kpis.json", "signals.csv", "run/runs/paper_dump/tracks.csv", "run/runs/paper_dump/belts.csv"):
         assert (tmp_path / "cli" / name).read_bytes() == (tmp_path / "script" / name).read_bytes(), name
 
 

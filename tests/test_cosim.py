@@ -21,7 +21,7 @@ from fishfmu.cosim.runner import run_scenario
 from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 SHORT = {"fish.count": 5, "run.duration_s": 25.0, "fish.first_drop_s": 3.5}
 
 
@@ -59,7 +59,7 @@ def test_gauss_seidel_plant_runs_at_the_speed_its_drive_just_computed(short_run)
 
 def test_controller_starts_the_line_downstream_first_and_drives_follow_their_ramp(short_run):
     s = short_run[0].signals
-    delay = 1.0  # startup_delay in paper_test.toml; belt i starts at (4 - i) * delay
+    delay = 1.0  # startup_delay in paper_dump.toml; belt i starts at (4 - i) * delay
     for i, speed in ((1, 0.25), (2, 0.50), (3, 0.80), (4, 1.25)):
         sp = s[f"controller.setpoint_{i}"]
         t_on = float(s.t_s[sp > 0].iloc[0])

@@ -19,12 +19,12 @@ from fishfmu.cosim.runner import run_scenario
 from fishfmu.scenario.schema import load_scenario, parse_value
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 # three fish dropped onto the running infeed, the first two reach its photo-eye
 SHORT = ["fish.count=3", "fish.first_drop_s=3.2", "run.duration_s=9.0", "run.stop_when_clear=false",
          "expect={}", "run.seed=7"]
 COMPARED = ["kpis.json", "signals.csv", "scenario.resolved.toml", "run/dataset.toml",
-            *(f"run/runs/paper_test/{t}.csv" for t in ("fish", "tracks", "photoeyes", "belts"))]
+            *(f"run/runs/paper_dump/{t}.csv" for t in ("fish", "tracks", "photoeyes", "belts"))]
 
 
 def cli_run(out: Path, hash_seed: str, *extra: str) -> None:
@@ -50,7 +50,7 @@ def test_the_run_is_not_trivial(three_runs) -> None:
     import json
     kpis = json.loads((three_runs["a"] / "kpis.json").read_text())
     assert kpis["status"] == "ok" and kpis["fish_in"] >= 2
-    photoeyes = (three_runs["a"] / "run/runs/paper_test/photoeyes.csv").read_text().splitlines()
+    photoeyes = (three_runs["a"] / "run/runs/paper_dump/photoeyes.csv").read_text().splitlines()
     assert len(photoeyes) >= 3  # header and at least two fish through the infeed's beam
 
 

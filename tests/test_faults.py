@@ -28,7 +28,7 @@ from fishfmu.cosim.runner import run_scenario
 from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 FAULT_T = 0.5
 FAULTS = {1: 'doStep returned error: "faulty_drive: failing on purpose at t = 0.5 s"',
           2: 'doStep returned fatal: "faulty_drive: fatal failure on purpose at t = 0.5 s"',
@@ -195,7 +195,7 @@ def test_interrupted_run_writes_a_readable_partial_result(tmp_path: Path, signum
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["paper_test", "gap_control", "user_fmu"])
+@pytest.mark.parametrize("name", ["paper_dump", "gap_control", "user_fmu"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_energy_watch_stays_far_from_its_reserve_in_the_shipped_scenarios(name: str, seed: int, tmp_path: Path,
                                                                           builtin_fmus) -> None:

@@ -30,7 +30,7 @@ from fishfmu.cosim.runner import run_scenario  # noqa: E402
 from fishfmu.scenario.schema import load_scenario  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 MODELS = Path(__file__).parent / "fmu_models"
 
 

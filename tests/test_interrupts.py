@@ -22,7 +22,7 @@ import pytest
 from fishfmu.session import Interrupted, deferred_signals, session
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIO = str(ROOT / "scenarios" / "paper_test.toml")
+SCENARIO = str(ROOT / "scenarios" / "paper_dump.toml")
 LONG_RUNS = ["--set", "run.duration_s=30", "--set", "run.stop_when_clear=false"]  # still running when signalled
 
 

@@ -17,7 +17,7 @@ from fishfmu.scenario.schema import load_scenario
 from fishfmu.batch.sweep import MAX_RUNS, check_size, make_spec, parse_param
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENARIO = ROOT / "scenarios" / "paper_test.toml"
+SCENARIO = ROOT / "scenarios" / "paper_dump.toml"
 
 
 def fishfmu(*args: str, cwd: Path) -> subprocess.CompletedProcess:

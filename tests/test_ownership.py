@@ -24,7 +24,7 @@ from fishfmu.output.atomic import write_json_atomic, write_text_atomic
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 QUICK = ["--no-report", "--set", "run.duration_s=0.5", "--set", "fish.count=1", "--set", "expect={}"]
 
 
@@ -71,10 +71,10 @@ def test_a_user_file_next_to_a_fake_run_info_survives_overwrite(tmp_path: Path) 
 
 
 def test_the_default_folder_needs_overwrite_and_never_takes_user_files(tmp_path: Path, earlier_run: Path) -> None:
-    scen = tmp_path / "paper_test.toml"
+    scen = tmp_path / "paper_dump.toml"
     shutil.copy(PAPER, scen)
-    out = copy_run(earlier_run, tmp_path / "out" / "paper_test")  # what `fishfmu run paper_test.toml` made
-    refused = fishfmu("run", scen, *QUICK, cwd=tmp_path)  # no --out: out/paper_test
+    out = copy_run(earlier_run, tmp_path / "out" / "paper_dump")  # what `fishfmu run paper_dump.toml` made
+    refused = fishfmu("run", scen, *QUICK, cwd=tmp_path)  # no --out: out/paper_dump
     assert refused.returncode == 2 and "pass --overwrite" in refused.stderr, refused.stderr
     (out / "notes.md").write_text("what I saw in this run\n")
     before = snapshot(tmp_path)
@@ -98,9 +98,9 @@ def test_an_earlier_run_is_replaced_with_overwrite_and_refused_without(tmp_path:
 
 def test_a_file_of_ours_changed_by_the_user_makes_the_folder_foreign(tmp_path: Path, earlier_run: Path) -> None:
     out = copy_run(earlier_run, tmp_path / "run")
-    (out / "run" / "runs" / "paper_test" / "tracks.csv").write_text("t_s,fish_id,x_m\n0,a,1\n")  # edited by hand
+    (out / "run" / "runs" / "paper_dump" / "tracks.csv").write_text("t_s,fish_id,x_m\n0,a,1\n")  # edited by hand
     before = snapshot(tmp_path)
-    with pytest.raises(InputError, match=r"run/runs/paper_test/tracks.csv \(changed since fishfmu wrote it\)"):
+    with pytest.raises(InputError, match=r"run/runs/paper_dump/tracks.csv \(changed since fishfmu wrote it\)"):
         prepare_out_dir(out, overwrite=True)
     assert snapshot(tmp_path) == before
 

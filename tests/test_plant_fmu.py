@@ -18,7 +18,7 @@ from fishfmu.scenario.schema import load_scenario  # noqa: E402
 from plant.plant import Plant  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 SPEEDS = {"c1.speed": 0.25, "c2.speed": 0.5, "c3.speed": 0.8, "c4.speed": 1.25}
 
 

@@ -28,7 +28,7 @@ from fishfmu.scenario.schema import load_scenario
 from tests.chromium import CHROMIUM, Browser
 
 ROOT = Path(__file__).parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 PILOT = Path(__file__).parents[2] / "shared" / "data" / "pilot_a"
 SHORT = {"fish.count": 5, "run.duration_s": 9.0, "fish.first_drop_s": 3.0}
 

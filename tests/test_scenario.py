@@ -11,7 +11,7 @@ from plant.errors import InputError
 from fishfmu.scenario.schema import load_scenario, parse_value, resolved_toml
 
 SCENARIOS = Path(__file__).parents[1] / "scenarios"
-PAPER = SCENARIOS / "paper_test.toml"
+PAPER = SCENARIOS / "paper_dump.toml"
 
 
 @pytest.mark.parametrize("path", sorted(SCENARIOS.glob("*.toml")), ids=lambda p: p.name)

@@ -185,7 +185,7 @@ override_keys = st.one_of(
 @PROFILE
 @given(overrides=st.dictionaries(override_keys, values, max_size=3))
 def test_overrides_on_a_shipped_scenario_load_or_are_an_input_error(overrides: dict) -> None:
-    _loads_or_input_error(ROOT / "scenarios" / "paper_test.toml", overrides)
+    _loads_or_input_error(ROOT / "scenarios" / "paper_dump.toml", overrides)
 
 
 def test_the_shipped_scenarios_themselves_load_and_wire(builtin_variables) -> None:

@@ -2,7 +2,7 @@
 
 The PLC is a client written here with asyncua's client API, running the controller FMU's fixed profile
 (belt i at speed_i from scan (4 - i) x 100 on, as fishfmu/fmu/sources/singulation_controller/model.c states);
-in lockstep the run it drives must be the run of paper_test.toml, where the controller FMU does the same.
+in lockstep the run it drives must be the run of paper_dump.toml, where the controller FMU does the same.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from plant.kpis import KPI_KEYS  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SERVED = ROOT / "scenarios" / "paper_opcua.toml"
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 SPEEDS = [0.25, 0.50, 0.80, 1.25]
 DT = 0.01
 SHORT = ["--set", "fish.count=4", "--set", "run.duration_s=20", "--no-report"]  # fish reach pe_c4 at ~17 s
@@ -101,7 +101,7 @@ def test_a_plc_client_in_lockstep_drives_the_same_run_as_the_controller_fmu(tmp_
     # 4 fish in 20 s miss the paper's [expect] bounds (exit 1): the same for both
     assert proc.returncode == ref.returncode == 1, (err, ref.stderr)
     served = tmp_path / "served" / "run" / "runs" / "paper_opcua"
-    fmu = tmp_path / "ref" / "run" / "runs" / "paper_test"
+    fmu = tmp_path / "ref" / "run" / "runs" / "paper_dump"
     for table in ("tracks", "photoeyes", "belts", "fish"):
         pd.testing.assert_frame_equal(pd.read_csv(served / f"{table}.csv"), pd.read_csv(fmu / f"{table}.csv"),
                                       check_exact=True)

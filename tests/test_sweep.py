@@ -22,7 +22,7 @@ from fishfmu.batch.stats import mean_ci, summarise, wilson_interval
 from fishfmu.batch.sweep import make_spec, run_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
-PAPER = ROOT / "scenarios" / "paper_test.toml"
+PAPER = ROOT / "scenarios" / "paper_dump.toml"
 # two fish dropped early on a line that starts quickly: they reach the outfeed within 12 s
 SMALL = {"fish.count": 2, "run.duration_s": 12.0, "fish.first_drop_s": 1.0, "fmu[0].parameters.startup_delay": 0.3}
 # nothing reaches the outfeed: cheap runs for bookkeeping tests
@@ -175,7 +175,7 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
 
 
 def test_a_scale_multiplies_the_scenarios_values_of_its_keys() -> None:
-    """--scale speed=KEYS with --param speed=F: each key gets F times its value in paper_test.toml
+    """--scale speed=KEYS with --param speed=F: each key gets F times its value in paper_dump.toml
     (0.25/0.50/0.80/1.25 m/s), the same at every point and for every seed; other keys untouched."""
     from fishfmu.batch.sweep import FmuChecker, point_overrides, prepare_point
     keys = [f"fmu[0].parameters.speed_{i}" for i in range(1, 5)]

@@ -13,7 +13,7 @@ from fishfmu.fmu.archive import FmuVariable
 from fishfmu.scenario.schema import load_scenario
 from fishfmu.scenario.wiring import resolve_wiring
 
-PAPER = Path(__file__).parents[1] / "scenarios" / "paper_test.toml"
+PAPER = Path(__file__).parents[1] / "scenarios" / "paper_dump.toml"
 
 
 def var(name: str, causality: str, type_: str = "Real") -> FmuVariable:
@@ -64,7 +64,7 @@ def test_bad_connections_name_the_key_and_what_is_wrong(connection, message):
     sc = paper()
     sc.wiring.connections.append(connection)
     with pytest.raises(InputError) as info:
-        resolve_wiring(sc, fmu_vars(), "paper_test.toml")
+        resolve_wiring(sc, fmu_vars(), "paper_dump.toml")
     text = str(info.value)
     assert message in text and "wiring.connections[20]" in text
 
@@ -90,7 +90,7 @@ def test_algebraic_loop_of_direct_feedthrough_cannot_be_ordered():
     # pretend the drives' belt speed and the controller's setpoints were declared direct feedthrough
     feed = {"controller": {"setpoint_1"}, "drive_c1": {"belt_speed"}}
     with pytest.raises(InputError, match="algebraic loop: .*controller.*drive_c1"):
-        resolve_wiring(sc, fmu_vars(), "paper_test.toml", feed)
+        resolve_wiring(sc, fmu_vars(), "paper_dump.toml", feed)
     # the same cycle of state outputs is fine: the controller (listed first) steps first
     assert resolve_wiring(sc, fmu_vars(), None, {}).order[0] == "controller"
 
@@ -114,7 +114,7 @@ def test_events_that_do_not_fit_the_type_of_their_target_are_rejected(event, whe
     fmus["controller"]["label"] = var("label", "input", "String")
     sc = paper(event=[{"t_s": 1.0, **event}])
     with pytest.raises(InputError) as failure:
-        resolve_wiring(sc, fmus, "paper_test.toml")
+        resolve_wiring(sc, fmus, "paper_dump.toml")
     assert failure.value.where == where and message in str(failure.value)
     sc = paper(event=[{"t_s": 1.0, "target": "plant.pe_c1.blocked", "action": "override", "value": True},
                       {"t_s": 2.0, "target": "controller.label", "action": "reset"}])
@@ -126,4 +126,4 @@ def test_string_input_cannot_be_given_a_numeric_constant():
     fmus["controller"]["label"] = var("label", "input", "String")
     sc = paper(**{"wiring.inputs": {"controller.label": 1.0}})
     with pytest.raises(InputError, match="wiring.inputs.controller.label.*is a String input"):
-        resolve_wiring(sc, fmus, "paper_test.toml")
+        resolve_wiring(sc, fmus, "paper_dump.toml")

@@ -42,7 +42,7 @@ def measure(scenario: str | Path, process: str, overrides: dict[str, Any]) -> di
             "total_s": total}
 
 
-def bench(scenario: str | Path = "scenarios/paper_test.toml", steps: int = 2000, repeats: int = 3,
+def bench(scenario: str | Path = "scenarios/paper_dump.toml", steps: int = 2000, repeats: int = 3,
           with_fish: bool = False) -> dict[str, Any]:
     overrides = {**NO_FISH, "run.duration_s": steps * 0.01, "run.comm_step_s": 0.01}
     runs: dict[str, list[dict[str, float]]] = {"in-process": [], "worker": []}
@@ -63,7 +63,7 @@ def bench(scenario: str | Path = "scenarios/paper_test.toml", steps: int = 2000,
         "python": platform.python_version(), "load_average_before": round(load_before, 2),
         "load_average_after": round(os.getloadavg()[0], 2)}
     if with_fish:
-        doc["paper_test"] = {p: measure(scenario, p, {}) for p in ("in-process", "worker")}
+        doc["paper_dump"] = {p: measure(scenario, p, {}) for p in ("in-process", "worker")}
     return doc
 
 
@@ -74,7 +74,7 @@ def summary(doc: dict[str, Any]) -> list[str]:
              f"{ip['fmu_ms_per_step']:.3f} ms/step in-process, {w['fmu_ms_per_step']:.3f} ms/step in workers: isolation "
              f"costs {doc['isolation_ms_per_step']:.3f} ms per step ({doc['isolation_ms_per_fmu_step']:.3f} ms per FMU "
              f"and step), start-up {doc['worker_setup_s']:.2f} s"]
-    for p, r in doc.get("paper_test", {}).items():
+    for p, r in doc.get("paper_dump", {}).items():
         lines.append(f"paper test as shipped, {p}: {r['wall_ms_per_step']:.2f} ms/step ({r['steps']} steps, "
                      f"FMU stage {r['fmu_ms_per_step']:.3f} ms/step)")
     return lines

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-PAPER = Path(__file__).parents[2] / "scenarios" / "paper_test.toml"
+PAPER = Path(__file__).parents[2] / "scenarios" / "paper_dump.toml"
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """Speed of whole scenarios as a user runs them: simulated seconds per second of wall time and per
 CPU second of the whole process, where the time goes, fish in play over time, peak memory.
 
-    fishfmu bench scenario scenarios/paper_test.toml scenarios/continuous.toml --repeats 2
+    fishfmu bench scenario scenarios/paper_dump.toml scenarios/continuous.toml --repeats 2
 
 Each case runs in a fresh Python process, as ``fishfmu run --no-report`` does (imports, checks,
 FMUs, the run, its files written to a temporary folder), so that CPU time and peak memory are those

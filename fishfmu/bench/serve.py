@@ -101,7 +101,7 @@ def serve_case(scenario: Path, factor: float, overrides: list[str], speeds: list
 
 def bench(factor: float = 1.0, continuous_s: float | None = None) -> dict[str, Any]:
     scenarios = ROOT / "scenarios"
-    cases = [serve_case(scenarios / "paper_test.toml", factor, [], None),
+    cases = [serve_case(scenarios / "paper_dump.toml", factor, [], None),
              serve_case(scenarios / "paper_opcua.toml", factor, [], [0.25, 0.50, 0.80, 1.25])]
     if continuous_s:
         cases.append(serve_case(scenarios / "continuous.toml", factor, ["--set", f"run.duration_s={continuous_s:g}"],

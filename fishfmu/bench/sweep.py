@@ -19,7 +19,7 @@ from typing import Any
 from fishfmu.batch.sweep import make_spec, run_sweep
 
 
-def bench(scenario: str | Path = "scenarios/paper_test.toml", n_runs: int = 8, workers: tuple[int, ...] = (1, 2),
+def bench(scenario: str | Path = "scenarios/paper_dump.toml", n_runs: int = 8, workers: tuple[int, ...] = (1, 2),
           fixed: dict[str, Any] | None = None) -> dict[str, Any]:
     """Runs per minute for each worker count (same scenario, same seeds)."""
     spec = make_spec(scenario, {}, n_runs, fixed or {})

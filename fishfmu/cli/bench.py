@@ -67,7 +67,7 @@ def bench_pile(
 
 @bench_app.command("fmu-worker")
 def bench_fmu_worker(
-    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    scenario: Path = typer.Option(Path("scenarios/paper_dump.toml"), "--scenario", help="Scenario file (TOML)."),
     steps: int = typer.Option(2000, "--steps", min=1, help="Communication steps per run (no fish)."),
     repeats: int = typer.Option(3, "--repeats", min=1),
     with_fish: bool = typer.Option(False, "--with-fish", help="Also the scenario as shipped, in both modes."),
@@ -98,7 +98,7 @@ def bench_serve(
 
 @bench_app.command("sweep")
 def bench_sweep(
-    scenario: Path = typer.Option(Path("scenarios/paper_test.toml"), "--scenario", help="Scenario file (TOML)."),
+    scenario: Path = typer.Option(Path("scenarios/paper_dump.toml"), "--scenario", help="Scenario file (TOML)."),
     runs: int = typer.Option(8, "--runs", min=1, help="Seeds per setting."),
     workers: list[int] = typer.Option([1, 2], "--workers", help="Worker counts to measure (repeatable)."),
     set_: list[str] = typer.Option([], "--set", help="Fixed override: --set fish.count=30 (repeatable)."),
