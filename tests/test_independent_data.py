@@ -70,3 +70,27 @@ def test_photoeye_passages_show_rigor_in_independent_data() -> None:
     assert len(in_rigor) >= 2 and len(out_of_rigor) >= 2
     assert out_of_rigor.min() > 0.99 and in_rigor.max() < out_of_rigor.min() - 0.02
     assert none.min() > 0.99
+
+
+@pytest.mark.skipif(not TRUTHS, reason="../shared/data/dev not present")
+def test_drop_lags_show_slippery_fresh_fish_in_independent_data() -> None:
+    # The signature mucus leaves on the drops, read from data nobody here made: fish dropped alone onto the infeed
+    # take longer to come up to its speed when fresh (slippery slaughter mucus) than a day or more later; in the
+    # dataset without an effect they take the same time at every age.
+    from fishfmu.analysis.residuals import drop_lags
+
+    def by_hours(name: str) -> pd.DataFrame:
+        ds = read_dataset(DATA / "dev" / name)
+        rows = []
+        for run in ds.runs:
+            d = drop_lags(run, ds.line)["drop_lag_s"]
+            if len(d) >= 10:  # the sparse runs: fish dropped one at a time
+                rows.append({"hours": run.hours_post_mortem, "median": d.median(), "se": d.std() / len(d) ** 0.5})
+        return pd.DataFrame(rows).set_index("hours").sort_index()
+
+    mucus, none = by_hours("dev_mucus"), by_hours("dev_none")
+    assert len(mucus) >= 4 and len(none) >= 4
+    fresh, later = mucus.loc[mucus.index.min()], mucus[mucus.index >= 16]
+    assert mucus.index.min() <= 2.0 and len(later) >= 2
+    assert (fresh["median"] - later["median"] > 3 * (fresh["se"] ** 2 + later["se"] ** 2) ** 0.5).all()
+    assert none["median"].max() - none["median"].min() < 0.01  # s: about 0.12 s at every age (medians: a few fish land badly)

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fishfmu.analysis.levels import LAG, MODELS, PASSAGE, fit_model, responses
+from fishfmu.analysis.levels import DROP, LAG, MODELS, PASSAGE, fit_model, responses
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, PASSAGE_RESIDUAL_DTYPES,
                                         RunResiduals, typed_frame)
 
@@ -93,3 +93,30 @@ def test_a_gain_carried_by_one_run_is_told_as_such():
     assert fit.carried_by() is None
     fit.gain_by_run, fit.heldout_gain = {"r1": 1.0, "r2": 1.0, "r3": 8.0}, 0.01
     assert fit.carried_by() is None
+
+
+def with_drops(run_id: str, drops: list[float]) -> RunResiduals:
+    """Fish alone after their drop (belt 0): a drop row each, no lag across a transfer."""
+    rows = typed_frame([{"run_id": run_id, "fish_id": f"d{i}", "belt": 0, "conveyor_id": "a", "t_start_s": 1.0,
+                         "t_end_s": 2.0, "offset_m": d, "lag_m": d, "heading": 1.0, "hours_post_mortem": 6.0,
+                         "length_m": 0.6, "crowded": False, "n_samples": 10} for i, d in enumerate(drops)],
+                       BELT_RESIDUAL_DTYPES)
+    return RunResiduals(run_id, rows, typed_frame([], PAIR_RESIDUAL_DTYPES), 0.0)
+
+
+def test_drop_rows_count_between_runs_only_and_weigh_by_their_scatter_within_a_run():
+    # drops at off: r1 (0.04, 0.06), r2 (0.01, 0.03): every drop 0.02 m behind the data's in both (how a drop is
+    # modelled), r1 0.03 m more (its fish slide longer). Friction 1.4 takes 0.02 m off every drop.
+    off = {"r1": with_drops("r1", [0.04, 0.06]), "r2": with_drops("r2", [0.01, 0.03])}
+    high = {"r1": with_drops("r1", [0.02, 0.04]), "r2": with_drops("r2", [-0.01, 0.01])}
+    resp = responses(off, {("friction", 1.4): high}, {"r1": 1.0, "r2": 48.0})
+    assert list(resp.row_kind) == [DROP] * 4 and list(resp.counts) == [0, 0]  # no lag rows
+    # less their mean over the runs (0.035): r1 (0.005, 0.025), r2 (-0.025, -0.005)
+    assert resp.residuals({}) == pytest.approx([0.005, 0.025, -0.025, -0.005])
+    # noise: the scatter within a run, about each run's mean (0.01 m each side): variance 4 x 0.0001 / (4 - 2)
+    assert resp.row_weight == pytest.approx([1 / 0.0002] * 4)
+    # one friction level for both runs moves every drop alike: the difference between the runs stays
+    assert resp.residuals({"friction": np.full(2, 1.4)}) == pytest.approx(resp.residuals({}))
+    # r1 at 1.4 and r2 at 1: r1 (0.02, 0.04), r2 (0.01, 0.03), less their mean 0.025: the runs' means 0.01 m apart
+    # instead of 0.03
+    assert resp.residuals({"friction": np.array([1.4, 1.0])}) == pytest.approx([-0.005, 0.015, -0.015, 0.005])

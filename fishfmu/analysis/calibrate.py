@@ -25,8 +25,10 @@ a transfer is what friction decides):
 4. Every value gets a 95 % interval (bootstrap over the fit runs) and a held-out gain (each fit run
    scored with values chosen on the others); it is applied only if that gain's interval is above zero.
    The held-out runs are then re-simulated with the calibrated model.
+5. The drives' ramps, from the start-ups in their logs, without simulating fish
+   (:mod:`fishfmu.analysis.drive_response`), judged the same way.
 
-The result is a scenario fragment (``calibrated.toml``, only ``[plant]`` tables) that ``fishfmu
+The result is a scenario fragment (``calibrated.toml``: ``[plant]`` tables, the drives' ramps as comments) that ``fishfmu
 compare`` and ``diagnose`` take with ``--scenario`` (and whose tables a scenario for ``run`` can take).
 """
 
@@ -43,6 +45,7 @@ from plant.measured import Dataset, Run
 from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
+from fishfmu.analysis.drive_response import DriveResponseFit, fit_drive_responses
 from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, alone,
@@ -150,6 +153,8 @@ class Calibration:
     runs with the calibrated model, the fit runs with every level off (the base of the responses)."""
     extra_sims: list = field(default_factory=list, repr=False)
     """The re-simulations asked for with ``extra`` (in its order)."""
+    drives: list[DriveResponseFit] = field(default_factory=list)
+    """Each drive's ramp, fitted on the start-ups in its log (:mod:`fishfmu.analysis.drive_response`)."""
 
     def changed(self, base: PlantParams) -> dict[str, tuple[float, float]]:
         """Every value the calibration changed: dotted path -> (model's, calibrated)."""
@@ -166,8 +171,18 @@ class Calibration:
         changed = self.changed(base)
         head = "# fitted by fishfmu calibrate on the runs " + ", ".join(self.fit_runs) + "\n"
         if not changed:
-            return head + "# nothing changed: no base parameter fitted the data clearly better than the model's\n"
-        return head + plant_tables({path: value for path, (_, value) in changed.items()})
+            return (head + "# nothing changed: no base parameter fitted the data clearly better than the model's\n"
+                    + self.drive_fragment())
+        return head + plant_tables({path: value for path, (_, value) in changed.items()}) + self.drive_fragment()
+
+    def drive_fragment(self) -> str:
+        """The drives' fitted ramps, as comments: a drive is an FMU of the scenario, not part of ``[plant]``."""
+        kept = [d for d in self.drives if d.kept]
+        if not kept:
+            return ""
+        return "# the drives' ramps, fitted on the start-ups in the drive logs (built-in conveyor_drive FMU):\n" + "".join(
+            f"# in the instance driving {d.conveyor_id}: [fmu.parameters] ramp_acceleration = {d.value_mps2:.3g}  "
+            f"# m/s2, model {d.model_mps2:g}\n" for d in kept)
 
 
 def _squares(res: dict[str, RunResiduals], runs: list[str], group: str | None) -> tuple[np.ndarray, np.ndarray]:
@@ -305,6 +320,7 @@ def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, table: 
 def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
     """The friction level (and joint stiffening, when rigor was simulated) as knobs: the ``constant`` model of
     the level responses, with its held-out gain against leaving every level off (one gain for both)."""
+    resp = resp.only(MODELS["constant"].kinds)  # the rows a constant level changes: not the drops (less their mean)
     m = fit_model(MODELS["constant"], resp, rng)
     off = resp.run_ss({})
     gain, ci = gain_with_ci(off - m.cv_ss, off, rng)
@@ -368,6 +384,10 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
                 for r in runs]
     base_by_run = {b.run_id: b for b in baseline}
     timing["baseline"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    # a stream of its own, so that the knobs' bootstraps draw what they drew before drives were fitted
+    drives = fit_drive_responses(dataset, fit_ids, np.random.default_rng([seed, 1])) if fit_base else []
+    timing["drives"] = time.perf_counter() - t1
 
     fits: list[KnobFit] = []
     stage_base = {r: base_by_run[r] for r in fit_ids}
@@ -465,7 +485,7 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
                        {g: _rms(baseline, ids) for g, ids in groups.items()}, rms_after,
                        {g: _track_rms(baseline, ids) for g, ids in groups.items()},
                        {g: _track_rms(after, ids) for g, ids in groups.items()}, timing, baseline, after,
-                       resp, level_base, sims_after, extra_sims)
+                       resp, level_base, sims_after, extra_sims, drives)
 
 
 def calibration_document(c: Calibration, base: PlantParams) -> dict:
@@ -480,6 +500,10 @@ def calibration_document(c: Calibration, base: PlantParams) -> dict:
         "changed": {path: {"model": a, "calibrated": b} for path, (a, b) in c.changed(base).items()},
         "lag_rms_m": {"before": c.rms_before_m, "after": c.rms_after_m},
         "track_rms_m": {"before": c.track_rms_before_m, "after": c.track_rms_after_m},
+        "drives": [{"conveyor_id": d.conveyor_id, "parameter": "ramp_acceleration", "unit": "m/s2",
+                    "model": d.model_mps2, "value": d.value_mps2, "fitted": d.fitted_mps2, "fitted_ci95": list(d.ci95),
+                    "heldout_gain": d.heldout_gain, "heldout_gain_ci95": list(d.heldout_gain_ci95), "kept": d.kept,
+                    "startups": d.startups, "speed_rms_mps": d.rms_mps} for d in c.drives],
         "timing_s": c.timing_s,
     }
 
@@ -508,6 +532,15 @@ def summary_lines(c: Calibration, base: PlantParams) -> list[str]:
                         else " (not kept)"))
     for path, (a, b) in c.changed(base).items():
         lines.append(f"  {path}: {a:.4g} -> {b:.4g}")
+    for d in c.drives:
+        if not np.isfinite(d.fitted_mps2):
+            continue
+        err = d.rms_mps.get("heldout", {})
+        lines.append(f"drive {d.conveyor_id} ramp: fitted {d.fitted_mps2:.3g} m/s2 [{d.ci95[0]:.3g}, {d.ci95[1]:.3g}] "
+                     f"(model {d.model_mps2:g}), held-out gain {d.heldout_gain:.0%} [{d.heldout_gain_ci95[0]:.0%}, "
+                     f"{d.heldout_gain_ci95[1]:.0%}]" + ("" if d.kept else " (not kept)")
+                     + (f"; start-up speed error on the held-out runs {err['before']:.3f} -> {err['after']:.3f} m/s"
+                        if d.kept and np.isfinite(err.get("before", np.nan)) else ""))
     for g, label in (("fit", "fit runs"), ("heldout", "held-out runs")):
         if not np.isfinite(c.rms_before_m[g]) and np.isfinite(c.rms_after_m[g]):
             lines.append(f"lag RMS on the {label}: {c.rms_after_m[g]:.3f} m calibrated (not re-simulated with the "

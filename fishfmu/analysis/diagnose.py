@@ -43,7 +43,8 @@ from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 from fishfmu.analysis.levels import (FRICTION, MODELS, RIGOR, LevelModel, ModelFit, Responses, fit_model, gain_over,
                                      run_levels)
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
-                               RunResiduals, concat_typed, drive_residuals_averaged, pair_residuals, residuals_of)
+                                        RunResiduals, concat_typed, drive_residuals_averaged, drop_lags,
+                                        pair_residuals, residuals_of)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
 
 MIN_GAIN = 0.02
@@ -247,6 +248,9 @@ class Diagnosis:
     calibration: Calibration
     run_levels: pd.DataFrame
     """The signature of run-level effects: each fit run's own best friction and rigor levels, with its hours."""
+    drop_lags: pd.DataFrame = field(default_factory=pd.DataFrame)
+    """The same read from the data alone: per run, the median time a fish dropped alone takes to come up to the
+    infeed's speed (:func:`fishfmu.analysis.residuals.drop_lags`), with its hours and how many fish."""
 
     def ranking(self) -> list[str]:
         fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain_ci95[0], nan=-1.0))
@@ -275,7 +279,8 @@ def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFi
                         rng: np.random.Generator) -> CandidateFit:
     """A run-level candidate's fit from its level model, judged against the constant friction level."""
     fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95),
-                       error_unit="x noise (lags and photo-eye passages, each over its noise)")
+                       error_unit="x noise (the rows it is judged on: lags, drops or photo-eye passages, each "
+                                  "over its noise)")
     fit.heldout_gain, fit.heldout_gain_ci95 = gain_over(reference, model, rng)
     fit.gain_by_run = dict(zip(resp.runs, map(float, reference.cv_ss - model.cv_ss)))
     n = max(int(np.count_nonzero(resp.row_weight)), 1)
@@ -357,7 +362,18 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     frag = _fragment(cal, base, winner)
     timing["total"] = time.perf_counter() - t0
     return Diagnosis(cause, evidence, fits, frag, {b.run_id: b.track_rms_m for b in cal.baseline},
-                     {b.run_id: b.track_rms_m for b in current}, timing, current, drive, cal, run_levels(resp))
+                     {b.run_id: b.track_rms_m for b in current}, timing, current, drive, cal, run_levels(resp),
+                     drop_lag_table(dataset))
+
+
+def drop_lag_table(dataset: Dataset) -> pd.DataFrame:
+    """Per run: hours post mortem, fish dropped alone, and the median of their drop lags [s] (NaN without any)."""
+    rows = []
+    for run in dataset.runs:
+        d = drop_lags(run, dataset.line)["drop_lag_s"]
+        rows.append({"run_id": run.id, "hours_post_mortem": run.hours_post_mortem, "fish": len(d),
+                     "median_drop_lag_s": float(d.median()) if len(d) else float("nan")})
+    return pd.DataFrame(rows)
 
 
 def _fit_on_grid(dataset: Dataset, cand: Candidate, params_of: Callable[[Run], PlantParams],
@@ -413,4 +429,4 @@ def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) 
     paths = [path for k in KNOBS.values() for path in k.writes] + list(cand.writes)
     changed = {path: plant_value(p, path) for path in dict.fromkeys(paths) if plant_value(p, path) != plant_value(base, path)}
     return (f"# fitted by fishfmu diagnose on the runs {', '.join(cal.fit_runs)}: the calibrated model and "
-            f"{cand.description}\n" + plant_tables(changed))
+            f"{cand.description}\n" + plant_tables(changed) + cal.drive_fragment())

@@ -97,6 +97,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "candidates": candidates,
         "rules": {"min_gain": MIN_GAIN, "rule": DECISION_RULE, "evidence_support_z": SUPPORT_Z},
         "run_levels": d.run_levels.to_dict(orient="records"),
+        "drop_lags": d.drop_lags.to_dict(orient="records"),
         "timing_s": d.timing_s,
     }
 

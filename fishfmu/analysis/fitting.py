@@ -35,9 +35,9 @@ def vertex(x: np.ndarray, y: np.ndarray) -> float:
     lo, hi = max(0, i - 1), min(len(x), i + 2)
     if hi - lo < 3:
         return float(x[i])
-    a, b, _ = np.polyfit(x[lo:hi], y[lo:hi], 2)
+    a, b, _ = np.polyfit(x[lo:hi] - x[i], y[lo:hi], 2)  # centred: points close together stay well conditioned
     if a <= 0:
         return float(x[i])
-    return float(np.clip(-b / (2 * a), x[lo], x[hi - 1]))
+    return float(np.clip(x[i] - b / (2 * a), x[lo], x[hi - 1]))
 
 

@@ -8,9 +8,15 @@ beyond an end of the grid where a run still wants more), and every response row 
 linearly between them, in log of the multiplier for friction and log(1 + stiffness) for rigor.  Levels
 act on different things (how long a fish slips, how it bends and lies); their changes of a row add up.
 
-Rows of two kinds (:data:`LAG`, :data:`PASSAGE`):
+Rows of three kinds (:data:`LAG`, :data:`DROP`, :data:`PASSAGE`):
 
 - a fish's **lag** across a transfer (what friction decides, and stiffness a little);
+- a fish's lag after its **drop** onto the infeed with no other fish near: how long it slides until it moves
+  with the belt.  The whole fish slides on one belt, so it keeps answering to friction where the lags
+  across transfers no longer do (a fish that grips lags the same at a transfer whatever the friction above a
+  point: the faster belt takes it when half of it lies there).  How a drop is modelled (height, landing)
+  differs from a real drop by an offset, so these rows too are taken less their mean over the runs: they
+  say how friction differs between runs, not its level;
 - a beam's **blocked share** of the passages of fish riding alone
   (:func:`fishfmu.analysis.residuals.passage_residuals`): a limp fish lies in the belt and blocks a low
   beam throughout, one stiff in rigor does not and the beam flickers.  Friction hardly changes it.  How a
@@ -124,12 +130,14 @@ class Responses:
     lag0: np.ndarray
     """Each row's residual with every level off (a lag [m], or a photo-eye blocked share)."""
     row_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    """Per row: :data:`LAG` or :data:`PASSAGE`."""
+    """Per row: :data:`LAG`, :data:`DROP` or :data:`PASSAGE`."""
     row_beam: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    """Per row: which beam (0, 1, ... for photo-eye rows; -1 for lags)."""
+    """Per row: the group whose mean over all runs is taken off (each beam's photo-eye rows, the drop rows;
+    -1: none, the lags across transfers)."""
     row_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
-    """Per row: 1 / its noise variance (a lag: the lags' mean square at the best simulated constant level; a
-    beam: its standard error squared), so that a lag in metres and a blocked share add up."""
+    """Per row: 1 / its noise variance (a lag: the lags' mean square at the best simulated constant level; a drop:
+    the drops' scatter within a run there; a beam: its standard error squared), so that metres and blocked shares
+    add up as what they are worth."""
     values: dict[str, np.ndarray] = field(default_factory=dict)
     """Per level: the simulated values (sorted, ``off`` among them)."""
     delta: dict[str, np.ndarray] = field(default_factory=dict)
@@ -153,7 +161,7 @@ class Responses:
             j = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
             w = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
             lag += d[rows, j] * (1.0 - w) + d[rows, j + 1] * w
-        for b in range(int(self.row_beam.max(initial=-1)) + 1):  # how a beam sees our outline is an offset per beam
+        for b in range(int(self.row_beam.max(initial=-1)) + 1):  # how a beam sees our outline, how a drop is modelled
             rows_b = (self.row_beam == b) & (self.row_weight > 0)
             if rows_b.any():
                 lag[rows_b] -= np.average(lag[rows_b], weights=self.row_weight[rows_b])
@@ -180,18 +188,19 @@ class Responses:
         return np.bincount(self.row_run[self.row_kind == LAG], minlength=len(self.runs))
 
 
-LAG, PASSAGE = 0, 1
-"""Kinds of response rows: a fish's lag across a transfer, a beam's blocked share of passages (per run)."""
+LAG, PASSAGE, DROP = 0, 1, 2
+"""Kinds of response rows: a fish's lag across a transfer, a beam's blocked share of passages (per run), a fish's
+lag after its drop."""
+ROW_KINDS = {"lag": LAG, "blocked": PASSAGE, "drop": DROP}
 
 
 def _rows(res: RunResiduals) -> tuple[pd.Series, pd.Series]:
-    """A run's response rows, ("lag", fish, belt) and ("blocked", beam, ""), and their standard errors (lags: NaN,
-    set from all lags)."""
+    """A run's response rows, ("lag", fish, belt), ("drop", fish, "0") and ("blocked", beam, ""), and their standard
+    errors (lags and drops: NaN, set from all of them)."""
     free = alone(res.rows)
-    free = free[free["belt"] > 0]  # after a transfer: on the first belt the lag is the drop's
+    kind = np.where(free["belt"].to_numpy() > 0, "lag", "drop")  # on the first belt the lag is the drop's
     lags = pd.Series(free["lag_m"].to_numpy(float),
-                     index=pd.MultiIndex.from_arrays([["lag"] * len(free), free["fish_id"].astype(str),
-                                                      free["belt"].astype(str)]))
+                     index=pd.MultiIndex.from_arrays([kind, free["fish_id"].astype(str), free["belt"].astype(str)]))
     p = res.passages
     at = pd.MultiIndex.from_arrays([["blocked"] * len(p), p["sensor_id"].astype(str), [""] * len(p)])
     beams = pd.Series(p["dblocked"].to_numpy(float), index=at)
@@ -215,12 +224,12 @@ def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], d
         row_run += [i] * len(s)
         lag0 += list(s.to_numpy())
         se += list(e.reindex(s.index).to_numpy(float))
-        kind += [PASSAGE if k == "blocked" else LAG for k in s.index.get_level_values(0)]
+        kind += [ROW_KINDS[k] for k in s.index.get_level_values(0)]
         keys.append(s.index)
     resp = Responses(runs, np.array([hours[r] for r in runs], float), np.array(row_run, dtype=np.int64),
                      np.array(lag0, float), np.array(kind, dtype=np.int64))
-    beam_of = [k[1] if k[0] == "blocked" else None for idx in keys for k in idx]
-    beams = sorted({b for b in beam_of if b is not None})
+    beam_of = [k[1] if k[0] == "blocked" else " drop" if k[0] == "drop" else None for idx in keys for k in idx]
+    beams = sorted({b for b in beam_of if b is not None})  # each beam's rows and the drop rows: an offset each
     resp.row_beam = np.array([beams.index(b) if b is not None else -1 for b in beam_of], dtype=np.int64)
     for name in sorted({n for n, _ in simulated}):
         lv = LEVELS[name]
@@ -254,14 +263,27 @@ def _nearest_filled(delta: np.ndarray, xs: np.ndarray) -> np.ndarray:
 
 def _row_weights(resp: Responses, se: np.ndarray) -> np.ndarray:
     """1 / noise variance of each row: a beam's from its standard error; the lags' their mean square at the best
-    simulated pair of constant levels (what no level removes is taken for noise)."""
-    lag = resp.row_kind == LAG
-    resp.row_weight = np.where(lag, 1.0, 1.0 / np.square(np.where(np.isfinite(se), se, 1.0)))
-    best = np.inf
+    simulated pair of constant levels (what no level removes is taken for noise); the drops' their scatter within
+    each run there (a run-level effect moves a run's drops together: only the scatter within a run is noise)."""
+    lag, drop = resp.row_kind == LAG, resp.row_kind == DROP
+    resp.row_weight = np.where(lag | drop, 1.0, 1.0 / np.square(np.where(np.isfinite(se), se, 1.0)))
+    best, best_r = np.inf, None
     for combo in itertools.product(*(resp.values[n] for n in sorted(resp.values))):
         r = resp.residuals({n: np.full(len(resp.runs), v) for n, v in zip(sorted(resp.values), combo)})
-        best = min(best, float(np.mean(r[lag] ** 2)) if lag.any() else np.inf)
-    return np.where(lag, 1.0 / max(best, 1e-12) if np.isfinite(best) else 1.0, resp.row_weight)
+        ms = float(np.mean(r[lag] ** 2)) if lag.any() else np.inf
+        if ms < best:
+            best, best_r = ms, r
+    w = np.where(lag, 1.0 / max(best, 1e-12) if np.isfinite(best) else 1.0, resp.row_weight)
+    if drop.any():
+        best_r = best_r if best_r is not None else resp.residuals({})  # no lags to choose the levels by: off
+        runs_d = resp.row_run[drop]
+        d = best_r[drop]
+        mean = np.bincount(runs_d, weights=d, minlength=len(resp.runs)) / np.maximum(
+            np.bincount(runs_d, minlength=len(resp.runs)), 1)
+        dof = int(drop.sum()) - len(np.unique(runs_d))
+        var = float(np.sum((d - mean[runs_d]) ** 2) / dof) if dof > 0 else np.inf
+        w = np.where(drop, 1.0 / max(var, 1e-12) if np.isfinite(var) else 0.0, w)
+    return w
 
 
 @dataclass(frozen=True)
@@ -275,8 +297,10 @@ class LevelModel:
     levels: Callable[..., dict[str, np.ndarray]]
     """``levels(hours, *values) -> {level: per-run value}``."""
     kinds: tuple[int, ...] = (LAG, PASSAGE)
-    """The rows it is judged on (:data:`LAG`, :data:`PASSAGE`): the ones its levels change (friction hardly
-    changes how a beam sees a fish; rows a model cannot change only add noise to its gain)."""
+    """The rows it is judged on (:data:`LAG`, :data:`DROP`, :data:`PASSAGE`): the ones its levels change (friction
+    hardly changes how a beam sees a fish; the drops, less their mean over the runs, say how friction differs
+    between runs, which one level for all runs does not change; rows a model cannot change only add noise to its
+    gain)."""
 
 
 def mucus_index(hours: np.ndarray, time_constant_h: float = 24.0) -> np.ndarray:
@@ -323,7 +347,7 @@ MODELS: dict[str, LevelModel] = {m.name: m for m in (
     LevelModel("mucus_friction", ("friction_level", "joint_stiffening", "gain", "time_constant_h"),
                lambda r: (_friction_values(r), _stiffness_values(r), MUCUS_GAINS, MUCUS_TIME_CONSTANTS_H),
                lambda h, a, k0, g, tau: {"friction": a * (1.0 + g * mucus_index(h, tau)), "rigor": _const(h, k0)},
-               kinds=(LAG,)),
+               kinds=(LAG, DROP)),
     LevelModel("rigor_mortis", ("friction_level", "joint_stiffening", "stiffness_gain", "peak_h", "width_h"),
                lambda r: (_friction_values(r), _stiffness_values(r), _stiffness_values(r), RIGOR_PEAKS_H, RIGOR_WIDTHS_H),
                lambda h, a, k0, k, peak, width: {"friction": _const(h, a), "rigor": k0 + k * rigor_index(h, peak, width)}),

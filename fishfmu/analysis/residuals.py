@@ -19,6 +19,11 @@ From a measured run and its re-simulation (same fish, drops, belt speeds):
   the beam through under an arched part, so the beam flickers.  Friction hardly changes it: the
   signature that tells rigor from mucus;
 - **drive residuals**: logged belt speed minus the drive model's, against the belt load.
+
+And one measure of the data alone, no simulation: the **drop lag** of a fish dropped onto the
+infeed with no other fish near, the time it takes to come up to the belt's speed (how far it stays
+behind a point moving with the belt from where it was dropped, over the belt's speed).  Friction
+sets it (a slippery fish slides longer), so across runs it shows friction changing without any model.
 """
 
 from __future__ import annotations
@@ -181,6 +186,33 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
 
 REACH_M = 0.4
 """A fish is at a beam when its mid-point is this close (half the longest salmon of the contract's range)."""
+
+
+DROP_LAG_WINDOW_S = (1.5, 3.0)
+"""After its drop, when a fish's lag on the infeed is read: it has landed and come up to the belt's speed."""
+
+
+def drop_lags(run: Run, line: Line) -> pd.DataFrame:
+    """Per fish dropped onto the first belt with no other fish within a fish length until it is read: its drop
+    lag [s] (see the module docstring), the mean over the samples in :data:`DROP_LAG_WINDOW_S` after the drop
+    while it lies wholly on the first belt, at the belt's logged median speed there."""
+    dtypes = {"fish_id": object, "drop_lag_s": float, "belt_speed_mps": float, "n_samples": "int64"}
+    belt = line.conveyors[0]
+    logged = run.belts[run.belts["conveyor_id"] == belt.id]
+    rows = []
+    for f in run.fish.itertuples(index=False):
+        t0, t1 = f.drop_t_s + DROP_LAG_WINDOW_S[0], f.drop_t_s + DROP_LAG_WINDOW_S[1]
+        tr = run.tracks[(run.tracks["fish_id"] == f.fish_id) & (run.tracks["t_s"] >= t0) & (run.tracks["t_s"] <= t1)]
+        tr = tr[tr["x_m"] + 0.5 * f.length_m < belt.x_end_m - EDGE_M]
+        v = logged[(logged["t_s"] >= f.drop_t_s) & (logged["t_s"] <= t1)]["speed_mps"]
+        if len(tr) < 5 or v.empty or float(v.median()) < 0.05 or _crowding(run.tracks, f.fish_id, f.drop_t_s, t1,
+                                                                         float(f.length_m)):
+            continue
+        speed = float(v.median())
+        lag = f.drop_x_m + speed * (tr["t_s"].to_numpy(float) - f.drop_t_s) - tr["x_m"].to_numpy(float)
+        rows.append({"fish_id": f.fish_id, "drop_lag_s": float(np.mean(lag)) / speed, "belt_speed_mps": speed,
+                     "n_samples": len(tr)})
+    return typed_frame(rows, dtypes)
 
 
 def photoeye_passages(tracks: pd.DataFrame, photoeyes: pd.DataFrame, fish: pd.DataFrame, line: Line,

@@ -233,7 +233,6 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
     """
     from fishfmu.fmu.build import builtin_fmu
     from fishfmu.fmu.archive import open_fmu
-    from fishfmu.fmu.instance import FmuInstance
     b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
     if len(b) < 2:
         return pd.DataFrame({c: pd.Series(dtype=float)
@@ -245,17 +244,27 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
     ld = loads[loads["conveyor_id"] == conveyor_id]
     force = np.interp(t, ld["t_s"].to_numpy(float), ld["load_force_n"].to_numpy(float)) if len(ld) else np.zeros_like(t)
     mass = np.interp(t, ld["t_s"].to_numpy(float), ld["load_mass_kg"].to_numpy(float)) if len(ld) else np.zeros_like(t)
-    params = {"initial_belt_speed": float(np.clip(measured[0], -2.0, 2.0)), **(drive_parameters or {})}
-    model = np.empty_like(t)
     with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
-        drive = FmuInstance(f"drive_{conveyor_id}", fmu, params, start_time_s=float(t[0]))
-        try:
-            model[0] = drive.get(["belt_speed"])["belt_speed"]
-            for i in range(1, len(t)):
-                drive.set({"speed_setpoint": float(np.clip(sp[i - 1], -2.0, 2.0)), "load_force": float(force[i - 1])})
-                drive.do_step(float(t[i - 1]), float(t[i] - t[i - 1]))
-                model[i] = drive.get(["belt_speed"])["belt_speed"]
-        finally:
-            drive.terminate()
+        model = drive_response(fmu, f"drive_{conveyor_id}", t, sp, force, float(measured[0]), drive_parameters)
     return pd.DataFrame({"t_s": t, "setpoint_mps": sp, "measured_mps": measured, "model_mps": model,
                          "load_force_n": force, "load_mass_kg": mass})
+
+
+def drive_response(fmu, name: str, t: np.ndarray, setpoint_mps: np.ndarray, load_force_n: np.ndarray,
+                   initial_mps: float, drive_parameters: dict | None = None) -> np.ndarray:
+    """Belt speed of the conveyor-drive FMU ``fmu`` (an open archive) at the times ``t``, fed each sample's
+    setpoint and load force over the step that follows it, starting at ``initial_mps``."""
+    from fishfmu.fmu.instance import FmuInstance
+    params = {"initial_belt_speed": float(np.clip(initial_mps, -2.0, 2.0)), **(drive_parameters or {})}
+    model = np.empty_like(t)
+    drive = FmuInstance(name, fmu, params, start_time_s=float(t[0]))
+    try:
+        model[0] = drive.get(["belt_speed"])["belt_speed"]
+        for i in range(1, len(t)):
+            drive.set({"speed_setpoint": float(np.clip(setpoint_mps[i - 1], -2.0, 2.0)),
+                       "load_force": float(load_force_n[i - 1])})
+            drive.do_step(float(t[i - 1]), float(t[i] - t[i - 1]))
+            model[i] = drive.get(["belt_speed"])["belt_speed"]
+    finally:
+        drive.terminate()
+    return model
