@@ -41,7 +41,7 @@ def main(sweep_dir: str, png: str) -> None:
     ax.contour(feeds, scales, thr, levels=[PAPER_THROUGHPUT_S], colors="white", linewidths=2)
     more = ax.contour(feeds, scales, thr, levels=[20, 30, 60, 90], colors="white", linewidths=0.6, linestyles=":")
     ax.clabel(more, fmt=lambda v: f"{v:.0f} s")
-    paper = ax.contour(feeds, scales, sing, levels=[PAPER_SINGULATION], colors="orange", linewidths=1.5,
+    ax.contour(feeds, scales, sing, levels=[PAPER_SINGULATION], colors="orange", linewidths=1.5,
                        linestyles="--")
     shipped = ax.plot([SHIPPED[0]], [SHIPPED[1]], marker="*", color="red", markersize=14, linestyle="none")[0]
     ax.legend([plt.Line2D([], [], color="white", linewidth=2), plt.Line2D([], [], color="orange", linestyle="--"),
@@ -59,6 +59,9 @@ def main(sweep_dir: str, png: str) -> None:
     for a in scales:
         row = s[s[SCALE] == a].sort_values(FEED)
         t = row["throughput_time_s_mean"].to_numpy()
+        if np.isnan(t).any():
+            print(f"speed x{a:g}: a point without a mean time for throughput (all its runs failed): not interpolated")
+            continue
         k = np.flatnonzero((t[:-1] <= PAPER_THROUGHPUT_S) & (t[1:] > PAPER_THROUGHPUT_S))
         if not len(k):
             print(f"speed x{a:g}: the grid does not reach {PAPER_THROUGHPUT_S:g} s")

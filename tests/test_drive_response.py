@@ -46,7 +46,8 @@ def _logged_startups(n_runs: int, rng: np.random.Generator) -> Dataset:
 def test_a_startup_is_cut_where_the_first_fish_lands() -> None:
     ds = _logged_startups(1, np.random.default_rng(0))
     t, sp, v = startup(ds.runs[0], "c2")
-    assert t[0] == pytest.approx(0.19) and t[-1] <= 2.5 + 1e-9 and t[-1] - t[0] <= STARTUP_MAX_S
+    assert t[0] == pytest.approx(0.19) and t[-1] == pytest.approx(2.5)  # the drop, before STARTUP_MAX_S ends it
+    assert t[-1] - t[0] < STARTUP_MAX_S
     assert sp[0] == 0.0 and sp[-1] > 0.5  # from the sample before the step
 
 
@@ -76,7 +77,5 @@ def test_on_the_independent_simulators_logs_the_fitted_ramps_carry_over_to_runs_
     fits = {f.conveyor_id: f for f in fit_drive_responses(ds, sparse, np.random.default_rng(0))}
     assert fits["c1"].kept and fits["c1"].value_mps2 < 1.0
     assert fits["c4"].kept and fits["c4"].value_mps2 > 2.0
-    for f in fits.values():
-        if f.kept:
-            assert f.heldout_gain_ci95[0] > 0.0
-            assert f.rms_mps["heldout"]["after"] < f.rms_mps["heldout"]["before"]  # the bulk runs' start-ups
+    for c in ("c1", "c2", "c4"):  # the bulk runs' start-ups, never fitted on, come closer
+        assert fits[c].rms_mps["heldout"]["after"] < 0.7 * fits[c].rms_mps["heldout"]["before"]

@@ -75,7 +75,7 @@ def test_photoeye_passages_show_rigor_in_independent_data() -> None:
 @pytest.mark.skipif(not TRUTHS, reason="../shared/data/dev not present")
 def test_drop_lags_show_slippery_fresh_fish_in_independent_data() -> None:
     # The signature mucus leaves on the drops, read from data nobody here made: fish dropped alone onto the infeed
-    # take longer to come up to its speed when fresh (slippery slaughter mucus) than a day or more later; in the
+    # lose more time to it when fresh (slippery slaughter mucus) than a day or more later; in the
     # dataset without an effect they take the same time at every age.
     from fishfmu.analysis.residuals import drop_lags
 

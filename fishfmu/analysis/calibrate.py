@@ -171,8 +171,8 @@ class Calibration:
         changed = self.changed(base)
         head = "# fitted by fishfmu calibrate on the runs " + ", ".join(self.fit_runs) + "\n"
         if not changed:
-            return (head + "# nothing changed: no base parameter fitted the data clearly better than the model's\n"
-                    + self.drive_fragment())
+            return (head + "# no [plant] value changed: no base parameter fitted the data clearly better than the "
+                    "model's\n" + self.drive_fragment())
         return head + plant_tables({path: value for path, (_, value) in changed.items()}) + self.drive_fragment()
 
     def drive_fragment(self) -> str:

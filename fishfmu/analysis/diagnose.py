@@ -249,8 +249,8 @@ class Diagnosis:
     run_levels: pd.DataFrame
     """The signature of run-level effects: each fit run's own best friction and rigor levels, with its hours."""
     drop_lags: pd.DataFrame = field(default_factory=pd.DataFrame)
-    """The same read from the data alone: per run, the median time a fish dropped alone takes to come up to the
-    infeed's speed (:func:`fishfmu.analysis.residuals.drop_lags`), with its hours and how many fish."""
+    """The same read from the data alone: per run, the median time a fish dropped alone has lost to the infeed
+    (:func:`fishfmu.analysis.residuals.drop_lags`), with its hours and how many drops of a fish alone it has."""
 
     def ranking(self) -> list[str]:
         fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain_ci95[0], nan=-1.0))
@@ -371,7 +371,7 @@ def drop_lag_table(dataset: Dataset) -> pd.DataFrame:
     rows = []
     for run in dataset.runs:
         d = drop_lags(run, dataset.line)["drop_lag_s"]
-        rows.append({"run_id": run.id, "hours_post_mortem": run.hours_post_mortem, "fish": len(d),
+        rows.append({"run_id": run.id, "hours_post_mortem": run.hours_post_mortem, "drops_alone": len(d),
                      "median_drop_lag_s": float(d.median()) if len(d) else float("nan")})
     return pd.DataFrame(rows)
 

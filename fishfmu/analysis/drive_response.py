@@ -56,7 +56,8 @@ class DriveResponseFit:
 def startup(run: Run, conveyor_id: str) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """(t, setpoint, logged speed) of the belt's first start-up in the run: from the sample before its setpoint
     first steps away from the belt's speed, until the setpoint changes again, the first fish is dropped or
-    :data:`STARTUP_MAX_S` have passed.  None when the log has no such step."""
+    :data:`STARTUP_MAX_S` have passed.  None when the log has no such step, or fewer than 20 samples of it (a
+    start-up logged that coarsely says little about a response of tenths of a second)."""
     b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
     t, sp, v = (b[k].to_numpy(float) for k in ("t_s", "setpoint_mps", "speed_mps"))
     step = np.flatnonzero((np.abs(sp) > 0.05) & (np.abs(sp - v) > MIN_STEP * np.abs(sp)))
@@ -77,7 +78,9 @@ def startup(run: Run, conveyor_id: str) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Generator,
                         model_mps2: float | None = None) -> list[DriveResponseFit]:
-    """Each drive's ramp from the start-ups of ``fit_runs`` (the others held out); see the module docstring."""
+    """Each drive's ramp from the start-ups of ``fit_runs`` (the others held out); see the module docstring.  The
+    model's ramp is the built-in drive's (``model_mps2`` None: its declared start value, 2 m/s^2), not one a
+    scenario may set: the gains say what the fitted ramp gains over that."""
     from fishfmu.analysis.resim import drive_response
     from fishfmu.fmu.archive import open_fmu
     from fishfmu.fmu.build import builtin_fmu
@@ -111,12 +114,14 @@ def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Ge
             boot = [float(np.exp(vertex(np.log(tried), table[rng.integers(0, len(fit_ids), len(fit_ids))].sum(axis=0))))
                     for _ in range(300)]
             fit.ci95 = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
-            at_model = int(np.flatnonzero(tried == model_mps2)[0])
-            u, e0 = np.zeros(len(fit_ids)), table[:, at_model].copy()
+            # held out: each fold scored at the coarse ramp best on the other folds (the fine ramps were placed
+            # with every fit run, the held-out one too)
+            at_model = len(RAMP_FACTORS) // 2
+            u, e0 = np.zeros(len(fit_ids)), coarse[:, at_model].copy()
             for fold in folds(fit_ids):
                 test = np.array([r in fold for r in fit_ids])
-                best = int(np.argmin(table[~test].sum(axis=0)))
-                u[test] = e0[test] - table[test, best]
+                best = int(np.argmin(coarse[~test].sum(axis=0)))
+                u[test] = e0[test] - coarse[test, best]
             fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(u, e0, rng)
             fit.kept = bool(fit.heldout_gain_ci95[0] > 0.0)
             if fit.kept:

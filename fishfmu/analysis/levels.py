@@ -131,7 +131,7 @@ class Responses:
     """Each row's residual with every level off (a lag [m], or a photo-eye blocked share)."""
     row_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     """Per row: :data:`LAG`, :data:`DROP` or :data:`PASSAGE`."""
-    row_beam: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    row_offset_group: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     """Per row: the group whose mean over all runs is taken off (each beam's photo-eye rows, the drop rows;
     -1: none, the lags across transfers)."""
     row_weight: np.ndarray = field(default_factory=lambda: np.ones(0))
@@ -148,7 +148,7 @@ class Responses:
 
     def residuals(self, levels: dict[str, np.ndarray]) -> np.ndarray:
         """Every row's residual with each run at the given levels (missing levels: off; outside the simulated
-        values: at the nearest end); photo-eye rows less their beam's mean over all runs."""
+        values: at the nearest end); photo-eye rows less their beam's mean over all runs, drop rows less theirs."""
         lag = self.lag0.copy()
         rows = np.arange(len(lag))
         for name, per_run in levels.items():
@@ -161,8 +161,8 @@ class Responses:
             j = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
             w = np.clip((x - xs[j]) / (xs[j + 1] - xs[j]), 0.0, 1.0)
             lag += d[rows, j] * (1.0 - w) + d[rows, j + 1] * w
-        for b in range(int(self.row_beam.max(initial=-1)) + 1):  # how a beam sees our outline, how a drop is modelled
-            rows_b = (self.row_beam == b) & (self.row_weight > 0)
+        for g in range(int(self.row_offset_group.max(initial=-1)) + 1):  # how a beam sees our outline, how a drop is modelled
+            rows_b = (self.row_offset_group == g) & (self.row_weight > 0)
             if rows_b.any():
                 lag[rows_b] -= np.average(lag[rows_b], weights=self.row_weight[rows_b])
         return lag
@@ -228,9 +228,10 @@ def responses(off: dict[str, RunResiduals], simulated: dict[tuple[str, float], d
         keys.append(s.index)
     resp = Responses(runs, np.array([hours[r] for r in runs], float), np.array(row_run, dtype=np.int64),
                      np.array(lag0, float), np.array(kind, dtype=np.int64))
-    beam_of = [k[1] if k[0] == "blocked" else " drop" if k[0] == "drop" else None for idx in keys for k in idx]
-    beams = sorted({b for b in beam_of if b is not None})  # each beam's rows and the drop rows: an offset each
-    resp.row_beam = np.array([beams.index(b) if b is not None else -1 for b in beam_of], dtype=np.int64)
+    # each beam's rows and the drop rows are a group with an offset of its own (named by the beam, or ("drop",))
+    group_of = [(k[0], k[1]) if k[0] == "blocked" else ("drop",) if k[0] == "drop" else None for idx in keys for k in idx]
+    groups = sorted({g for g in group_of if g is not None})
+    resp.row_offset_group = np.array([groups.index(g) if g is not None else -1 for g in group_of], dtype=np.int64)
     for name in sorted({n for n, _ in simulated}):
         lv = LEVELS[name]
         values = sorted({lv.off, *(v for n, v in simulated if n == name)})

@@ -21,9 +21,10 @@ From a measured run and its re-simulation (same fish, drops, belt speeds):
 - **drive residuals**: logged belt speed minus the drive model's, against the belt load.
 
 And one measure of the data alone, no simulation: the **drop lag** of a fish dropped onto the
-infeed with no other fish near, the time it takes to come up to the belt's speed (how far it stays
-behind a point moving with the belt from where it was dropped, over the belt's speed).  Friction
-sets it (a slippery fish slides longer), so across runs it shows friction changing without any model.
+infeed with no other fish near, the time it has lost to the belt once it moves with it (how far it
+stays behind a point moving with the belt from where it was dropped, over the belt's speed: its fall
+and about half the time it slides).  Friction sets the sliding (a slippery fish slides longer), so
+across runs it shows friction changing without any model.
 """
 
 from __future__ import annotations
@@ -189,7 +190,7 @@ REACH_M = 0.4
 
 
 DROP_LAG_WINDOW_S = (1.5, 3.0)
-"""After its drop, when a fish's lag on the infeed is read: it has landed and come up to the belt's speed."""
+"""After its drop, when a fish's lag on the infeed is read [s]: it has landed and moves with the belt."""
 
 
 def drop_lags(run: Run, line: Line) -> pd.DataFrame:
