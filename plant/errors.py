@@ -1,8 +1,11 @@
-"""The two kinds of failure a user can meet, and the exit codes the command line maps them to.
+"""The kinds of failure a user can meet, and the exit codes the command line maps them to.
 
 `InputError` is anything wrong with what the user gave (a file, a key, a row, a column):
 exit code 2.  `SimulationError` is a run that could not go on (a blow-up, an FMU that failed):
-exit code 3.  Anything else is a bug (exit code 4).  Both carry a message meant to be read by a person, naming where the problem is.
+exit code 3.  `SystemDependencyError` is a machine that lacks a system package fishfmu needs (a
+shared library Exudyn loads, a C compiler for the built-in FMUs): exit code 3 as well, since the run
+could not be made and nothing the user gave is wrong.  Anything else is a bug (exit code 4).  Each
+carries a message meant to be read by a person, naming where the problem is.
 """
 
 from __future__ import annotations
@@ -63,3 +66,14 @@ class SimulationError(Exception):
         if self.time_s is None:
             return one_line(self.message)
         return one_line(f"at t = {self.time_s:.3f} s: {self.message}")
+
+
+@dataclass
+class SystemDependencyError(Exception):
+    """The machine lacks something pip cannot install: names what is missing and the Debian/Ubuntu
+    package that provides it.  Neither bad input (changing the user's files will not help) nor a bug."""
+
+    message: str
+
+    def __str__(self) -> str:
+        return one_line(self.message)

@@ -188,7 +188,7 @@ class Plant:
 
     # ---- the system: which fish are in it ----------------------------------------------------
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
-        import exudyn as exu
+        from plant.model import exu  # imported there once, with a missing system library reported as such
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
         self._member = model.member_index

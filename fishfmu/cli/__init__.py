@@ -1,7 +1,8 @@
 """The ``fishfmu`` command: parses arguments and calls functions that a script can call too.
 
-Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or an FMU failed,
-4 an internal error (a bug), 130/143 a run stopped by SIGINT/SIGTERM (partial results written).
+Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or an FMU failed (or the machine
+lacks a system package it needs), 4 an internal error (a bug), 130/143 a run stopped by SIGINT/SIGTERM (partial
+results written).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import typer
 from rich.console import Console
 
 from plant.errors import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED, InputError,
-                          SimulationError)
+                          SimulationError, SystemDependencyError)
 
 from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
 
@@ -429,11 +430,18 @@ def main() -> None:
     except SimulationError as exc:
         print_error("simulation failed", exc)
         sys.exit(EXIT_SIMULATION_FAILED)
+    except SystemDependencyError as exc:  # the machine, not the user's files: the run cannot be made (exit 3)
+        print_error("missing system package", exc)
+        sys.exit(EXIT_SIMULATION_FAILED)
     except OSError as exc:  # an output location that cannot be written (disk full, read-only): not a bug
         from fishfmu.output.manifest import os_error
         print_error("error", os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error"))
         sys.exit(EXIT_BAD_INPUT)
     except RuntimeError as exc:  # Path.resolve() on a symbolic link loop (Python < 3.13): bad input, not a bug
+        from fishfmu.fmu.build import FmuBuildError
+        if isinstance(exc, FmuBuildError):  # the compiler failed on a built-in FMU's sources (first use, any command)
+            print_error("build failed", exc)
+            sys.exit(EXIT_SIMULATION_FAILED)
         if not str(exc).startswith("Symlink loop from "):
             _internal_error(exc)
         print_error("error", f"{str(exc).removeprefix('Symlink loop from ').strip(chr(39))}: a symbolic link loop "

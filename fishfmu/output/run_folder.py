@@ -117,8 +117,9 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
     if report:
         from fishfmu.output.report import write_report
         write_report(result, out)
-    import exudyn
     import fmpy
+
+    from plant.model import exu  # where exudyn is imported (a missing system library is reported there)
     write_run_info(
         out, "partial" if partial else result.status,
         error=result.error,
@@ -131,7 +132,7 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
         energy_watch={k: round(v, 4) for k, v in result.energy_watch.items()},
         wiring=result.wiring,
         **({"served": result.served} if result.served is not None else {}),
-        versions={"exudyn": exudyn.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
+        versions={"exudyn": exu.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
     )
     return paths
 
