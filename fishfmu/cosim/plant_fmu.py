@@ -1,130 +1,227 @@
 """``fishfmu export-fmu``: the plant of a scenario (line, fish, drops, extensions) as an FMI 2.0 co-simulation FMU,
 for other masters (libcosim, OMSimulator, Simulink, TwinCAT...).
 
-The FMU is made by pythonfmu: its ``resources/`` hold a small slave script (:data:`SLAVE_SCRIPT`) and the
-scenario as resolved; the slave builds a :class:`PlantInFmu` from them, which runs fishfmu's Exudyn plant.
-**Runtime requirement**: the host must load the FMU into a process where Python 3.11 runs with fishfmu (and
-so Exudyn) installed, as pythonfmu FMUs need the host's Python; the FMU does not carry Python or Exudyn.
+The FMU is made by pythonfmu: its ``resources/`` hold the slave script (:mod:`fishfmu.cosim.plant_fmu_slave`, copied
+as ``fishfmu_plant.py``) and the scenario as resolved; the slave builds a :class:`PlantInFmu` from them, which runs
+fishfmu's Exudyn plant. **Runtime requirement**: the host must load the FMU into a process where Python 3.11 runs
+with fishfmu (and so Exudyn) installed, as pythonfmu FMUs need the host's Python; the FMU does not carry Python or
+Exudyn.
 
 Variables (named as the plant's ports in a scenario's wiring):
 
-* inputs ``<conveyor>.speed`` (m/s) for every conveyor;
+* inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
 * outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg),
   and counts so far: ``fish_dropped``, ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
   ``outfeed_count`` (fish heads seen at the scenario's outfeed photo-eye: its blocked edges);
-* parameters ``seed`` and ``fish_count`` (fixed; the batch is sampled from them as ``fishfmu run`` samples it).
+* parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
+  the batch is sampled from them as ``fishfmu run`` samples it).
 
 A ``doStep`` of h advances the plant h / ``run.comm_step_s`` steps with the belt speeds last set (h must be a
-whole multiple of the scenario's communication step).
+whole multiple of the scenario's communication step, at most :data:`MAX_STEP_S`).
+
+**Bad input never crashes the host.** pythonfmu (0.7) turns any Python exception into fmi2Fatal and frees the
+slave, so that the host's next call (fmi2GetReal, fmi2Terminate) crashes the host's process; its set functions
+have no failure status but fmi2Fatal, and the only other failure its doStep has is fmi2Discard (``do_step``
+returning False; the FMU then reports fmi2Terminated = true). So no exception leaves the slave. A value outside
+the bounds the model description declares (min, max), or a variable that cannot be set, is refused: an
+error-status log message names the variable and the value it keeps. Each doStep while a refusal stands, before
+initialisation, after the plant stopped (a blow-up), or with a step that is not a positive whole multiple of the
+communication step, returns fmi2Discard with an error-status log message and leaves the plant as it was.
+fmi2Reset gives a fresh slave: it is initialised again before it steps.
 """
 
 from __future__ import annotations
 
+import functools
+import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel
 
-from plant.errors import InputError
+from plant.errors import InputError, SimulationError, one_line
 from plant.plant import LEFT, ON_LINE, WAITING, Plant
+from plant.plausibility import MAX_BELT_SPEED_MPS
+from plant.population import PopulationSpec
 
 from fishfmu.cosim.build import scenario_fish
-from fishfmu.scenario.schema import Scenario, load_scenario, resolved_toml
+from fishfmu.scenario.schema import RunSettings, Scenario, load_scenario, resolved_toml
 
 SCENARIO_RESOURCE = "scenario.toml"
-
-SLAVE_SCRIPT = '''"""The plant of a fishfmu scenario as an FMU (made by `fishfmu export-fmu`; needs fishfmu in the host's Python)."""
-from pathlib import Path
-
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
-
-from fishfmu.cosim.plant_fmu import SCENARIO_RESOURCE, PlantInFmu
+BUG = "a bug in fishfmu; please report it"
+FMI_INTEGER_MAX = 2**31 - 1
+"""fmi2Integer is a C int: a larger seed cannot be set through FMI."""
 
 
-class FishfmuPlant(Fmi2Slave):
-    author = "fishfmu"
-    description = "A salmon singulation line (fishfmu's Exudyn plant) with its fish"
+def field_bounds(model: type[BaseModel], name: str) -> tuple[Any, Any]:
+    """The inclusive bounds (``ge``, ``le``; None where absent) of a field of a scenario table: the FMU declares
+    and checks the bounds a scenario file has."""
+    lo = hi = None
+    for constraint in model.model_fields[name].metadata:
+        lo, hi = getattr(constraint, "ge", lo), getattr(constraint, "le", hi)
+    return lo, hi
 
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        self.plant = PlantInFmu(Path(self.resources) / SCENARIO_RESOURCE)
-        p = self.plant
-        self.register_variable(Integer("seed", causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
-                                       getter=lambda: p.seed, setter=p.set_seed))
-        self.register_variable(Integer("fish_count", causality=Fmi2Causality.parameter,
-                                       variability=Fmi2Variability.fixed, getter=lambda: p.fish_count,
-                                       setter=p.set_fish_count))
-        for c in p.conveyor_ids:
-            self.register_variable(Real(f"{c}.speed", causality=Fmi2Causality.input, start=0.0, description="m/s",
-                                        getter=p.getter(f"{c}.speed"), setter=p.setter(f"{c}.speed")))
-        # outputs start as the line at rest (initial = exact): no photo-eye blocked, no load, no fish yet
-        for name in p.output_names:
-            start = p.values[name]
-            if isinstance(start, bool) or isinstance(start, int):
-                kind = Boolean if isinstance(start, bool) else Integer
-                var = kind(name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
-                           initial=Fmi2Initial.exact, start=start, getter=p.getter(name))
-            else:
-                var = Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact, start=start,
-                           description=p.units[name], getter=p.getter(name))
-            self.register_variable(var)
 
-    def exit_initialization_mode(self):
-        self.plant.start()
+_SEED_MIN, _SEED_MAX = field_bounds(RunSettings, "seed")
+SEED_BOUNDS = (_SEED_MIN, min(_SEED_MAX, FMI_INTEGER_MAX))
+FISH_COUNT_BOUNDS = field_bounds(PopulationSpec, "count")
+SPEED_BOUNDS_MPS = (-MAX_BELT_SPEED_MPS, MAX_BELT_SPEED_MPS)
+MAX_STEP_S = field_bounds(RunSettings, "duration_s")[1]
+"""Longest doStep: the longest run a scenario may ask for (a doStep of 1e9 s would hold the host for years)."""
+PARAMETER_BOUNDS = {"seed": SEED_BOUNDS, "fish_count": FISH_COUNT_BOUNDS}
 
-    def do_step(self, current_time, step_size):
-        return self.plant.do_step(step_size)
-'''
+
+def _num(x: float) -> str:
+    return f"{x:g}" if isinstance(x, float) else str(x)
+
+
+def with_bounds(var: Any, bounds: tuple[Any, Any]) -> Any:
+    """``var``, a pythonfmu variable, declaring ``min`` and ``max`` in the model description (pythonfmu 0.7's
+    variables write only ``start``)."""
+    to_xml = var.to_xml
+
+    def to_xml_with_bounds():  # noqa: ANN202 - returns an ElementTree element
+        node = to_xml()
+        node[0].set("min", repr(bounds[0]))  # node[0]: the <Real>/<Integer> element
+        node[0].set("max", repr(bounds[1]))
+        return node
+    var.to_xml = to_xml_with_bounds
+    return var
+
+
+def never_raises(fallback: Callable[..., Any]) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Decorate an FMI entry point of the slave: an exception is logged as an internal error (``self.log_error``)
+    and ``fallback(*args)`` returned, as pythonfmu would turn it into fmi2Fatal and crash the host's next call."""
+    def wrap(method: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(method)
+        def guarded(self, *args):  # noqa: ANN001, ANN202 - any entry point
+            try:
+                return method(self, *args)
+            except Exception as exc:  # noqa: BLE001 - any exception would crash the host
+                self.log_error(one_line(f"internal error in {method.__name__} ({BUG}): {exc!r}"))
+                return fallback(*args)
+        return guarded
+    return wrap
 
 
 class PlantInFmu:
-    """The plant behind the FMU's variables: built from the scenario at initialisation, stepped by doStep."""
+    """The plant behind the FMU's variables: built from the scenario at initialisation, stepped by doStep.
+
+    No method raises (see the module's docstring): what the host got wrong is passed to ``report`` (the slave's
+    error log) and refused."""
 
     counts = ("fish_dropped", "fish_on_line", "fish_left", "outfeed_count")
 
-    def __init__(self, scenario_file: Path) -> None:
+    def __init__(self, scenario_file: Path, report: Callable[[str], None]) -> None:
+        self.report = report
         self.scenario: Scenario = load_scenario(scenario_file)
-        self.seed, self.fish_count = self.scenario.run.seed, self.scenario.fish.count
+        self.comm_step_s = self.scenario.run.comm_step_s
+        self.outfeed = self.scenario.kpi.outfeed_photoeye
         self.conveyor_ids = [c.id for c in self.scenario.line.conveyors]
         self.photoeye_ids = [p.id for p in self.scenario.line.photoeyes]
         self.output_names = ([f"{p}.blocked" for p in self.photoeye_ids]
                              + [f"{c}.{s}" for c in self.conveyor_ids for s in ("load_force", "load_mass")]
                              + list(self.counts))
-        self.values: dict[str, Any] = {f"{c}.speed": 0.0 for c in self.conveyor_ids}
+        self.values: dict[str, Any] = {"seed": self.scenario.run.seed, "fish_count": self.scenario.fish.count}
+        self.values.update({f"{c}.speed": 0.0 for c in self.conveyor_ids})
         self.values.update({n: (False if n.endswith(".blocked") else 0 if n in self.counts else 0.0)
                             for n in self.output_names})
         self.units = {n: "N" if n.endswith(".load_force") else "kg" for n in self.output_names
                       if n.endswith((".load_force", ".load_mass"))}
+        self.refused: dict[str, str] = {}
+        """Variable -> why its last set was refused; each doStep is refused while one stands."""
+        self.initialised = False
+        self.failure: str | None = None
+        """Why the plant could not be built or stopped: the doSteps after it are refused."""
         self.plant: Plant | None = None
         self._was_blocked = False
 
     def getter(self, name: str):  # noqa: ANN201 - pythonfmu takes any callable
         return lambda: self.values[name]
 
-    def setter(self, name: str):  # noqa: ANN201
+    def speed_setter(self, name: str):  # noqa: ANN201
         def set_(value: float) -> None:
-            self.values[name] = float(value)
+            self._set_within(name, float(value), SPEED_BOUNDS_MPS, " m/s")
         return set_
 
-    def set_seed(self, value: int) -> None:
-        self.seed = int(value)
+    def parameter_setter(self, name: str):  # noqa: ANN201
+        def set_(value: int) -> None:
+            if self.initialised and value != self.values[name]:
+                self.refuse(name, f"{name} = {value} refused: {name} is fixed once initialised "
+                                  f"(fmi2ExitInitializationMode); it stays {self.values[name]} (fmi2Reset to change it)")
+            else:
+                self._set_within(name, int(value), PARAMETER_BOUNDS[name], "")
+        return set_
 
-    def set_fish_count(self, value: int) -> None:
-        self.fish_count = int(value)
+    def _set_within(self, name: str, value: float, bounds: tuple[Any, Any], unit: str) -> None:
+        lo, hi = bounds
+        if math.isfinite(value) and lo <= value <= hi:
+            self.values[name] = value
+            self.refused.pop(name, None)
+        else:
+            self.refuse(name, f"{name} = {_num(value)}{unit} refused: it must be within [{_num(lo)}, {_num(hi)}]{unit}; "
+                              f"it stays {_num(self.values[name])}{unit}")
+
+    def refuse(self, name: str, message: str) -> None:
+        self.refused[name] = message
+        self.report(one_line(message))
 
     def start(self) -> None:
+        """fmi2ExitInitializationMode: the plant with the fish of the parameters set (not built while a parameter's
+        refusal stands: doStep then names it)."""
+        self.initialised = True
+        refused = [m for name, m in self.refused.items() if name in PARAMETER_BOUNDS]
+        if refused:
+            self.failure = "the plant was not built: " + "; ".join(refused)
+            return
         sc = self.scenario.model_copy(deep=True)
-        sc.run.seed, sc.fish.count = self.seed, self.fish_count
-        self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s)
-        self.comm_step_s = sc.run.comm_step_s
-        self.outfeed = sc.kpi.outfeed_photoeye
+        try:
+            sc.run.seed, sc.fish.count = self.values["seed"], self.values["fish_count"]
+            self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s)
+        except (InputError, SimulationError) as exc:
+            self.failure = (f"the plant could not be built with seed = {self.values['seed']} and "
+                            f"fish_count = {self.values['fish_count']}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - an exception would crash the host (module docstring)
+            self.failure = f"internal error building the plant ({BUG}): {exc!r}"
+        if self.failure:
+            self.report(one_line(self.failure))
 
-    def do_step(self, step_size: float) -> bool:
-        n = step_size / self.comm_step_s
-        if n < 0.5 or abs(n - round(n)) > 1e-6:
-            return False  # fmi2Error: the plant steps in whole communication steps
+    def do_step(self, step_size_s: float) -> bool:
+        """fmi2DoStep: True once the plant advanced ``step_size_s``; False (fmi2Discard), the reason logged, when it
+        cannot (the plant untouched) or stopped on the way (the steps after are refused)."""
+        reason = self._why_not(step_size_s)
+        if reason is None:
+            try:
+                self._advance(round(step_size_s / self.comm_step_s))
+                return True
+            except SimulationError as exc:
+                self.failure = reason = f"the plant stopped: {exc}"
+            except Exception as exc:  # noqa: BLE001 - an exception would crash the host (module docstring)
+                self.failure = reason = f"internal error stepping the plant ({BUG}): {exc!r}"
+        self.report(one_line(f"doStep(h = {_num(float(step_size_s))} s) not done: {reason}"))
+        return False
+
+    def _why_not(self, step_size_s: float) -> str | None:
+        if self.refused:
+            return "; ".join(self.refused.values())
+        if self.failure:
+            return f"{self.failure} (fmi2Reset and initialise again to start over)"
+        if self.plant is None:
+            return ("the plant is not initialised: call fmi2EnterInitializationMode and fmi2ExitInitializationMode "
+                    "first (after fmi2Instantiate or fmi2Reset)")
+        h = float(step_size_s)
+        if not (math.isfinite(h) and 0.0 < h <= MAX_STEP_S):
+            return f"the step must be positive, finite and at most {_num(MAX_STEP_S)} s"
+        n = h / self.comm_step_s
+        if round(n) < 1 or abs(n - round(n)) > 1e-6:
+            return f"the step must be a whole multiple of the communication step ({_num(self.comm_step_s)} s)"
+        return None
+
+    def _advance(self, n_steps: int) -> None:
         speeds = {c: self.values[f"{c}.speed"] for c in self.conveyor_ids}
-        for _ in range(int(round(n))):
+        for _ in range(n_steps):
             out = self.plant.step(speeds)
             for port, v in out.port_values().items():
                 if port in self.values and not port.endswith(".speed"):
@@ -137,7 +234,6 @@ class PlantInFmu:
         self.values["fish_dropped"] = int(np.count_nonzero(status != WAITING))
         self.values["fish_on_line"] = int(np.count_nonzero(status == ON_LINE))
         self.values["fish_left"] = int(np.count_nonzero(status == LEFT))
-        return True
 
 
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
@@ -150,10 +246,14 @@ def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
         from pythonfmu.builder import FmuBuilder
     except ImportError:
         raise InputError("export-fmu needs pythonfmu (pip install pythonfmu)") from None
+    from fishfmu.cosim import plant_fmu_slave
+    if not SEED_BOUNDS[0] <= scenario.run.seed <= SEED_BOUNDS[1]:
+        raise InputError(f"{scenario.run.seed}: the plant FMU's seed is an FMI Integer, at most {SEED_BOUNDS[1]}",
+                         where="run.seed")
     doc = tomllib.loads(resolved_toml(scenario))
     plant_only = {k: doc[k] for k in ("run", "line", "fish", "plant", "kpi") if k in doc}
     script = folder / "fishfmu_plant.py"
-    script.write_text(SLAVE_SCRIPT, encoding="utf-8")
+    script.write_text(Path(plant_fmu_slave.__file__).read_text(encoding="utf-8"), encoding="utf-8")
     resource = folder / "res" / SCENARIO_RESOURCE
     resource.parent.mkdir()
     resource.write_text(tomli_w.dumps(plant_only), encoding="utf-8")
