@@ -39,6 +39,15 @@ def run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
     return inputs
 
 
+def refuse_served(sc, scenario_file: Path) -> None:
+    """A scenario whose ``[opcua] inputs`` a PLC writes is served, not run: a run would hold them at their start
+    values (no belt moves) and fail its bounds as if the line had."""
+    if sc.opcua.inputs:
+        raise InputError(f"{', '.join(sc.opcua.inputs)} are written by an OPC UA client (a PLC): serve this "
+                         f"scenario with `fishfmu serve {scenario_file}`, or remove [opcua] inputs and feed them "
+                         "in [wiring] to run it", file=scenario_file, where="opcua.inputs")
+
+
 # ---------------------------------------------------------------- build-fmus
 
 def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] | None = None) -> list[Path]:
@@ -112,6 +121,7 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
     scenario_file = Path(scenario_file)
     junit = Path(junit) if junit is not None else None
     sc = load_scenario(scenario_file, overrides or {})
+    refuse_served(sc, scenario_file)
     # every FMU opened and checked once: bad input is found before anything is written
     with checked(sc, scenario_file) as checked_scenario:
         out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
@@ -165,6 +175,7 @@ def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = 
     overrides = overrides or {}
     check_size(1, n_seeds)  # before anything is written
     sc = load_scenario(scenario_file, overrides)
+    refuse_served(sc, scenario_file)
     check_scenario(sc, scenario_file)
     out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
                               run_inputs(scenario_file, sc, junit), "run")

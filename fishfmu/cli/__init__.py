@@ -149,8 +149,8 @@ def serve_cmd(
     endpoint: str = typer.Option("opc.tcp://127.0.0.1:4840", "--endpoint", help="Where to listen (loopback only "
                                  "unless --allow-remote)."),
     realtime: float | None = typer.Option(None, "--realtime", help="Pace to the wall clock, times this factor "
-                                          "(1 = real time); without it: lockstep, the line advances when a client "
-                                          "calls step(n)."),
+                                          "(1 = real time; 0.001 to 1000); without it: lockstep, the line advances "
+                                          "when a client calls step(n)."),
     lockstep: bool = typer.Option(False, "--lockstep", help="The line advances only when a client calls step(n) "
                                   "(the default; say it to be explicit)."),
     allow_remote: bool = typer.Option(False, "--allow-remote", help="Listen on a non-loopback address (unencrypted; "
