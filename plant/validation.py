@@ -125,10 +125,13 @@ def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix:
     return key, msg
 
 
-def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: str = "") -> M:
-    """Validate ``data`` against ``model``; raise one InputError listing every problem found."""
+def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: str = "", strict: bool = False) -> M:
+    """Validate ``data`` against ``model``; raise one InputError listing every problem found.
+
+    ``strict``: pydantic's strict mode, every nested table included: a value of the wrong type is refused
+    rather than converted (``"2"`` or ``true`` for a float; an integer is still taken for a float)."""
     try:
-        return model.model_validate(data)
+        return model.model_validate(data, strict=strict or None)
     except pydantic.ValidationError as exc:
         errors = exc.errors(include_url=False)
         # an unknown key first: a misspelt key also makes the right one "missing", and the

@@ -135,6 +135,23 @@ SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
                               ("expect", "did you mean 'singulation_rate'?")),
     "FMU file missing": (_replace(('builtin = "conveyor_drive"', 'path = "drives/missing.fmu"')),
                          ("drives/missing.fmu", "FMU file not found")),
+    # strict types: a value of the wrong type is refused, not converted (an integer is still a float)
+    "gain given as text": (_replace(('    "drive_c1.belt_speed -> plant.c1.speed",\n', ""),
+                                    ("[kpi]", '[[wiring.connection]]\nfrom = "drive_c1.belt_speed"\n'
+                                              'to = "plant.c1.speed"\ngain = "2"\n\n[kpi]')),
+                           ("wiring.connection[0].gain", "valid number", "'2'")),
+    "gain given as a boolean": (_replace(('    "drive_c1.belt_speed -> plant.c1.speed",\n', ""),
+                                         ("[kpi]", '[[wiring.connection]]\nfrom = "drive_c1.belt_speed"\n'
+                                                   'to = "plant.c1.speed"\ngain = true\n\n[kpi]')),
+                                ("wiring.connection[0].gain", "valid number", "True")),
+    "duration given as text": (_replace(("duration_s = 90.0", 'duration_s = "90"')), ("run.duration_s", "valid number")),
+    "fish count given as a float": (_replace(("count = 18", "count = 18.0")), ("fish.count", "valid integer")),
+    "flag given as a number": (_replace(('coupling = "gauss-seidel"', 'coupling = "gauss-seidel"\nstop_when_clear = 1')),
+                               ("run.stop_when_clear", "valid boolean")),
+    "NaN bound in expect": (_replace(("lost = { max = 0 }", "lost = { max = nan }")),
+                            ("expect.lost.max", "finite number")),
+    "infinite bound in expect": (_replace(("fpm_in = { min = 30.0 }", "fpm_in = { min = -inf }")),
+                                 ("expect.fpm_in.min", "finite number")),
 }
 
 

@@ -382,14 +382,13 @@ def test_an_ssp_archive_brings_fmus_connections_with_a_linear_transformation_and
     assert [f["name"] for f in resolved["fmu"]] == ["controller", "drive_c1", "drive_c2", "drive_c3", "drive_c4"]
 
 
-def test_a_bare_ssd_names_fmus_and_parameter_files_beside_it(tmp_path, fmus):
+def test_a_bare_ssd_names_fmus_and_parameter_files_inside_its_folder(tmp_path, fmus):
     folder = tmp_path / "system"
-    folder.mkdir()
-    (folder / "controls.ssd").write_text(SSD.format(dir="../fmus/"))
-    (tmp_path / "fmus").mkdir()
+    (folder / "fmus").mkdir(parents=True)
+    (folder / "controls.ssd").write_text(SSD.format(dir="fmus/"))
     for name, fmu in (("Counter.fmu", "counter"), ("FirstOrder.fmu", "first_order")):
-        (tmp_path / "fmus" / name).write_bytes(fmus[fmu].read_bytes())
-    (tmp_path / "fmus" / "lag.ssv").write_text(ssv("lag", tau=0.2, x=0.0))
+        (folder / "fmus" / name).write_bytes(fmus[fmu].read_bytes())
+    (folder / "fmus" / "lag.ssv").write_text(ssv("lag", tau=0.2, x=0.0))
     check_lag_follows_the_counter_through_the_transformation(
         run(ssp_scenario(tmp_path, fmus, "system/controls.ssd")).signals)
 

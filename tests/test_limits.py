@@ -96,6 +96,12 @@ def test_points_times_seeds_is_capped():
         make_spec(SCENARIO, {}, 1_000_000_000)  # run --seeds 1e9: refused before the seeds are listed
 
 
+def test_seeds_past_the_largest_seed_are_refused_before_the_sweep_starts():
+    make_spec(SCENARIO, {"fish.count": [2]}, 1, {"run.seed": 2**32 - 1})  # the largest seed itself
+    with pytest.raises(InputError, match="past the largest seed"):
+        make_spec(SCENARIO, {"fish.count": [2]}, 2, {"run.seed": 2**32 - 1})
+
+
 @pytest.mark.parametrize("param", ["fish.length_mean_m=nan,0.5", "fish.length_mean_m=0.5,inf",
                                    "fish.length_mean_m=-inf", "fmu[0].parameters.speed_2=[0.4, nan]",
                                    "fish.length_mean_m=1e999:1:3"])

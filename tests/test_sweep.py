@@ -177,15 +177,19 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
 def test_a_scale_multiplies_the_scenarios_values_of_its_keys() -> None:
     """--scale speed=KEYS with --param speed=F: each key gets F times its value in paper_dump.toml
     (0.25/0.50/0.80/1.25 m/s), the same at every point and for every seed; other keys untouched."""
-    from fishfmu.batch.sweep import FmuChecker, point_overrides, prepare_point
+    from fishfmu.batch.sweep import PointPreparer, point_overrides
     keys = [f"fmu[0].parameters.speed_{i}" for i in range(1, 5)]
     spec = make_spec(PAPER, {"speed": [0.5, 1.2], "fish.first_drop_s": [2.0]}, 1, {"fish.count": 3},
                      scales={"speed": keys})
     over = point_overrides(spec, {"speed": 0.5, "fish.first_drop_s": 2.0})
     assert [over[k] for k in keys] == pytest.approx([0.125, 0.25, 0.40, 0.625])
     assert over["fish.first_drop_s"] == 2.0 and over["fish.count"] == 3 and "speed" not in over
-    sc = prepare_point(spec, {"speed": 1.2, "fish.first_drop_s": 2.0}, FmuChecker())
+    sc = PointPreparer(spec).prepare({"speed": 1.2, "fish.first_drop_s": 2.0})
     assert [sc.fmu[0].parameters[f"speed_{i}"] for i in range(1, 5)] == pytest.approx([0.30, 0.60, 0.96, 1.50])
+    # the point shares the base's unchanged tables, and is the very scenario loaded with its overrides
+    from fishfmu.scenario.schema import load_scenario, resolved_toml
+    alone = load_scenario(PAPER, point_overrides(spec, {"speed": 1.2, "fish.first_drop_s": 2.0}))
+    assert resolved_toml(sc) == resolved_toml(alone)
     assert spec.definition()["scales"] == {"speed": keys}  # a resumed sweep with other scales is refused
 
 
@@ -196,3 +200,64 @@ def test_a_scale_on_a_key_that_is_not_a_number_or_not_swept_is_refused() -> None
         make_spec(PAPER, {"f": [1.0]}, 1, scales={"f": ["fish.drop"]})
     with pytest.raises(InputError, match="not set"):
         make_spec(PAPER, {"f": [1.0]}, 1, scales={"f": ["fmu[0].parameters.no_such"]})
+
+
+# ---------------------------------------------------------------- preparing the points (issue 28)
+
+def _count_calls(monkeypatch: pytest.MonkeyPatch, module: object, name: str) -> list[int]:
+    """Wrap ``module.name`` so that each call is counted (the returned list's length)."""
+    calls: list[int] = []
+    original = getattr(module, name)
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, counted)
+    return calls
+
+
+def test_the_builtin_fmu_sources_are_hashed_once_per_process(monkeypatch, builtin_fmus) -> None:
+    import fishfmu.fmu.build as fmu_build
+    from fishfmu.fmu.build import builtin_fmu
+    first = builtin_fmu("conveyor_drive")
+    hashed = _count_calls(monkeypatch, fmu_build.hashlib, "sha256")
+    read = _count_calls(monkeypatch, fmu_build.Path, "read_bytes")
+    assert all(builtin_fmu("conveyor_drive") == first for _ in range(50))
+    assert (len(hashed), len(read)) == (0, 0)
+
+
+def test_a_sweep_prepares_each_point_once_and_per_point_only_what_differs(tmp_path: Path, monkeypatch,
+                                                                            builtin_fmus) -> None:
+    """40 values of one start value, the last outside the range the controller declares (speed_1 in [0, 2]): the
+    scenario file is read and the wiring resolved once per preparation pass, not per point, every point is
+    validated once (the probes of make_spec aside) and the bad one is still found, named by its key."""
+    import fishfmu.cosim.preflight as preflight_module
+    import fishfmu.scenario.schema as schema_module
+    values = [round(0.2 + 0.01 * i, 2) for i in range(39)] + [2.5]
+    validated = _count_calls(monkeypatch, schema_module, "validate")
+    read = _count_calls(monkeypatch, schema_module, "read_toml")
+    wired = _count_calls(monkeypatch, preflight_module, "resolve_wiring")
+    spec = make_spec(PAPER, {"fmu[0].parameters.speed_1": values}, 1, SHORT)
+    result = run_sweep(spec, tmp_path / "sw", max_runs=0, plots=False)
+    assert len(validated) <= len(values) + 5, len(validated)  # was twice per point
+    assert len(read) <= 3 and len(wired) <= 2, (len(read), len(wired))  # was once and twice per point
+    failed = result.runs[result.runs["status"] == "failed"]
+    assert list(failed["fmu[0].parameters.speed_1"]) == [2.5]
+    assert "fmu[0].parameters.speed_1" in failed["error"].iloc[0] and "outside the range" in failed["error"].iloc[0]
+
+
+def test_a_point_that_changes_the_wiring_is_checked_in_full(tmp_path: Path) -> None:
+    spec = make_spec(PAPER, {"wiring.setpoints.c1": ["drive_c1.no_such", "drive_c1.speed_setpoint"]}, 1, SHORT)
+    result = run_sweep(spec, tmp_path / "sw", max_runs=0, plots=False)
+    failed = result.runs[result.runs["status"] == "failed"]
+    assert list(failed["wiring.setpoints.c1"]) == ["drive_c1.no_such"]
+    assert "wiring.setpoints.c1" in failed["error"].iloc[0]
+    assert (result.runs["status"] == "failed").sum() == 1
+
+
+def test_a_long_preparation_shows_its_progress(tmp_path: Path, capsys) -> None:
+    spec = make_spec(PAPER, {"fish.length_mean_m": [0.55, 0.6, 0.65]}, 2, SHORT)
+    run_sweep(spec, tmp_path / "sw", max_runs=0, plots=False, progress=True)
+    err = capsys.readouterr().err
+    assert "points checked" in err and "3/3" in err, err

@@ -39,10 +39,11 @@ import pandas as pd
 from plant.errors import InputError
 from plant.kpis import KPI_KEYS
 
-from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle
+from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle, progress_bar
 from fishfmu.session import STOPS
-from fishfmu.cosim.preflight import FmuDescription, describe_file, preflight
-from fishfmu.scenario.schema import Scenario, get_dotted, load_scenario, parse_value
+from fishfmu.cosim.preflight import FmuDescription, check_start_values, describe_file, preflight, preflight_changes
+from fishfmu.scenario.schema import (RunSettings, Scenario, ScenarioLoader, dotted_parts, get_dotted, load_scenario,
+                                     parse_value)
 from plant.validation import read_toml
 
 DEFINITION = "sweep.json"
@@ -51,6 +52,8 @@ MAX_RUNS = 100_000
 core (the paper test: about 10 s), so 100 000 runs are days of a 64-core cluster, and the sweep's
 folder holds a file per run.  Larger sweeps are refused before anything is allocated."""
 FORMAT = 1
+MAX_SEED: int = next(m.le for m in RunSettings.model_fields["seed"].metadata if hasattr(m, "le"))
+"""The largest ``run.seed`` (the schema's bound): a sweep's last seed must not pass it."""
 _RANGE = re.compile(r"^\s*([-+]?[\d.eE+-]+)\s*:\s*([-+]?[\d.eE+-]+)\s*:\s*(\d+)\s*$")
 
 
@@ -110,18 +113,22 @@ def make_spec(scenario: str | Path, parameters: dict[str, list[Any]], n_seeds: i
             raise InputError(f"'{key}' is both swept and fixed (--set)")
     base = load_scenario(scenario, fixed)
     first = base.run.seed
+    if first + n_seeds - 1 > MAX_SEED:
+        raise InputError(f"--seeds {n_seeds}: the seeds run from run.seed = {first} to {first + n_seeds - 1}, past "
+                         f"the largest seed ({MAX_SEED})")
     spec = SweepSpec(str(Path(scenario).resolve()), {k: list(v) for k, v in parameters.items()},
                      list(range(first, first + n_seeds)), fixed, scales)
-    checker = FmuChecker()
+    preparer = PointPreparer(spec)
     for key, values in spec.parameters.items():  # a key no value works for is a typo, not a failed point
-        errors = []
-        for v in values:
+        first_error = None
+        for v in values:  # until one works: the points themselves are prepared once, when the sweep runs
             try:
-                prepare_point(spec, {key: v}, checker)
+                preparer.prepare({key: v})
+                break
             except InputError as exc:
-                errors.append(exc)
-        if len(errors) == len(values):
-            raise InputError(f"--param {key}: no value works: {errors[0]}")
+                first_error = first_error or exc
+        else:
+            raise InputError(f"--param {key}: no value works: {first_error}")
     return spec
 
 
@@ -208,29 +215,81 @@ def run_id(params: dict[str, Any], seed: int | None = None) -> str:
 
 # ---------------------------------------------------------------- checking points up front
 
-class FmuChecker:
-    """Checks a point's FMU parameters and wiring before any run (:func:`fishfmu.cosim.preflight.preflight`),
-    reading each FMU's modelDescription once for all points."""
+class PointPreparer:
+    """Validates the points of one sweep before any run, paying per point only for what differs between points.
 
-    def __init__(self) -> None:
+    Once per sweep: the scenario file, its parameter files and SSP are read (:class:`ScenarioLoader`), each FMU's
+    modelDescription is read, and the base scenario (with ``--set``) has its FMU start values and wiring checked
+    (:func:`fishfmu.cosim.preflight.preflight`).  Per point: the scenario with the point's overrides is validated
+    whole (pydantic: the cross-field checks too, a fraction of a millisecond), then preflight checks only what
+    the overrides can change (:func:`fishfmu.cosim.preflight.preflight_changes`): nothing for ``[fish]``,
+    ``[plant]`` or ``run.duration_s``, one FMU's start values for ``fmu[i].parameters.*``, everything for a key
+    of the wiring.  Where the base itself fails preflight, every point is checked in full."""
+
+    def __init__(self, spec: SweepSpec) -> None:
+        self.spec = spec
+        self.loader = ScenarioLoader(spec.scenario)
         self._described: dict[str, FmuDescription] = {}
+        self._builtin: dict[str, str] = {}
+        self._base_passed: bool | None = None
+        self._base: Scenario | None = None
 
-    def check(self, scenario: Scenario, scenario_file: str) -> None:
-        from fishfmu.cosim.build import fmu_path
+    def _descriptions(self, scenario: Scenario) -> dict[str, FmuDescription]:
+        """Each FMU's description, read once per file (a built-in FMU's file found once per name)."""
+        from fishfmu.cosim.build import as_the_user_names_it, fmu_path
         fmus = {}
         for f in scenario.fmu:
-            path = str(fmu_path(f))
+            if f.builtin is not None:
+                if f.builtin not in self._builtin:
+                    self._builtin[f.builtin] = str(fmu_path(f))
+                path = self._builtin[f.builtin]
+            else:
+                path = str(fmu_path(f))
             if path not in self._described:
-                self._described[path] = describe_file(path)
+                try:
+                    self._described[path] = describe_file(path)
+                except InputError as exc:
+                    raise as_the_user_names_it(f, exc) from None
             fmus[f.name] = self._described[path]
-        preflight(scenario, scenario_file, fmus)
+        return fmus
+
+    def _base_passes(self) -> bool:
+        if self._base_passed is None:
+            try:
+                self._base = self.loader.load(self.spec.fixed)
+                preflight(self._base, self.spec.scenario, self._descriptions(self._base))
+                self._base_passed = True
+            except InputError:
+                self._base_passed = False
+        return self._base_passed
+
+    def prepare(self, params: dict[str, Any]) -> Scenario:
+        """The point's scenario, validated as far as possible without running (raises InputError).
+
+        It shares with the base scenario every top-level table the point's overrides leave alone (a sweep holds
+        a scenario per point until its runs are sent: a few kB each rather than tens)."""
+        overrides = point_overrides(self.spec, params, self.loader.data)
+        sc = self.loader.load(overrides)
+        fmus = self._descriptions(sc)
+        keys = [k for k in overrides if k not in self.spec.fixed]
+        changed = preflight_changes(keys)
+        if changed is None or not self._base_passes():
+            preflight(sc, self.spec.scenario, fmus)
+        else:
+            check_start_values(sc, self.spec.scenario, fmus, changed)
+        tables = {dotted_parts(k)[0] for k in keys}
+        self._base_passes()  # loads the base
+        if self._base is None or "system" in tables:  # [system] ssp adds to [[fmu]] and [wiring]
+            return sc
+        return self._base.model_copy(update={t: getattr(sc, t) for t in tables})
 
 
-def point_overrides(spec: SweepSpec, params: dict[str, Any]) -> dict[str, Any]:
+def point_overrides(spec: SweepSpec, params: dict[str, Any], data: dict[str, Any] | None = None) -> dict[str, Any]:
     """The scenario overrides of a point: ``--set`` values, swept keys, and each swept scale factor times the
-    scenario's value of the keys it scales."""
+    scenario's value of the keys it scales (``data``: the scenario's TOML, when already read)."""
     out = dict(spec.fixed)
-    data = read_toml(Path(spec.scenario)) if spec.scales else {}
+    if spec.scales and data is None:
+        data = read_toml(Path(spec.scenario))
     for key, value in params.items():
         if key in spec.scales:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
@@ -240,13 +299,6 @@ def point_overrides(spec: SweepSpec, params: dict[str, Any]) -> dict[str, Any]:
         else:
             out[key] = value
     return out
-
-
-def prepare_point(spec: SweepSpec, params: dict[str, Any], checker: FmuChecker) -> Scenario:
-    """The point's scenario, validated as far as possible without running (raises InputError)."""
-    sc = load_scenario(spec.scenario, point_overrides(spec, params))
-    checker.check(sc, spec.scenario)
-    return sc
 
 
 # ---------------------------------------------------------------- the folder
@@ -329,11 +381,19 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     done = finished_rows(out)
     keep = {k: r for k, r in done.items() if r["status"] == "ok" or (r["error_kind"] in FINAL_ERROR_KINDS
                                                                      and not retry_failed)}
-    checker, tasks, meta = FmuChecker(), [], {}
-    for params in spec.points():
+    points = spec.points()
+    tasks: list[RunTask] = []
+    meta: dict[str, dict[str, Any]] = {}
+    todo: list[tuple[dict[str, Any], dict[int, str], list[int]]] = []
+    """(point, run id by seed, the seeds still to run) of every point with a run to do"""
+    for params in points:
         ids = {seed: run_id(params, seed) for seed in spec.seeds}
+        point_id = run_id(params)
         for seed, rid in ids.items():
-            meta[rid] = {"point_id": run_id(params), "params": params, "seed": seed}
+            meta[rid] = {"point_id": point_id, "params": params, "seed": seed}
+        missing = [seed for seed, rid in ids.items() if rid not in keep]
+        if missing:
+            todo.append((params, ids, missing))
     executed, stop_signal = 0, None
 
     def on_row(row: Row) -> None:
@@ -342,21 +402,20 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         executed += 1
 
     try:  # a signal (Ctrl-C, or SIGTERM under the command) while checking or running: keep what finished
-        for params in spec.points():
-            ids = {seed: run_id(params, seed) for seed in spec.seeds}
-            missing = [seed for seed, rid in ids.items() if rid not in keep]
-            if not missing:
-                continue
-            try:
-                base = prepare_point(spec, params, checker)
-            except InputError as exc:  # a bad value: recorded without sending anything to a worker
-                for seed in missing:
-                    store_row(out, {**failed_row(ids[seed], "input", str(exc)), **meta[ids[seed]]})
-                continue
-            for seed in missing:
-                sc = base.model_copy(deep=True)
-                sc.run.seed = seed
-                tasks.append(RunTask(ids[seed], sc, spec.scenario))
+        preparer = PointPreparer(spec)
+        with progress_bar(len(todo), progress and len(todo) > 1, "points checked") as advance:
+            for params, ids, missing in todo:  # each point prepared once, its seeds sharing it
+                try:
+                    base = preparer.prepare(params)
+                except InputError as exc:  # a bad value: recorded without sending anything to a worker
+                    for seed in missing:
+                        store_row(out, {**failed_row(ids[seed], "input", str(exc)), **meta[ids[seed]]})
+                    advance({"status": "failed"})
+                    continue
+                for seed in missing:  # the runs of a point differ in the seed only: the rest is shared, not copied
+                    sc = base.model_copy(update={"run": base.run.model_copy(update={"seed": seed})})
+                    tasks.append(RunTask(ids[seed], sc, spec.scenario))
+                advance({"status": "ok"})
         if max_runs is not None:
             tasks = tasks[:max_runs]
         if tasks:
@@ -371,7 +430,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     if plots and not interrupted:
         from fishfmu.batch.sweep_report import write_plots
         paths["plots"] = write_plots(summary, list(spec.parameters), out / "plots")
-    n_runs = len(spec.points()) * len(spec.seeds)
+    n_runs = len(points) * len(spec.seeds)
     write_run_info(out, "partial" if interrupted or len(rows) < n_runs else "ok", command="sweep", n_runs=n_runs,
                    n_done=len(rows), stopped_by=signal.Signals(stop_signal).name if interrupted else None)
     return SweepResult(out, runs, summary, n_runs, executed, len(keep), interrupted, time.perf_counter() - t0, paths,

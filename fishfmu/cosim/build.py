@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from plant.errors import SimulationError
+from plant.errors import InputError, SimulationError
 from plant.plant import Plant
 from plant.population import FishSpec, sample_fish
 from plant.recorder import RunRecorder
@@ -52,6 +52,27 @@ def fmu_path(fmu: FmuEntry) -> Path:
     return Path(fmu.path)
 
 
+def as_the_user_names_it(fmu: FmuEntry, exc: InputError) -> InputError:
+    """An error about an FMU's file, naming the file as the user knows it: for a component of ``[system] ssp``,
+    the SSP and the component with its source there (its ``path`` is fishfmu's copy in the cache)."""
+    if fmu.ssp_source is None:
+        return exc
+    ssp, source = fmu.ssp_source
+    where = f" ({exc.where})" if exc.where else ""
+    return InputError(f"component '{fmu.name}' (source '{source}'): {exc.message}{where}", file=ssp)
+
+
+@contextlib.contextmanager
+def opened_fmu(fmu: FmuEntry) -> Iterator[OpenedFmu]:
+    """:func:`~fishfmu.fmu.archive.open_fmu` of a scenario's FMU; its errors name it as the user does."""
+    with contextlib.ExitStack() as stack:
+        try:
+            opened = stack.enter_context(open_fmu(fmu_path(fmu)))
+        except InputError as exc:
+            raise as_the_user_names_it(fmu, exc) from None
+        yield opened
+
+
 @dataclass(frozen=True)
 class CheckedScenario:
     """A scenario whose FMUs are open (unpacked, checked) and whose parameters and wiring passed."""
@@ -68,7 +89,7 @@ def checked(scenario: Scenario, scenario_file: str | Path | None = None) -> Iter
     the unpacked FMUs are removed when the ``with`` ends."""
     sfile = str(scenario_file) if scenario_file else None
     with contextlib.ExitStack() as stack:
-        opened = {f.name: stack.enter_context(open_fmu(fmu_path(f))) for f in scenario.fmu}
+        opened = {f.name: stack.enter_context(opened_fmu(f)) for f in scenario.fmu}
         described = {n: describe(o.path, o.model_description, o.variables) for n, o in opened.items()}
         yield CheckedScenario(scenario, sfile, opened, preflight(scenario, sfile, described))
 
@@ -93,11 +114,14 @@ def instantiate(scenario: Scenario, opened: dict[str, OpenedFmu], stack: context
     from fishfmu.fmu.instance import FmuInstance
     fmus = {}
     for f in scenario.fmu:
-        if scenario.run.fmu_process == "worker":
-            from fishfmu.fmu.worker import WorkerFmu
-            fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
-        else:
-            fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
+        try:
+            if scenario.run.fmu_process == "worker":
+                from fishfmu.fmu.worker import WorkerFmu
+                fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
+            else:
+                fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
+        except InputError as exc:  # a binary that does not load
+            raise as_the_user_names_it(f, exc) from None
         stack.callback(fmus[f.name].terminate)
     return fmus
 

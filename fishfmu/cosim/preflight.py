@@ -13,7 +13,7 @@ without unpacking every FMU once per point).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,21 +45,69 @@ def describe(path: str | Path, model_description: Any, variables: dict[str, FmuV
 
 
 def describe_file(path: str | Path) -> FmuDescription:
-    """The description of an FMU read from its modelDescription alone (no unpacking, no binary)."""
+    """The description of an FMU read from its modelDescription alone (no unpacking, no binary).
+
+    The file is checked as :func:`~fishfmu.fmu.archive.open_fmu` checks it before a byte is read (a regular
+    file, not a FIFO or device) and the archive's directory before its modelDescription is read."""
+    import zipfile
     from fmpy import read_model_description
-    try:
-        md = read_model_description(str(path))
-    except Exception as exc:  # fmpy raises what the XML parser or zipfile raise
-        raise InputError(f"cannot read the FMU's modelDescription: {exc}", file=path) from None
+    from fishfmu.fmu.archive import MAX_MEMBERS, MAX_UNPACKED_BYTES, check_members, open_regular_file
+    with open_regular_file(Path(path)) as fh:
+        try:
+            with zipfile.ZipFile(fh) as zf:
+                check_members(Path(path), zf, MAX_UNPACKED_BYTES, MAX_MEMBERS)
+            fh.seek(0)
+            md = read_model_description(fh)
+        except InputError:
+            raise
+        except Exception as exc:  # fmpy raises what the XML parser or zipfile raise
+            raise InputError(f"cannot read the FMU's modelDescription: {exc}", file=path) from None
     return describe(path, md, variables_of(md))
 
 
-def preflight(scenario: Scenario, scenario_file: str | Path | None,
-              fmus: Mapping[str, FmuDescription]) -> Wiring:
-    """Check every FMU's parameters (name, causality, type, declared range) and resolve the wiring;
-    raises InputError naming the scenario file and the key."""
+def preflight_changes(keys: Iterable[str]) -> set[int] | None:
+    """What :func:`preflight` must check again in a scenario that passed it once and was then changed at these
+    dotted keys (a sweep's point): None for everything; else the indices of the ``[[fmu]]`` entries whose start
+    values alone changed (an empty set: nothing).
+
+    It follows what preflight reads: the FMUs (their files, names, parameters and parameter files), the SSP,
+    the wiring, ``[opcua]``, ``[[event]]``, ``[record]``, ``[expect]``, the line's ids and ``run.coupling``;
+    not ``[fish]``, ``[plant]``, ``[kpi]``, the rest of ``[run]`` or an FMU's ``step_multiple``.  A key it
+    does not know is taken as changing everything.
+
+    >>> preflight_changes(["fish.count", "run.duration_s", "fmu[2].step_multiple"])
+    set()
+    >>> preflight_changes(["fmu[0].parameters.speed_1", "fmu[3].parameter_file"])
+    {0, 3}
+    >>> preflight_changes(["run.coupling"]) is None, preflight_changes(["wiring.inputs"]) is None
+    (True, True)
+    """
+    from fishfmu.scenario.schema import dotted_parts
+    start_values: set[int] = set()
+    for key in keys:
+        parts = dotted_parts(key)
+        top = parts[0] if parts else ""
+        if top in ("fish", "plant", "kpi"):
+            continue
+        if top == "run" and len(parts) > 1 and parts[1] != "coupling":
+            continue
+        if top == "fmu" and len(parts) > 2 and isinstance(parts[1], int):
+            if parts[2] == "step_multiple":
+                continue
+            if parts[2] in ("parameters", "parameter_file"):
+                start_values.add(parts[1])
+                continue
+        return None
+    return start_values
+
+
+def check_start_values(scenario: Scenario, scenario_file: str | Path | None, fmus: Mapping[str, FmuDescription],
+                       indices: Iterable[int] | None = None) -> None:
+    """Check the start values of every FMU (or those of the ``[[fmu]]`` entries at ``indices``): name, causality,
+    type, declared range and a parameter file's stated units; raises InputError naming the scenario file and key."""
     sfile = str(scenario_file) if scenario_file else None
-    for i, f in enumerate(scenario.fmu):
+    for i in range(len(scenario.fmu)) if indices is None else sorted(indices):
+        f = scenario.fmu[i]
         described = fmus[f.name]
         entry = f.origin or f"fmu[{i}]"  # an FMU brought in by [system] ssp is named by its component
         check_parameters(f.name, described, f.parameters, sfile, entry)
@@ -75,5 +123,13 @@ def preflight(scenario: Scenario, scenario_file: str | Path | None,
                 raise InputError(f"the parameter file gives '{key}' in {unit} but FMU '{f.name}' has it in "
                                  f"{var.unit}; give the value in {var.unit}", file=sfile or described.path,
                                  where=f"{entry}.parameters.{key}")
+
+
+def preflight(scenario: Scenario, scenario_file: str | Path | None,
+              fmus: Mapping[str, FmuDescription]) -> Wiring:
+    """Check every FMU's parameters (name, causality, type, declared range) and resolve the wiring;
+    raises InputError naming the scenario file and the key."""
+    check_start_values(scenario, scenario_file, fmus)
+    sfile = str(scenario_file) if scenario_file else None
     return resolve_wiring(scenario, {n: d.variables for n, d in fmus.items()}, sfile,
                           {n: d.feedthrough for n, d in fmus.items()})

@@ -155,14 +155,31 @@ def _source_files(name: str, model_dir: Path | None = None) -> list[Path]:
             if p.is_file() and "__pycache__" not in p.parts] + fmi2_headers()
 
 
+_digests: dict[tuple, str] = {}
+"""source_digest's results in this process, by what they depend on (see :func:`source_digest`)."""
+
+
 def source_digest(name: str, model_dir: Path | None = None) -> str:
-    """Hash of everything the FMU is made from, this generator and the platform included."""
-    h = hashlib.sha256(f"{name}\0{fmpy.platform}\0".encode())
-    h.update(Path(__file__).read_bytes() + b"\0")
-    for path in _source_files(name, model_dir):
-        h.update(path.name.encode() + b"\0")
-        h.update(path.read_bytes() + b"\0")
-    return h.hexdigest()[:20]
+    """Hash of everything the FMU is made from, this generator and the platform included.
+
+    Hashed once per process for as long as the files stay as they were: the result is kept under the
+    folders, the file list and each file's size, modification time and inode (a stat each, no read), so
+    that a sweep's thousands of preparations and a worker's every task do not read and hash the sources
+    again, while an edited or replaced source file is hashed anew."""
+    files = [Path(__file__), *_source_files(name, model_dir)]
+    stamps = []
+    for path in files:
+        st = path.stat()
+        stamps.append((str(path), st.st_size, st.st_mtime_ns, st.st_ino))
+    key = (name, str(model_dir), fmpy.platform, tuple(stamps))
+    if key not in _digests:
+        h = hashlib.sha256(f"{name}\0{fmpy.platform}\0".encode())
+        h.update(Path(__file__).read_bytes() + b"\0")
+        for path in files[1:]:
+            h.update(path.name.encode() + b"\0")
+            h.update(path.read_bytes() + b"\0")
+        _digests[key] = h.hexdigest()[:20]
+    return _digests[key]
 
 
 def fmu_guid(name: str, digest: str) -> str:
@@ -453,7 +470,7 @@ def builtin_fmu(name: str) -> Path:
     Safe when several processes ask at once: each builds into its own temporary folder and renames
     it into place; the loser of the race drops its copy and uses the winner's.
     """
-    load_spec(name)  # rejects unknown names with an InputError
+    model_folder(name)  # rejects unknown names with an InputError
     root = cache_dir()
     final_dir = root / source_digest(name)
     fmu_path = final_dir / f"{name}.fmu"

@@ -20,17 +20,18 @@ A scenario is one TOML file (see ``scenarios/``).  Its tables:
 ``[expect]`` bounds for CI on KPIs (``singulation_rate = { min = 0.4 }``) and recorded signals
 ========== =====================================================================================
 
-Everything is validated by the pydantic models below: a bad file raises
-:class:`plant.errors.InputError` naming the file, the dotted key and what is wrong.  FMU
-variables and plant ports are checked separately when the FMUs are opened
-(:mod:`fishfmu.scenario.wiring`).
+Everything is validated by the pydantic models below, in pydantic's strict mode: a value of the wrong
+type is refused, not converted (``gain = "2"`` or ``gain = true`` where a number belongs; an integer is
+taken where a float belongs).  A bad file raises :class:`plant.errors.InputError` naming the file, the
+dotted key and what is wrong.  FMU variables and plant ports are checked separately when the FMUs are
+opened (:mod:`fishfmu.scenario.wiring`).
 """
 
 from __future__ import annotations
 
 import copy
-import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -46,13 +47,20 @@ from plant.params import PlantParams
 from plant.population import PopulationSpec
 from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
 
+from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem
+
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
+MAX_FMUS = 64
+"""FMU instances in a scenario, its own ``[[fmu]]`` and those ``[system] ssp`` brings in together."""
+MAX_CONNECTION_TABLES = 2000
+"""``[[wiring.connection]]`` tables, the scenario's own and the connections ``[system] ssp`` brings in together."""
 
 
 def _finite(value: Any) -> Any:
-    """A value handed to an FMU must not be NaN or infinite (TOML and ``--set`` allow ``nan``, ``inf``)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        raise ValueError("must be a finite number: NaN and infinity cannot be given to an FMU")
+    """A value handed to an FMU must be a finite number, a boolean or a string (:func:`start_value_problem`)."""
+    problem = start_value_problem(value)
+    if problem:
+        raise ValueError(f"must be a finite number, a boolean or a string: {problem}")
     return value
 
 
@@ -105,11 +113,18 @@ class FmuInstance(Strict):
         "'variable = value'; values in parameters win over the file's"))
     _origin: str | None = PrivateAttr(None)
     _units: dict[str, str] = PrivateAttr(default_factory=dict)
+    _ssp_source: tuple[str, str] | None = PrivateAttr(None)
 
     @property
     def origin(self) -> str | None:
         """Where an FMU imported from ``[system] ssp`` came from (for errors); None for a ``[[fmu]]`` of the file."""
         return self._origin
+
+    @property
+    def ssp_source(self) -> tuple[str, str] | None:
+        """An FMU imported from ``[system] ssp``: (the SSP file, the component's source there), what an error about
+        its FMU file names (``path`` is fishfmu's copy in the cache); None for a ``[[fmu]]`` of the file."""
+        return self._ssp_source
 
     @property
     def stated_units(self) -> dict[str, str]:
@@ -186,7 +201,7 @@ class WiringSpec(Strict):
         "'source.variable -> target.variable' pairs between FMU variables and plant ports "
         "('plant.<id>.<signal>'), checked against each modelDescription and the plant's ports "
         "(names, causality, types)"))
-    connection: list[ConnectionTable] = Field(default_factory=list, max_length=2000, description=(
+    connection: list[ConnectionTable] = Field(default_factory=list, max_length=MAX_CONNECTION_TABLES, description=(
         "connections in table form, '[[wiring.connection]]' with 'from', 'to' and optionally 'gain', "
         "'offset' (a linear transformation) and 'round' (Real into Integer)"))
     inputs: dict[str, Annotated[float | bool, AfterValidator(_finite)]] = Field(default_factory=dict, description=(
@@ -210,10 +225,14 @@ class Bound(Strict):
     """A bound for CI on one KPI (``min``, ``max`` or both) or on one recorded signal (also ``final``); a run
     outside it exits with 1."""
 
-    min: float | None = Field(None, description="the KPI (a signal: every recorded value) must be at least this")
-    max: float | None = Field(None, description="the KPI (a signal: every recorded value) must be at most this")
-    final: float | None = Field(None, description="a signal only: its value at the end of the run, within tolerance")
-    tolerance: float = Field(0.0, ge=0.0, description="a signal's final value may differ from final by this much")
+    min: float | None = Field(None, allow_inf_nan=False, description=(
+        "the KPI (a signal: every recorded value) must be at least this; a finite number"))
+    max: float | None = Field(None, allow_inf_nan=False, description=(
+        "the KPI (a signal: every recorded value) must be at most this; a finite number"))
+    final: float | None = Field(None, allow_inf_nan=False, description=(
+        "a signal only: its value at the end of the run, within tolerance; a finite number"))
+    tolerance: float = Field(0.0, ge=0.0, allow_inf_nan=False, description=(
+        "a signal's final value may differ from final by this much"))
 
     @model_validator(mode="after")
     def _some(self) -> "Bound":
@@ -230,7 +249,8 @@ class SystemSpec(Strict):
     ssp: str | None = Field(None, description=(
         "an .ssp archive or .ssd file, relative to the scenario: its FMU components (SSP 1.0) join [[fmu]] under "
         "their component names, its connections (with linear transformations) join the wiring, and its "
-        "parameter values become start values; connections to the plant stay in [wiring]"))
+        "parameter values become start values; connections to the plant stay in [wiring]. What it brings in counts "
+        f"towards the limits of [[fmu]] ({MAX_FMUS}) and [[wiring.connection]] ({MAX_CONNECTION_TABLES})"))
 
 
 class OpcuaSpec(Strict):
@@ -259,7 +279,7 @@ class Scenario(Strict):
     line: Line
     fish: PopulationSpec = Field(default_factory=PopulationSpec)
     plant: PlantParams = Field(default_factory=PlantParams)
-    fmu: list[FmuInstance] = Field(default_factory=list, max_length=64)
+    fmu: list[FmuInstance] = Field(default_factory=list, max_length=MAX_FMUS)
     system: SystemSpec = Field(default_factory=SystemSpec)
     _ssp_not_imported: list[str] = PrivateAttr(default_factory=list)
 
@@ -333,35 +353,60 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
 
     Relative FMU paths are made absolute against the scenario's folder.
     """
-    from fishfmu.scenario.ssp import read_parameter_file
-    path = Path(path)
-    data = read_toml(path)
-    for key, value in (overrides or {}).items():
-        set_dotted(data, key, value, file=path)
-    for i, f in enumerate(data.get("fmu", []) or []):
-        for key in ("path", "parameter_file"):
-            if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
-                data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
-    system = data.get("system")
-    if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
-        data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))
-    scenario = validate(Scenario, data, file=path)
-    for i, f in enumerate(scenario.fmu):
-        if f.parameter_file is not None:
-            values, units = read_parameter_file(Path(f.parameter_file), path, f"fmu[{i}].parameter_file")
-            inline = f.parameters
-            f.parameters = {**values, **inline}
-            f._units = {k: u for k, u in units.items() if k not in inline}
-    if scenario.system.ssp is not None:
-        _add_ssp_system(scenario, Path(scenario.system.ssp), path)
-    return scenario
+    return ScenarioLoader(path).load(overrides)
 
 
-def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path) -> None:
+class ScenarioLoader:
+    """One scenario file loaded with overrides, as often as asked (a sweep's points): the file is read once,
+    each parameter file and SSP once (as they were when first read); every load validates the whole scenario."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.data = read_toml(self.path)
+        """The file's TOML, as read (never changed: each load works on a copy)."""
+        self._parameter_files: dict[str, tuple[dict[str, Any], dict[str, str]]] = {}
+        self._systems: dict[tuple[str, int, int], SspSystem] = {}
+
+    def load(self, overrides: dict[str, Any] | None = None) -> Scenario:
+        path = self.path
+        data = copy.deepcopy(self.data)
+        for key, value in (overrides or {}).items():
+            set_dotted(data, key, value, file=path)
+        for i, f in enumerate(data.get("fmu", []) or []):
+            for key in ("path", "parameter_file"):
+                if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
+                    data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
+        system = data.get("system")
+        if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
+            data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))
+        scenario = validate(Scenario, data, file=path, strict=True)
+        for i, f in enumerate(scenario.fmu):
+            if f.parameter_file is not None:
+                values, units = self._parameter_file(f.parameter_file, f"fmu[{i}].parameter_file")
+                inline = f.parameters
+                f.parameters = {**values, **inline}  # each value checked by read_parameter_file, naming the file
+                f._units = {k: u for k, u in units.items() if k not in inline}
+        if scenario.system.ssp is not None:
+            _add_ssp_system(scenario, Path(scenario.system.ssp), path, self._read_ssp)
+        return scenario
+
+    def _parameter_file(self, file: str, where: str) -> tuple[dict[str, Any], dict[str, str]]:
+        if file not in self._parameter_files:
+            self._parameter_files[file] = read_parameter_file(Path(file), self.path, where)
+        return self._parameter_files[file]
+
+    def _read_ssp(self, ssp: Path, max_components: int, max_connections: int) -> SspSystem:
+        key = (str(ssp), max_components, max_connections)
+        if key not in self._systems:
+            self._systems[key] = read_ssp(ssp, max_components, max_connections)
+        return self._systems[key]
+
+
+def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path,
+                    read: Callable[[Path, int, int], SspSystem] = read_ssp) -> None:
     """Add an SSP's FMUs and connections to a loaded scenario (checked like the file's own entries when the FMUs
-    are opened); their names must not clash with the scenario's."""
-    from fishfmu.scenario.ssp import read_ssp
-    system = read_ssp(ssp)
+    are opened); their names must not clash with the scenario's, and the limits hold for the whole."""
+    system = read(ssp, MAX_FMUS - len(scenario.fmu), MAX_CONNECTION_TABLES - len(scenario.wiring.connection))
     taken = {f.name for f in scenario.fmu} | {"plant"}
     where = f"system.ssp ({ssp.name})"
     for comp in system.components:
@@ -371,27 +416,47 @@ def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path) -> None:
         try:
             entry = FmuInstance(name=comp.name, path=str(comp.fmu), parameters=comp.parameters)
         except pydantic.ValidationError as exc:
-            raise InputError(f"component '{comp.name}': {exc.errors()[0]['msg']}", file=scenario_file,
-                             where=where) from None
+            err = exc.errors()[0]
+            key = ".".join(str(p) for p in err["loc"])
+            raise InputError(f"component '{comp.name}': {key}: {err['msg']}", file=ssp) from None
         entry._origin, entry._units = f"{where}: component '{comp.name}'", dict(comp.units)
+        entry._ssp_source = (str(ssp), comp.source)
         scenario.fmu.append(entry)
     scenario._ssp_not_imported = list(system.boundary)
     for conn in system.connections:
-        table = ConnectionTable(**{"from": conn.source, "to": conn.target, "gain": conn.gain, "offset": conn.offset})
-        table._origin = f"{where}: connection {conn.source} -> {conn.target}"
+        text = f"connection {conn.source} -> {conn.target}"
+        for end in (conn.source, conn.target):
+            if not ENDPOINT_RE.match(end):
+                raise InputError(f"{text}: '{end}' is not a '<component>.<variable>' name fishfmu can connect "
+                                 "(letters, digits, _ . [ ])", file=ssp)
+        try:
+            table = ConnectionTable(**{"from": conn.source, "to": conn.target, "gain": conn.gain,
+                                       "offset": conn.offset})
+        except pydantic.ValidationError as exc:
+            raise InputError(f"{text}: {exc.errors()[0]['msg']}", file=ssp) from None
+        table._origin = f"{where}: {text}"
         scenario.wiring.connection.append(table)
+
+
+def dotted_parts(key: str) -> list[str | int]:
+    """The tables, keys and indices of a dotted key.
+
+    >>> dotted_parts("fmu[0].parameters.speed_1")
+    ['fmu', 0, 'parameters', 'speed_1']
+    """
+    return [int(p[1:-1]) if p.startswith("[") else p for p in re.findall(r"[^.\[\]]+|\[\d+\]", key)]
 
 
 def set_dotted(data: dict[str, Any], key: str, value: Any, file: str | Path | None = None) -> None:
     """Set ``data['a']['b'][2]['c'] = value`` for ``key = 'a.b[2].c'``, creating tables as needed."""
-    parts = re.findall(r"[^.\[\]]+|\[\d+\]", key)
+    parts = dotted_parts(key)
     if not parts:
         raise InputError(f"empty key in override '{key}'", file=file)
     node: Any = data
     for i, part in enumerate(parts):
         last = i == len(parts) - 1
-        if part.startswith("["):
-            idx = int(part[1:-1])
+        if isinstance(part, int):
+            idx = part
             if not isinstance(node, list) or idx >= len(node):
                 raise InputError(f"override '{key}': no element {idx} there", file=file)
             if last:
@@ -412,9 +477,9 @@ def get_dotted(data: dict[str, Any], key: str, overrides: dict[str, Any] | None 
     if overrides and key in overrides:
         return overrides[key]
     node: Any = data
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
-        if part.startswith("["):
-            idx = int(part[1:-1])
+    for part in dotted_parts(key):
+        if isinstance(part, int):
+            idx = part
             if not isinstance(node, list) or idx >= len(node):
                 raise InputError(f"'{key}': no element {idx} there")
             node = node[idx]
