@@ -53,8 +53,10 @@ def refuse_served(sc, scenario_file: Path) -> None:
 def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] | None = None) -> list[Path]:
     """Build built-in FMUs (all when ``names`` is empty) as .fmu files in ``out``; ``defaults`` bakes in
     parameter defaults (one FMU only).  Raises FmuBuildError naming the FMU that failed."""
+    import tempfile
+
     from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
-    from fishfmu.output.manifest import record_written
+    from fishfmu.output.atomic import write_bytes_atomic
     from fishfmu.output.ownership import check_single_file_target
     names = list(names) or list(BUILTIN_FMUS)
     if defaults and len(names) != 1:
@@ -63,13 +65,14 @@ def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] |
     for name in names:  # an existing .fmu is replaced only if fishfmu wrote it
         check_single_file_target(out / f"{name}.fmu")
     built = []
-    for name in names:
-        try:
-            path = build_fmu(name, out, defaults or {})
-        except FmuBuildError as exc:
-            raise FmuBuildError(f"{name}: {exc}") from exc
-        record_written(path)
-        built.append(path)
+    with tempfile.TemporaryDirectory(prefix="fishfmu-build-fmus-") as tmp:  # nothing of the build in ``out``
+        for name in names:
+            try:
+                made = build_fmu(name, Path(tmp), defaults or {})
+            except FmuBuildError as exc:
+                raise FmuBuildError(f"{name}: {exc}") from exc
+            write_bytes_atomic(out / made.name, made.read_bytes())
+            built.append(out / made.name)
     return built
 
 

@@ -156,17 +156,15 @@ def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     from plant.measured import write_dataset
 
     from fishfmu.analysis.compare_report import write_compare_report
-    from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
+    from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic
     paths = {}
     for name, df in (("kpis", c.kpis), ("arrivals", c.arrivals), ("error_measures", c.measures),
                      ("error_summary", c.summary())):
         paths[name] = out / f"{name}.csv"
         write_text_atomic(paths[name], df.to_csv(index=False, float_format="%.6g"))
     sim_runs = [simulated_run(r, s) for r, s in zip(c.dataset.runs, c.resims) if not s.error]
-    write_dataset(Dataset(c.dataset.name + "-simulated", "re-simulated by fishfmu compare", c.dataset.line,
-                          c.dataset.kpi, sim_runs), out / "simulated")
-    from fishfmu.output.manifest import record_written
-    record_written(out / "simulated")  # the folder's manifest: these files are fishfmu's
+    write_tree_atomic(out / "simulated", lambda tmp: write_dataset(Dataset(
+        c.dataset.name + "-simulated", "re-simulated by fishfmu compare", c.dataset.line, c.dataset.kpi, sim_runs), tmp))
     paths["simulated"] = out / "simulated"
     summary = c.summary()
     write_json_atomic(out / "compare.json", {

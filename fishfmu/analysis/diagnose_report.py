@@ -103,11 +103,12 @@ def diagnosis_document(d: Diagnosis) -> dict:
 
 
 def _img(fig, path: Path) -> str:
-    from fishfmu.output.manifest import record_written
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    record_written(path)  # the folder's manifest: this file is fishfmu's
-    return base64.b64encode(path.read_bytes()).decode()
+    from fishfmu.output.atomic import write_figure_atomic
+    try:
+        data = write_figure_atomic(path, fig, dpi=100, bbox_inches="tight")
+    finally:
+        plt.close(fig)
+    return base64.b64encode(data).decode()
 
 
 def evidence_figures(d: Diagnosis, out: Path) -> dict[str, str]:

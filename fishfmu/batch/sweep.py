@@ -474,17 +474,11 @@ def _table_safe(df: pd.DataFrame) -> pd.DataFrame:
 
 def write_tables(out: Path, runs: pd.DataFrame, summary: pd.DataFrame) -> dict[str, Path]:
     """runs/summary as parquet and CSV, each written to a temporary name and renamed into place."""
-    from fishfmu.output.manifest import note_temp, replace_into
+    from fishfmu.output.atomic import write_file_atomic, write_text_atomic
     paths = {}
     for name, df in (("runs", runs), ("summary", summary)):
-        for ext in ("parquet", "csv"):
-            path = out / f"{name}.{ext}"
-            tmp = out / f".{name}.{ext}.part"
-            note_temp(tmp)  # the folder's manifest knows the name before the file exists
-            if ext == "parquet":
-                df.to_parquet(tmp, index=False)
-            else:
-                df.to_csv(tmp, index=False, float_format="%.10g")
-            replace_into(tmp, path)
-            paths[f"{name}_{ext}"] = path
+        paths[f"{name}_parquet"] = out / f"{name}.parquet"
+        write_file_atomic(paths[f"{name}_parquet"], lambda fh, df=df: df.to_parquet(fh, index=False))
+        paths[f"{name}_csv"] = out / f"{name}.csv"
+        write_text_atomic(paths[f"{name}_csv"], df.to_csv(index=False, float_format="%.10g"))
     return paths

@@ -42,7 +42,8 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
     line per combination of the other parameters.  Parameters with a single value get no plot; the
     singulation rate's band is drawn clipped to [0, 1] (the tables keep the unclipped interval)."""
     from matplotlib.figure import Figure  # no pyplot: no global state, Agg canvas
-    from fishfmu.output.manifest import note_dir, record_written
+    from fishfmu.output.atomic import write_figure_atomic
+    from fishfmu.output.manifest import note_dir
     folder.mkdir(parents=True, exist_ok=True)
     note_dir(folder)
     for x_key in parameters:
@@ -88,8 +89,7 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
                 ax.legend(fontsize=7)
             fig.tight_layout()
             png = folder / f"{kpi}__{re.sub(r'[^A-Za-z0-9_]+', '_', x_key).strip('_')}.png"
-            fig.savefig(png)
-            record_written(png)  # the folder's manifest: this file is fishfmu's
+            write_figure_atomic(png, fig)  # a new file, renamed over the old: a link to the old keeps it
     return folder
 
 

@@ -161,8 +161,11 @@ def plot(records: list[BenchRecord], path: Path) -> None:
     ax.axhline(1e3 * records[0].comm_step_s, color="k", lw=0.8, ls=":", label="real time")
     ax.legend()
     ax.grid(alpha=0.3)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    from fishfmu.output.atomic import write_figure_atomic
+    try:
+        write_figure_atomic(path, fig, dpi=110, bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def records_json(records: list[BenchRecord]) -> list[dict]:

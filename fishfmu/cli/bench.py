@@ -58,11 +58,7 @@ def bench_pile(
     if json_file is not None:
         commands.write_json(json_file, records_json(records))
     if plot_file is not None:
-        from fishfmu.output.manifest import note_temp, replace_into
-        tmp = plot_file.with_name(f".{plot_file.name}.part{plot_file.suffix}")
-        note_temp(tmp)
-        plot(records, tmp)
-        replace_into(tmp, plot_file)
+        plot(records, plot_file)
 
 
 @bench_app.command("fmu-worker")

@@ -1,6 +1,7 @@
 """The atomic writers every command uses: a file is written under a temporary name, recorded in
-its folder's manifest (:mod:`fishfmu.output.manifest`, where the byte writer lives) and renamed into place,
-so a crash or an interrupt never leaves a half-written file under its final name.
+its folder's manifest (:mod:`fishfmu.output.manifest`, where the file writers live) and renamed into
+place, so a crash or an interrupt never leaves a half-written file under its final name, and a file
+that was there (a hard link to it, a backup's copy) keeps what it held.
 
 A module of its own, below :mod:`fishfmu.output.run_folder` (which re-exports all of it), so that what only
 needs to write a file (the report, :func:`fishfmu.session.mark_partial`) does not import the run's
@@ -9,6 +10,7 @@ output writer and, through it, the runner.
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
@@ -16,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from fishfmu.output.manifest import write_bytes_atomic
+from fishfmu.output.manifest import write_bytes_atomic, write_file_atomic, write_tree_atomic
 
-__all__ = ["MARKER", "json_safe", "write_bytes_atomic", "write_json_atomic", "write_run_info", "write_text_atomic"]
+__all__ = ["MARKER", "json_safe", "write_bytes_atomic", "write_file_atomic", "write_figure_atomic", "write_json_atomic",
+           "write_run_info", "write_text_atomic", "write_tree_atomic"]
 
 MARKER = "run_info.json"
 
@@ -29,6 +32,16 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 def write_json_atomic(path: Path, data: Any) -> None:
     write_text_atomic(path, json.dumps(data, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+def write_figure_atomic(path: Path, fig: Any, **savefig: Any) -> bytes:
+    """Write the matplotlib figure ``fig`` as the PNG ``path`` (``savefig`` options: dpi, bbox_inches);
+    returns its bytes (a report embeds them)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", **savefig)
+    data = buf.getvalue()
+    write_bytes_atomic(path, data)
+    return data
 
 
 def json_safe(x: Any) -> Any:

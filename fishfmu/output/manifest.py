@@ -1,18 +1,24 @@
-"""What fishfmu wrote: the manifest of a folder, the journal of a command's writes, the atomic writer.
+"""What fishfmu wrote: the manifest of a folder, the journal of a command's writes, the atomic writers.
 
 Every folder fishfmu writes into holds ``.fishfmu-manifest.json``: each file fishfmu wrote there
-(path relative to the folder) with its size and SHA-256, the folders it made, and the temporary
-names it was writing under.  While a command writes, each write is first appended to
-``.fishfmu-manifest.journal`` (one JSON line, flushed to disk *before* the file appears under its
-name), and the journal is folded into the manifest when the command ends; so a command killed
-outright (``kill -9``) still leaves a folder whose every file is accounted for.
+(path relative to the folder) with its size and SHA-256, and the folders it made.  Every file is
+written under a temporary name (:func:`write_bytes_atomic`, :func:`write_file_atomic`,
+:func:`write_tree_atomic`), then its size and SHA-256 are appended to ``.fishfmu-manifest.journal``
+under both names (one JSON line, on disk *before* the rename), then it is renamed into place.  The
+journal is folded into the manifest when the command ends; so a command killed outright (``kill -9``)
+still leaves a folder whose every complete file is accounted for.  A temporary file a kill cut short
+matches no record and is not fishfmu's: nothing is ours without its size and hash.
+
+Both files are read strictly (:func:`load_state`): anything that is not what fishfmu writes (not a
+regular file, not UTF-8, not JSON, an entry of the wrong shape, a path leaving the folder) is bad
+input naming the file, and the folder is left alone.
 
 A session records one command's writes into a whole folder (:func:`start_session`) or into some
 single-file outputs of it (:func:`open_session`).  Which files are fishfmu's, and so may be written
 over or removed, is decided from the manifest by :mod:`fishfmu.output.ownership`.
 
-API: :func:`write_bytes_atomic`, :func:`record_written`, the writers' hooks (:func:`note_pending`,
-:func:`note_temp`, :func:`replace_into`, ...), :func:`load_state`, :func:`close_all`.
+API: :func:`write_bytes_atomic`, :func:`write_file_atomic`, :func:`write_tree_atomic`, :func:`note_dir`,
+:func:`load_state`, the sessions (:func:`start_session`, :func:`open_session`, :func:`close`, :func:`close_all`).
 """
 
 from __future__ import annotations
@@ -22,17 +28,23 @@ import errno
 import hashlib
 import json
 import os
+import re
+import shutil
+import stat
 import tempfile
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
+from typing import IO, Any, Callable
 
 from plant.errors import InputError
 
 MANIFEST = ".fishfmu-manifest.json"
 JOURNAL = ".fishfmu-manifest.journal"
 FORMAT = 1
+MAX_SIZE = 2**63 - 1
+"""the largest file size a manifest may state (st_size is a signed 64-bit count)"""
+_SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 @dataclass
@@ -58,10 +70,9 @@ class State:
     status: str | None = None
     command: str | None = None
     files: dict[str, list[list]] = field(default_factory=dict)
-    """relative path -> accepted [size, sha256] versions (the newest last)"""
-    temps: set[str] = field(default_factory=set)
-    """temporary names (a file or a folder) fishfmu wrote under; ours whatever they hold"""
+    """relative path -> [size, sha256] versions fishfmu wrote there (the newest last); temporary names too"""
     dirs: set[str] = field(default_factory=set)
+    """folders fishfmu made (removed only when empty)"""
 
     def add_file(self, rel: str, size: int, sha: str) -> None:
         versions = self.files.setdefault(rel, [])
@@ -69,50 +80,165 @@ class State:
             versions.remove([size, sha])
         versions.append([size, sha])
 
-    def is_temp(self, rel: str) -> bool:
-        parts = rel.split("/")
-        return any("/".join(parts[:i]) in self.temps for i in range(1, len(parts) + 1))
-
 
 def is_internal(name: str) -> bool:
-    """The manifest, its journal, and a temporary name of the manifest (a write killed midway)."""
-    return name in (MANIFEST, JOURNAL) or (name.startswith(f".{MANIFEST}.") and name.endswith(".part"))
+    """The manifest and its journal (a name at the top of a folder)."""
+    return name in (MANIFEST, JOURNAL)
+
+
+def is_temporary_name(rel: str) -> bool:
+    """Named like fishfmu's temporary files and folders (``.<name>.<random>.part``), or inside one."""
+    return any(p.startswith(".") and p.endswith(".part") for p in rel.split("/"))
+
+
+class _Bad(ValueError):
+    """What is wrong with one entry of a manifest or journal."""
+
+
+def untrusted(path: Path, what: str, where: str | None = None) -> InputError:
+    return InputError(f"{what}; fishfmu cannot tell which files in this folder are its own, so nothing was "
+                      "touched (choose another output, or remove or repair this file)", file=path, where=where)
+
+
+def _show(v: Any) -> str:
+    text = repr(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _rel(v: Any, what: str) -> str:
+    """A path relative to the folder, inside it: no empty, ``.`` or ``..`` part, nothing absolute."""
+    if not isinstance(v, str) or not v:
+        raise _Bad(f"{what} {_show(v)} is not a path")
+    try:
+        os.fsencode(v)
+    except UnicodeError:
+        raise _Bad(f"{what} {_show(v)} is not a file name") from None
+    if "\0" in v or any(p in ("", ".", "..") for p in v.split("/")):
+        raise _Bad(f"{what} {_show(v)} is not a relative path inside the folder")
+    return v
+
+
+def _size(v: Any, what: str) -> int:
+    if type(v) is not int or not 0 <= v <= MAX_SIZE:
+        raise _Bad(f"{what}: size {_show(v)} is not a whole number of bytes (0 to {MAX_SIZE})")
+    return v
+
+
+def _sha(v: Any, what: str) -> str:
+    if not isinstance(v, str) or not _SHA256.fullmatch(v):
+        raise _Bad(f"{what}: sha256 {_show(v)} is not 64 lower-case hex digits")
+    return v
+
+
+def _read_internal(path: Path) -> str | None:
+    """The text of the manifest or journal ``path`` (None if there is none); one that is not a regular
+    file or not UTF-8 is untrusted.  Opened without following a link or blocking on a FIFO."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise untrusted(path, "is a symbolic link, not a file fishfmu wrote") from None
+        raise os_error(exc, path, "cannot read") from None
+    try:
+        with os.fdopen(fd, "rb") as fh:
+            if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                raise untrusted(path, "is not a regular file")
+            data = fh.read()
+    except IsADirectoryError:
+        raise untrusted(path, "is not a regular file") from None
+    except OSError as exc:
+        raise os_error(exc, path, "cannot read") from None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise untrusted(path, f"is not UTF-8 text (byte {exc.start})") from None
+
+
+def _json(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except RecursionError:
+        raise _Bad("is nested too deeply to be a fishfmu record") from None
+    except ValueError as exc:
+        raise _Bad(f"is not JSON ({exc})") from None
+
+
+def _read_manifest(doc: Any, state: State) -> None:
+    if not isinstance(doc, dict) or type(doc.get("fishfmu_manifest")) is not int or doc["fishfmu_manifest"] != FORMAT:
+        raise _Bad(f"is not a fishfmu manifest of format {FORMAT}")
+    unknown = set(doc) - {"fishfmu_manifest", "status", "command", "files", "temps", "dirs"}
+    if unknown:
+        raise _Bad(f"has an unknown key {_show(sorted(unknown)[0])}")
+    for key in ("status", "command"):
+        if not isinstance(doc.get(key), (str, type(None))):
+            raise _Bad(f'"{key}" {_show(doc[key])} is not text')
+    files, dirs, temps = doc.get("files", {}), doc.get("dirs", []), doc.get("temps", [])
+    if not isinstance(files, dict):
+        raise _Bad('"files" is not an object')
+    for rel, versions in files.items():
+        what = f'"files" entry {_show(rel)}'
+        _rel(rel, '"files" entry')
+        if not isinstance(versions, list) or not versions:
+            raise _Bad(f"{what} is not a list of [size, sha256]")
+        for v in versions:
+            if not isinstance(v, list) or len(v) != 2:
+                raise _Bad(f"{what} is not a list of [size, sha256]")
+            state.add_file(rel, _size(v[0], what), _sha(v[1], what))
+    for key, names in (("dirs", dirs), ("temps", temps)):
+        if not isinstance(names, list):
+            raise _Bad(f'"{key}" is not a list')
+        for rel in names:
+            _rel(rel, f'"{key}" entry')
+    state.dirs.update(dirs)
+    # "temps" (earlier fishfmu versions) named temporary files without size or hash: that proves nothing
+    state.status, state.command = doc.get("status"), doc.get("command")
+
+
+def _read_journal_line(op: Any, state: State) -> None:
+    keys = set(op) if isinstance(op, dict) else None
+    if keys == {"f", "size", "sha256"}:
+        what = f"file {_show(op['f'])}"
+        state.add_file(_rel(op["f"], "file"), _size(op["size"], what), _sha(op["sha256"], what))
+    elif keys == {"d"}:
+        state.dirs.add(_rel(op["d"], "folder"))
+    elif keys == {"t"}:
+        _rel(op["t"], "temporary name")  # an older fishfmu's temporary name alone: proves nothing
+    else:
+        raise _Bad(f"{_show(op)} is not a journal entry")
 
 
 def load_state(folder: Path) -> State:
+    """What ``folder``'s manifest and journal say; either one malformed is an :class:`InputError`
+    naming it (and where in it), so that nothing is removed on its word."""
     state = State()
     m = folder / MANIFEST
-    if m.is_file() and not m.is_symlink():
+    text = _read_internal(m)
+    if text is not None:
         try:
-            doc = json.loads(m.read_text(encoding="utf-8"))
-            if doc.get("fishfmu_manifest") == FORMAT:
-                state.present = True
-                state.status, state.command = doc.get("status"), doc.get("command")
-                for rel, versions in doc.get("files", {}).items():
-                    for size, sha in versions:
-                        state.add_file(rel, int(size), str(sha))
-                state.temps = set(doc.get("temps", []))
-                state.dirs = set(doc.get("dirs", []))
-        except (OSError, ValueError, TypeError, AttributeError):
-            state = State()
+            _read_manifest(_json(text), state)
+        except _Bad as exc:
+            raise untrusted(m, str(exc)) from None
+        state.present = True
     j = folder / JOURNAL
-    if j.is_file() and not j.is_symlink():
+    text = _read_internal(j)
+    if text is not None:
         state.present = True  # a command that wrote here was killed before folding its journal in
-        try:
-            lines = j.read_text(encoding="utf-8").splitlines()
-        except OSError:
-            lines = []
-        for line in lines:
+        lines = text.split("\n")
+        for n, line in enumerate(lines, 1):
+            if n == len(lines) and not line:
+                break
             try:
-                op = json.loads(line)
-            except ValueError:
-                continue  # a line torn by a kill: what it announced was not written yet
-            if "f" in op:
-                state.add_file(op["f"], int(op["size"]), op["sha256"])
-            elif "t" in op:
-                state.temps.add(op["t"])
-            elif "d" in op:
-                state.dirs.add(op["d"])
+                op = _json(line)
+            except _Bad as exc:
+                if n == len(lines):
+                    break  # the last line, torn by a kill: what it announced was not renamed into place yet
+                raise untrusted(j, str(exc), f"line {n}") from None
+            try:
+                _read_journal_line(op, state)
+            except _Bad as exc:
+                raise untrusted(j, str(exc), f"line {n}") from None
     return state
 
 
@@ -121,9 +247,10 @@ def _write_manifest(folder: Path, state: State) -> None:
     lines = [f" {json.dumps(k)}: {json.dumps(v)}," for k, v in head.items()]
     lines.append(' "files": {' + ",".join(f"\n  {json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(state.files.items()))
                  + "\n },")
-    lines.append(f' "temps": {json.dumps(sorted(state.temps))},')
     lines.append(f' "dirs": {json.dumps(sorted(state.dirs))}')
-    write_bytes_atomic(folder / MANIFEST, ("{\n" + "\n".join(lines) + "\n}\n").encode())
+    data = ("{\n" + "\n".join(lines) + "\n}\n").encode()
+    _write_atomic(folder / MANIFEST, lambda fh: fh.write(data), _digest(data),
+                  lambda tmp, size, sha: _append_journal(folder, [{"f": tmp.name, "size": size, "sha256": sha}]))
 
 
 def sha256_file(path: Path) -> tuple[int, str]:
@@ -136,6 +263,50 @@ def sha256_file(path: Path) -> tuple[int, str]:
     return size, h.hexdigest()
 
 
+def _digest(data: bytes) -> tuple[int, str]:
+    return len(data), hashlib.sha256(data).hexdigest()
+
+
+# ---------------------------------------------------------------- the journal
+
+def _open_journal(root: Path) -> IO[str]:
+    """``root``'s journal, for appending: a regular file (never through a link); a line a kill tore
+    is cut off first, so that what is appended starts a line of its own."""
+    path = root / JOURNAL
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_APPEND | os.O_NOFOLLOW | os.O_NONBLOCK, 0o666)
+    except OSError as exc:
+        if exc.errno in (errno.ELOOP, errno.EISDIR):
+            raise untrusted(path, "is not a regular file") from None
+        raise os_error(exc, path) from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise untrusted(path, "is not a regular file")
+        if st.st_size:
+            data = os.pread(fd, st.st_size, 0)
+            if not data.endswith(b"\n"):
+                os.ftruncate(fd, data.rfind(b"\n") + 1)
+        return os.fdopen(fd, "a", encoding="utf-8")
+    except OSError as exc:
+        os.close(fd)
+        raise os_error(exc, path) from None
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _write_journal(fh: IO[str], ops: list[dict]) -> None:
+    fh.write("".join(json.dumps(op) + "\n" for op in ops))
+    fh.flush()
+    os.fsync(fh.fileno())
+
+
+def _append_journal(root: Path, ops: list[dict]) -> None:
+    with _open_journal(root) as fh:
+        _write_journal(fh, ops)
+
+
 # ---------------------------------------------------------------- sessions: who records writes
 
 @dataclass
@@ -144,7 +315,7 @@ class _Session:
     only: set[str] | None = None
     """None: the whole folder is this command's output; else just these file names in it"""
     command: str | None = None
-    journal_fh: object | None = None
+    journal_fh: IO[str] | None = None
 
 
 _SESSIONS: dict[Path, _Session] = {}
@@ -199,10 +370,8 @@ def inside_folder_being_written(path: str | Path) -> bool:
 def _journal(s: _Session, ops: list[dict]) -> None:
     with _LOCK:
         if s.journal_fh is None:
-            s.journal_fh = open(s.root / JOURNAL, "a", encoding="utf-8")
-        s.journal_fh.write("".join(json.dumps(op) + "\n" for op in ops))
-        s.journal_fh.flush()
-        os.fsync(s.journal_fh.fileno())
+            s.journal_fh = _open_journal(s.root)
+        _write_journal(s.journal_fh, ops)
 
 
 def _dir_ops(rel: str) -> list[dict]:
@@ -210,59 +379,55 @@ def _dir_ops(rel: str) -> list[dict]:
     return [{"d": "/".join(parts[:i])} for i in range(1, len(parts) + 1)]
 
 
-def note_pending(tmp: str | Path | None, final: str | Path, data: bytes | None = None) -> None:
-    """Record, before it appears, that ``final`` is ours (its bytes ``data``, or the file ``tmp``
-    holds now) and that ``tmp`` is our temporary name.  Called by the atomic writers."""
-    found = _find(Path(final))
+def _note_written(tmp: Path, final: Path, size: int, sha: str) -> None:
+    """Record, before the rename, that ``tmp`` and ``final`` hold the ``size`` bytes of hash ``sha``."""
+    found = _find(final)
     if found is None:
         return
     s, rel = found
-    if rel in (MANIFEST, JOURNAL):
+    if is_internal(rel):
         return
     ops = _dir_ops(rel)
-    if tmp is not None and abs_path(tmp) != abs_path(final):
-        t = _find(Path(tmp))
-        if t is not None and t[0] is s:
-            ops.append({"t": t[1]})
-    if data is not None:
-        ops.append({"f": rel, "size": len(data), "sha256": hashlib.sha256(data).hexdigest()})
-    elif tmp is not None and Path(tmp).is_file():
-        size, sha = sha256_file(Path(tmp))
-        ops.append({"f": rel, "size": size, "sha256": sha})
+    t = _find(tmp)
+    if t is not None and t[0] is s:
+        ops.append({"f": t[1], "size": size, "sha256": sha})
+    ops.append({"f": rel, "size": size, "sha256": sha})
     _journal(s, ops)
 
 
-# ---------------------------------------------------------------- the atomic writer
+# ---------------------------------------------------------------- the atomic writers
 
-def _file_mode() -> int:
+def _umask() -> int:
     umask = os.umask(0)
     os.umask(umask)
-    return 0o666 & ~umask
+    return umask
 
 
-_FILE_MODE = _file_mode()
+_FILE_MODE, _DIR_MODE = 0o666 & ~_umask(), 0o777 & ~_umask()
+"""mkstemp and mkdtemp make 0600 and 0700; an output is as readable as any file the user makes"""
 
 
-def write_bytes_atomic(path: Path, data: bytes) -> None:
-    """Write under a temporary name, record it in the folder's manifest, rename into place.
-    An OS error (read-only, disk full, not a folder) is an :class:`OutputError`."""
+def _write_atomic(path: Path, write: Callable[[IO[bytes]], object], digest: tuple[int, str] | None,
+                  record: Callable[[Path, int, str], None]) -> None:
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
+        fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".part")
     except OSError as exc:
         raise os_error(exc, path) from None
+    tmp = Path(tmp_name)
     try:
-        note_pending(tmp, path, data)
-        with os.fdopen(fd, "wb") as fh:
-            os.fchmod(fh.fileno(), _FILE_MODE)  # mkstemp makes 0600; an output is as readable as any file
-            fh.write(data)
+        with os.fdopen(fd, "w+b") as fh:
+            os.fchmod(fh.fileno(), _FILE_MODE)
+            write(fh)
             fh.flush()
             os.fsync(fh.fileno())
+        size, sha = digest if digest is not None else sha256_file(tmp)
+        record(tmp, size, sha)
         os.replace(tmp, path)
     except BaseException as exc:
         try:
-            Path(tmp).unlink(missing_ok=True)
+            tmp.unlink(missing_ok=True)
         except OSError:
             pass
         if isinstance(exc, OSError):
@@ -270,63 +435,69 @@ def write_bytes_atomic(path: Path, data: bytes) -> None:
         raise
 
 
-# ---------------------------------------------------------------- recording writes
-
-def note_temp(path: str | Path) -> None:
-    """Record ``path`` (a file or folder about to be written) as a temporary name of ours."""
-    found = _find(Path(path))
-    if found is not None:
-        _journal(found[0], [*_dir_ops(found[1]), {"t": found[1]}])
+def write_file_atomic(path: Path, write: Callable[[IO[bytes]], object]) -> None:
+    """Write ``path`` with ``write(fh)`` (a binary file, seekable: what a library writes) under a
+    temporary name, record both names with the size and SHA-256 of what is on disk, rename into place.
+    An OS error (read-only, disk full, not a folder) is an :class:`OutputError`."""
+    _write_atomic(path, write, None, lambda tmp, size, sha: _note_written(tmp, Path(path), size, sha))
 
 
-def note_dir(path: str | Path) -> None:
-    """Record a folder this command made (kept even while empty)."""
-    found = _find(Path(path) / "x")
-    if found is not None:
-        _journal(found[0], _dir_ops(found[1]))
+def write_bytes_atomic(path: Path, data: bytes) -> None:
+    """:func:`write_file_atomic` of the bytes ``data``."""
+    _write_atomic(path, lambda fh: fh.write(data), _digest(data),
+                  lambda tmp, size, sha: _note_written(tmp, Path(path), size, sha))
 
 
-def replace_into(tmp: str | Path, final: str | Path) -> None:
-    """``os.replace(tmp, final)`` for a file written by another library: recorded before the rename."""
-    note_pending(tmp, final)
-    os.replace(tmp, final)
+def write_tree_atomic(final: Path, write: Callable[[Path], object]) -> None:
+    """A folder another library writes (``write(folder)``): made under a temporary name (a folder of
+    ours), every file in it recorded with its size and SHA-256 under both names, renamed to
+    ``final`` (which must not exist)."""
+    final = Path(final)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".part"))
+        os.chmod(tmp, _DIR_MODE)
+    except OSError as exc:
+        raise os_error(exc, final) from None
+    note_dir(tmp)
+    try:
+        write(tmp)
+        _record_tree(tmp, final)
+        os.replace(tmp, final)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)  # made by mkdtemp just now, written only by ``write``
+        if isinstance(exc, OSError):
+            raise os_error(exc, final) from None
+        raise
 
 
-def record_written(paths: Iterable[str | Path] | str | Path) -> None:
-    """Record files (or every file under folders) that this command has just written."""
-    if isinstance(paths, (str, Path)):
-        paths = [paths]
-    for p in map(Path, paths):
-        if p.is_symlink():
-            continue
-        if p.is_dir():
-            found = _find(p / "x")
-            if found is not None:
-                _journal(found[0], _dir_ops(found[1]))
-            for sub in sorted(p.iterdir()):
-                record_written(sub)
-        elif p.is_file():
-            note_pending(p, p)
-
-
-def record_tree_as(src: Path, final: Path) -> None:
-    """Before ``os.replace(src, final)`` of a folder: record each file under ``final``'s name."""
+def _record_tree(src: Path, final: Path) -> None:
+    """Before ``os.replace(src, final)`` of a folder: record each file under both names."""
     found = _find(final / "x")
     if found is None:
         return
     ops = _dir_ops(found[1])
     for dirpath, dirnames, filenames in os.walk(src):
         rel_dir = Path(dirpath).relative_to(src)
-        for d in dirnames:
-            fr = _find(final / rel_dir / d / "x")
-            if fr is not None:
-                ops += _dir_ops(fr[1])
+        for base in (src, final):
+            for d in dirnames:
+                fr = _find(base / rel_dir / d / "x")
+                if fr is not None:
+                    ops += _dir_ops(fr[1])
         for f in filenames:
-            fr = _find(final / rel_dir / f)
-            if fr is not None:
-                size, sha = sha256_file(Path(dirpath) / f)
-                ops.append({"f": fr[1], "size": size, "sha256": sha})
+            size, sha = sha256_file(Path(dirpath) / f)
+            for base in (src, final):
+                fr = _find(base / rel_dir / f)
+                if fr is not None:
+                    ops.append({"f": fr[1], "size": size, "sha256": sha})
     _journal(found[0], ops)
+
+
+def note_dir(path: str | Path) -> None:
+    """Record a folder this command made (kept even while empty; removed only when empty)."""
+    found = _find(Path(path) / "x")
+    if found is not None:
+        _journal(found[0], _dir_ops(found[1]))
 
 
 def _close(s: _Session, status: str | None = "closed") -> None:
@@ -346,7 +517,6 @@ def _close(s: _Session, status: str | None = "closed") -> None:
         elif state.status is None:
             state.status = "closed"
         state.files = {k: _current(s.root / k, v) for k, v in state.files.items() if (s.root / k).is_file()}
-        state.temps = {t for t in state.temps if (s.root / t).exists()}
         state.dirs = {d for d in state.dirs if (s.root / d).is_dir()}
         _write_manifest(s.root, state)
         (s.root / JOURNAL).unlink(missing_ok=True)
@@ -371,7 +541,7 @@ def close_all() -> None:
     for s in list(_SESSIONS.values()):
         try:
             _close(s)
-        except OSError:
+        except (OSError, InputError):
             pass  # the journal stays: it still says what is ours
 
 
@@ -395,9 +565,9 @@ def start_session(out: Path, command: str | None, keep: State | None = None, cre
         _write_manifest(out, state)
         (out / JOURNAL).unlink(missing_ok=True)  # folded into the manifest just written
     except OutputError:
-        if created and not any(out.iterdir()):  # a folder of the user's stays, even empty
-            out.rmdir()
+        if created:  # this command made the folder: its journal is ours; a folder of the user's stays, even empty
+            (out / JOURNAL).unlink(missing_ok=True)
+            if not any(out.iterdir()):
+                out.rmdir()
         raise
     open_session(root, None, command)
-
-

@@ -5,13 +5,15 @@ else proves ownership (a ``run_info.json`` is just a file).  The rules built on 
 
 * An output folder that exists and is not empty is accepted only if every entry in it is ours:
   a file listed in the manifest with the same size and hash (a file of ours that was changed is no
-  longer ours), a temporary name we recorded, or a folder whose entries are all ours.  A symbolic
-  link is never ours (fishfmu writes none) and is never followed.  Otherwise the command stops
-  with exit 2 naming the first foreign file, and nothing is touched.
+  longer ours; a temporary file is ours the same way, so one a kill cut short is not), or a folder
+  whose entries are all ours.  A symbolic link is never ours (fishfmu writes none) and is never
+  followed.  Otherwise the command stops with exit 2 naming the first foreign file, and nothing is
+  touched; a manifest or journal fishfmu did not write as it writes them is exit 2 naming it.
 * A folder of ours that holds an earlier result is replaced only with ``--overwrite`` (the default
   folder too): exactly the files in the manifest are removed, then the folders fishfmu made if
-  they are empty; never a whole tree.  A command that crashed or was killed left only files of
-  ours, so its folder is replaceable the same way.
+  they are empty (a folder is only ever removed empty, and only one fishfmu made); never a whole
+  tree.  A command that crashed or was killed left only files of ours (and perhaps a temporary
+  file it cut short, which is not ours), so its folder is replaceable the same way.
 * ``sweep`` resumes into a folder of ours and keeps what is there (:func:`open_resumable`).
 * An output folder must not be, hold, or lie inside an input (scenario, FMU, dataset).
 * A single-file output (``--junit``, ``replay --out``, ``bench --json/--plot``, a built ``.fmu``)
@@ -34,7 +36,8 @@ from typing import Iterable
 from plant.errors import InputError
 
 from fishfmu.output.manifest import (OutputError, State, abs_path, forget, inside_folder_being_written, is_internal,
-                                     load_state, note_dir, open_session, os_error, sha256_file, start_session)
+                                     is_temporary_name, load_state, note_dir, open_session, os_error, sha256_file,
+                                     start_session)
 
 
 # ---------------------------------------------------------------- ownership of a folder
@@ -46,6 +49,10 @@ class Scan:
     files: list[str] = field(default_factory=list)
     """our files, temporary ones included (relative paths)"""
     dirs: list[str] = field(default_factory=list)
+
+
+_NOT_OURS = ("a temporary name, but not a file fishfmu recorded with this size and hash: left by a write that was "
+             "killed? remove it yourself")
 
 
 def scan(folder: Path, state: State | None = None) -> Scan:
@@ -71,14 +78,12 @@ def scan(folder: Path, state: State | None = None) -> Scan:
             if not e.is_file(follow_symlinks=False):
                 result.foreign = f"{rel} (not a regular file)"
                 return False
-            if state.is_temp(rel):
-                result.files.append(rel)
-                continue
             if rel not in state.files:
-                result.foreign = f"{rel} (not written by fishfmu)"
+                result.foreign = f"{rel} ({_NOT_OURS})" if is_temporary_name(rel) else f"{rel} (not written by fishfmu)"
                 return False
             if [*sha256_file(Path(e.path))] not in state.files[rel]:
-                result.foreign = f"{rel} (changed since fishfmu wrote it)"
+                result.foreign = f"{rel} ({_NOT_OURS})" if is_temporary_name(rel) else \
+                    f"{rel} (changed since fishfmu wrote it)"
                 return False
             result.files.append(rel)
         return True
@@ -108,7 +113,7 @@ def _remove_ours(out: Path, found: Scan, state: State) -> None:
     for rel in found.files:
         (out / rel).unlink(missing_ok=True)
     for rel in sorted(found.dirs, key=lambda r: -r.count("/")):
-        if rel in state.dirs or state.is_temp(rel):
+        if rel in state.dirs:
             try:
                 (out / rel).rmdir()
             except OSError:
@@ -241,10 +246,10 @@ def check_single_file_target(path: str | Path, inputs: Iterable[str | Path | Non
             raise InputError(f"lies inside the input folder {inp}; refusing to write there", file=path)
     if path.is_symlink():
         raise InputError("is a symbolic link, not written by fishfmu; refusing to write over it", file=path)
+    state = load_state(path.parent) if path.parent.is_dir() else State()  # a malformed manifest stops us here
     if path.exists():
         if not path.is_file():
             raise InputError("exists and is not a file", file=path)
-        state = load_state(path.parent)
         if path.name not in state.files or [*sha256_file(path)] not in state.files[path.name]:
             why = "was changed since fishfmu wrote it" if path.name in state.files else "was not written by fishfmu"
             raise InputError(f"exists and {why}; refusing to write over it (remove it, or choose another file)",

@@ -15,7 +15,6 @@ writer here records what it writes there before the file appears under its name.
 
 from __future__ import annotations
 
-import os
 import platform
 import shutil
 from pathlib import Path
@@ -98,22 +97,13 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
     partial = partial or result.status == "partial"
     write_json_atomic(paths["kpis"], kpis_document(result, partial))
     write_text_atomic(paths["signals"], result.signals.to_csv(index=False, float_format="%.10g"))
-    tmp_run = out / ".run.part"
-    if tmp_run.exists():
-        shutil.rmtree(tmp_run)
-    manifest.note_temp(tmp_run)
-    write_dataset(result.dataset(), tmp_run)
     if paths["run"].exists():
         shutil.rmtree(paths["run"])
-    manifest.record_tree_as(tmp_run, paths["run"])
-    os.replace(tmp_run, paths["run"])
+    manifest.write_tree_atomic(paths["run"], lambda tmp: write_dataset(result.dataset(), tmp))
     if result.poses is not None:
         paths["poses"] = out / "poses.npz"
-        tmp = out / ".poses.part.npz"
         import numpy as np
-        manifest.note_temp(tmp)
-        np.savez_compressed(tmp, **result.poses)
-        manifest.replace_into(tmp, paths["poses"])
+        manifest.write_file_atomic(paths["poses"], lambda fh: np.savez_compressed(fh, **result.poses))
     if report:
         from fishfmu.output.report import write_report
         write_report(result, out)
