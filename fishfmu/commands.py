@@ -198,7 +198,9 @@ def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, o
     (:class:`fishfmu.batch.sweep.SweepSpec`); ``options`` as :func:`fishfmu.batch.sweep.run_sweep` takes them
     (scheduler, workers, max_runs, retry_failed, ...)."""
     from fishfmu.batch.sweep import make_spec, run_sweep
+    from fishfmu.scenario.schema import load_scenario
     from fishfmu.session import register_output
+    refuse_served(load_scenario(scenario_file, fixed or {}), Path(scenario_file))
     spec = make_spec(Path(scenario_file), params, seeds, fixed or {}, scales)
     register_output(Path(out), {"command": "sweep"})
     return spec, run_sweep(spec, Path(out), **options)

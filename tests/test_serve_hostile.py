@@ -78,12 +78,14 @@ def test_run_refuses_a_scenario_whose_inputs_a_plc_writes(tmp_path):
     assert err.value.where == "opcua.inputs" and "drive_c1.speed_setpoint" in str(err.value)
     with pytest.raises(InputError, match="fishfmu serve"):
         commands.run_seeds(SERVED, 2, tmp_path / "seeds", short, workers=1)
+    with pytest.raises(InputError, match="fishfmu serve"):  # nor swept: every run would hold the start values
+        commands.sweep(SERVED, {"run.seed": [1, 2]}, 1, tmp_path / "sweep", fixed=short)
     cli = subprocess.run([*RUN, "run", str(SERVED), "--out", str(tmp_path / "cli"), "--set", "run.duration_s=0.05",
                           "--no-report"], capture_output=True, text=True, timeout=120)
     assert cli.returncode == 2, cli.stderr
     assert "fishfmu serve" in cli.stderr and "opcua.inputs" in cli.stderr and "Traceback" not in cli.stderr
     assert len(cli.stderr.strip().splitlines()) == 1, cli.stderr
-    assert not any((tmp_path / d).exists() for d in ("lib", "seeds", "cli"))
+    assert not any((tmp_path / d).exists() for d in ("lib", "seeds", "cli", "sweep"))
 
 
 # ---------------------------------------------------------------- start-up: bad options, before the folder

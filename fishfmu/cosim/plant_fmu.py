@@ -49,6 +49,9 @@ from plant.population import PopulationSpec
 from fishfmu.cosim.build import scenario_fish
 from fishfmu.scenario.schema import RunSettings, Scenario, load_scenario, resolved_toml
 
+SLAVE_SOURCE = Path(__file__).with_name("plant_fmu_slave.py")
+"""The pythonfmu slave script the FMU carries (:mod:`fishfmu.cosim.plant_fmu_slave`)."""
+
 SCENARIO_RESOURCE = "scenario.toml"
 BUG = "a bug in fishfmu; please report it"
 FMI_INTEGER_MAX = 2**31 - 1
@@ -246,14 +249,14 @@ def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
         from pythonfmu.builder import FmuBuilder
     except ImportError:
         raise InputError("export-fmu needs pythonfmu (pip install pythonfmu)") from None
-    from fishfmu.cosim import plant_fmu_slave
     if not SEED_BOUNDS[0] <= scenario.run.seed <= SEED_BOUNDS[1]:
         raise InputError(f"{scenario.run.seed}: the plant FMU's seed is an FMI Integer, at most {SEED_BOUNDS[1]}",
                          where="run.seed")
     doc = tomllib.loads(resolved_toml(scenario))
     plant_only = {k: doc[k] for k in ("run", "line", "fish", "plant", "kpi") if k in doc}
     script = folder / "fishfmu_plant.py"
-    script.write_text(Path(plant_fmu_slave.__file__).read_text(encoding="utf-8"), encoding="utf-8")
+    # the slave module (which imports this one) is copied as a file into the FMU, not imported here
+    script.write_text(SLAVE_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
     resource = folder / "res" / SCENARIO_RESOURCE
     resource.parent.mkdir()
     resource.write_text(tomli_w.dumps(plant_only), encoding="utf-8")
