@@ -22,7 +22,7 @@ from __future__ import annotations
 import csv
 import io
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -124,6 +124,10 @@ class Dataset:
     kpi: KpiSettings
     runs: list[Run]
     path: Path | None = None
+
+    def subset(self, runs: list[Run]) -> Dataset:
+        """The same dataset (line, KPI settings, name) with only ``runs``."""
+        return replace(self, runs=list(runs))
 
     def run(self, run_id: str) -> Run:
         for r in self.runs:

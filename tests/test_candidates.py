@@ -1,4 +1,4 @@
-"""The registry of candidate causes (fishfmu.analysis.candidates): fragments, the off value, the rigor formula, evidence signs.
+"""The registry of candidate causes (fishfmu.analysis.candidates): fragments, the off value, the rigor formula.
 
 Small hand-made inputs only: no simulation, a second or two.
 """
@@ -18,8 +18,6 @@ from plant.params import PlantParams
 
 from fishfmu.analysis.candidates import CANDIDATES, fragment
 from fishfmu.analysis.levels import rigor_index, rigor_limit_loss
-from fishfmu.analysis.evidence_base import HeadingSlope, Residuals
-from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, typed_frame
 from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -31,6 +29,8 @@ VALUES = {  # a fitted value per parameter (exact in four digits), and what the 
     "rigor_mortis": ({"stiffness_gain": 3.0, "peak_h": 12.0, "width_h": 40.0},  # limit loss 0.6 * 3 / (3 + 3)
                      {"extensions.rigor_mortis.stiffness_gain": 3.0, "extensions.rigor_mortis.limit_loss": 0.3,
                       "extensions.rigor_mortis.peak_h": 12.0, "extensions.rigor_mortis.width_h": 40.0}),
+    "directional_friction": ({"asymmetry": 0.3}, {"extensions.direction_friction.head": 0.7,
+                                                  "extensions.direction_friction.tail": 1.3}),
     "adhesion": ({"force_n": 2.5}, {"extensions.adhesion.force_n": 2.5}),
     "drive_droop": ({"belt_slip": 5e-4}, {"belt_slip": 5e-4}),
 }
@@ -114,7 +114,7 @@ def test_a_strength_changes_something():
 
 
 def test_rigor_formula_at_two_hours_post_mortem():
-    # ((2 - 24) / 20)^2 = 1.21: the index is exp(-1.21) = 0.2981973, the same in the evidence and in the plant
+    # ((2 - 24) / 20)^2 = 1.21: the index is exp(-1.21) = 0.2981973, the same in the level models and in the plant
     assert rigor_index(np.array([2.0]))[0] == pytest.approx(0.29819727942988739, rel=1e-12)
     assert RigorMortis().index(2.0) == pytest.approx(0.29819727942988739, rel=1e-12)
     assert rigor_index(np.array([24.0]))[0] == 1.0
@@ -125,39 +125,3 @@ def test_rigor_formula_at_two_hours_post_mortem():
     assert stiffness == pytest.approx(1.894591838, rel=1e-9)
     assert limits == pytest.approx(0.9105408162, rel=1e-9)
     assert math.isclose(rigor.limit_loss, 0.3)
-
-
-def _lags(lags_by_run: dict[str, list[tuple[float, float]]]) -> pd.DataFrame:
-    return typed_frame([{"run_id": run, "fish_id": f"{run}f{i}", "belt": 1, "conveyor_id": "c2", "t_start_s": 1.0,
-                         "t_end_s": 2.0, "offset_m": 0.0, "lag_m": lag, "heading": heading,
-                         "hours_post_mortem": 6.0, "length_m": 0.6, "crowded": False, "n_samples": 10}
-                        for run, fish in lags_by_run.items() for i, (heading, lag) in enumerate(fish)],
-                       BELT_RESIDUAL_DTYPES)
-
-
-@pytest.mark.parametrize("sign", [1.0, -1.0])
-def test_direction_evidence_follows_the_lag_of_head_first_fish(sign: float):
-    # two runs of four fish, alternately head first (+1) and tail first (-1); within each run the lag is
-    # 1 cm more for head-first fish than the run's mean, +-1 mm: slope exactly sign * 0.01 m per unit heading
-    rows = _lags({"ra": [(1.0, 0.012), (-1.0, -0.008), (1.0, 0.010), (-1.0, -0.010)],
-                  "rb": [(1.0, 0.031), (-1.0, 0.009), (1.0, 0.029), (-1.0, 0.011)]})
-    rows["lag_m"] *= sign
-    empty = Residuals(rows, typed_frame([], PAIR_RESIDUAL_DTYPES), typed_frame([], DRIVE_RESIDUAL_DTYPES))
-    ev = HeadingSlope()(empty, np.random.default_rng(0))  # explains the head-first/tail-first asymmetry
-    assert ev["n"] == 8
-    assert ev["coefficient"] == pytest.approx(sign * 0.01)
-    # residuals +-1 mm: se = sqrt(8e-6 / 7 / 8) = 3.78e-4 m; the bootstrap over the two runs sees the same slope
-    assert ev["sd"] == pytest.approx(math.sqrt(8e-6 / 7 / 8), rel=1e-6)
-    assert np.sign(ev["z"]) == sign and abs(ev["z"]) > 20
-
-
-def test_adhesion_evidence_only_when_simulated_pairs_part_sooner():
-    def pairs(dsep: list[float]) -> Residuals:
-        p = typed_frame([{"run_id": f"r{i % 2}", "leader": "a", "follower": "b", "conveyor_id": "c2", "t_s": 1.0,
-                          "separation_m": 0.1, "dsep_m": d} for i, d in enumerate(dsep)], PAIR_RESIDUAL_DTYPES)
-        return Residuals(_lags({}), p, typed_frame([], DRIVE_RESIDUAL_DTYPES))
-
-    apart = CANDIDATES["adhesion"].evidence(pairs([0.004, 0.006, 0.002, 0.008]), np.random.default_rng(0))
-    assert apart["coefficient"] == pytest.approx(0.005) and apart["z"] > 0
-    together = CANDIDATES["adhesion"].evidence(pairs([-0.004, -0.006, -0.002, -0.008]), np.random.default_rng(0))
-    assert together["coefficient"] == pytest.approx(-0.005) and together["z"] == 0.0  # one-sided: no adhesion

@@ -1,35 +1,31 @@
-"""``fishfmu calibrate``: fit the parameters every line has and nobody knows exactly, before any
-effect is judged.
+"""``fishfmu calibrate``: fit the constants every line has and nobody knows exactly, before any effect is
+judged.
 
-A measured line differs from its model in ways no hidden effect explains: real friction between
-fish and a belt is not the table's 0.45, and it is not the same along a salmon (head, belly, tail
-and fin differ in skin, scales and mucus).  On data from an independent simulator of the pilot line
-with no effect hidden at all, the default model puts fish that ride head first 8-19 cm ahead of the
-data at every transfer while tail-first ones match: a base mismatch larger than most effects.
-Judged against that model, every effect drowns in it.
+A measured line differs from its model in ways no hidden effect explains: real friction between fish and a
+belt is not the table's 0.45, and fish are not exactly as stiff as the paper's rag-doll.  The calibration fits
+**constants only**: one friction level (fish-belt and fish-guide), one joint stiffening, and each drive's ramp.
+Nothing that varies with what a candidate cause varies with (hours post mortem, the fish's direction, the load,
+contact between fish) is a knob, so the calibration cannot absorb a cause before it is judged
+(:mod:`fishfmu.analysis.signatures` judges them): an earlier version also fitted how friction differs along a
+fish, a kind of direction-dependent friction, and took the asymmetry that directional friction makes.
 
-So the base model is calibrated first, on the fish the data shows alone on a belt (their lag across
-a transfer is what friction decides):
-
-1. **Fit runs.** The runs with the most fish riding alone (at least half of the runs; chosen from the
-   measured tracks, not from names or notes).  The others are held out: the calibration never sees
-   them, and their error before and after is the check that it generalises.
-2. **Baseline and gradient** (one batch): every run re-simulated with the model as given, the fit runs
-   also at two more values of the gradient of fish-belt friction along the fish (which end grips more
-   decides how a fish is taken over by a faster belt: head first or tail first), extended once past an
-   end where the error still falls; the gradient is applied at the simulated value nearest the minimum
-   of its error curve, so that those simulations are the next stage's base.
-3. **Levels** (:mod:`fishfmu.analysis.levels`): the fit runs at two more friction levels (belts and
-   guides; ``diagnose`` adds two joint-stiffening levels), extended past an end where a run's own best
-   level still lies; the constant level(s) that fit every run are the calibration.
-4. Every value gets a 95 % interval (bootstrap over the fit runs) and a held-out gain (each fit run
-   scored with values chosen on the others); it is applied only if that gain's interval is above zero.
-   The held-out runs are then re-simulated with the calibrated model.
+1. **Fit runs.** The runs with the most fish riding alone (at least half of the runs; chosen from the measured
+   tracks, not from names or notes).  The others are held out: the calibration never sees them, and their error
+   before and after is the check that it generalises.
+2. **Baseline**: every run re-simulated with the model as given.
+3. **Levels** (:mod:`fishfmu.analysis.levels`): the fit runs at two more friction levels (belts and guides;
+   ``diagnose`` adds two joint-stiffening levels), extended past an end where a run's own best level still lies;
+   the constant level(s) that fit every run are the calibration.
+4. Every value gets a 95 % interval (bootstrap over the fit runs) and a held-out gain (each fit run scored with
+   values chosen on the others); it is applied only if that gain's interval is above zero and the value is
+   physically plausible (:data:`PLAUSIBLE`); one that is not is reported as a finding and not applied: it
+   fits, but stands for something the model lacks rather than the quantity it names.  The held-out runs are
+   then re-simulated with the calibrated model.
 5. The drives' ramps, from the start-ups in their logs, without simulating fish
    (:mod:`fishfmu.analysis.drive_response`), judged the same way.
 
-The result is a scenario fragment (``calibrated.toml``: ``[plant]`` tables, the drives' ramps as comments) that ``fishfmu
-compare`` and ``diagnose`` take with ``--scenario`` (and whose tables a scenario for ``run`` can take).
+The result is a scenario fragment (``calibrated.toml``: ``[plant]`` tables, the drives' ramps as comments) that
+``fishfmu compare`` and ``diagnose`` take with ``--scenario`` (and whose tables a scenario for ``run`` can take).
 """
 
 from __future__ import annotations
@@ -69,8 +65,6 @@ class Knob:
     apply: Callable[[PlantParams, float], None]
     writes: tuple[str, ...]
     """Dotted paths in ``[plant]`` it changes: the fragment is these, read back."""
-    stage: int
-    """Knobs of one stage are fitted together (independent residuals), stages one after the other."""
 
 
 def _friction(p: PlantParams, m: float) -> None:
@@ -81,26 +75,26 @@ def _stiffening(p: PlantParams, k: float) -> None:
     p.joints.stiffening = float(k)
 
 
-def _gradient(p: PlantParams, g: float) -> None:
-    p.friction.belt_gradient = float(np.clip(p.friction.belt_gradient + g, -0.8, 0.8))
-
-
 KNOBS: dict[str, Knob] = {k.name: k for k in (
-    Knob("belt_gradient", "fish-belt friction from head to fin: head x(1 - g), fin x(1 + g) (added to the model's g)",
-         0.0, (0.4, 0.8), (-0.8, 0.8), "transfers", _gradient, ("friction.belt_gradient",), 1),
     Knob("friction_level", "fish-belt and fish-guide friction coefficients (multiplier)", 1.0, FRICTION.grid,
-         FRICTION.bounds, "transfers", _friction, ("friction.fish_belt", "friction.fish_guide"), 2),
+         FRICTION.bounds, "transfers", _friction, ("friction.fish_belt", "friction.fish_guide")),
     Knob("joint_stiffening", "every fish's joints (1 + k) x stiffer, with the range lost that goes with it (diagnose "
          "only: it needs the rigor level's simulations)", 0.0, RIGOR.grid, RIGOR.bounds, "transfers", _stiffening,
-         ("joints.stiffening",), 2),
+         ("joints.stiffening",)),
 )}
-"""The knobs, in stages.  The gradient is fitted on a grid of simulated values (extended once beyond an end
-where the error still falls: the grid starts on the side where the independent simulator's line lies, which
-saves a batch of simulations there and costs one elsewhere) and applied at the simulated value nearest its fit, so that those simulations
-are the next stage's base; the friction level through the level responses of :mod:`fishfmu.analysis.levels`
-(the same simulations that judge mucus and rigor in ``diagnose``).  Friction by slip direction also makes
-head-first and tail-first fish differ, but on the independent simulator's data without an effect it made
-the bulk batches worse (track RMS 19.0 -> 21.6 cm) where the gradient made them better (see README)."""
+"""The knobs: constants, fitted together through the level responses of :mod:`fishfmu.analysis.levels` (the same
+simulations that fit mucus and rigor in ``diagnose``)."""
+
+PLAUSIBLE: dict[str, tuple[float, float, str]] = {  # dotted path in [plant] -> (low, high, why)
+    "friction.fish_belt": (0.2, 0.9, "wet fish skin on a conveyor belt: about 0.3-0.7 is measured for fish on "
+                                     "plastic belts; outside 0.2-0.9 it is no friction coefficient"),
+    "friction.fish_guide": (0.1, 0.9, "fish skin on a stainless or plastic guide"),
+    "joints.stiffening": (-0.5, 10.0, "a dead fish's joints (before any rigor): more than 11 times the paper's "
+                                      "rag-doll stiffness is a fish in rigor, not a constant"),
+}
+"""A calibrated value outside these ranges is not applied but reported as a finding: it fits the data best, but
+stands more likely for something the model lacks than for the quantity it names, and a model carrying it would
+be the wrong base to judge the candidate causes against."""
 
 
 @dataclass
@@ -120,6 +114,8 @@ class KnobFit:
     runs are not worse."""
     rejected_on_heldout: bool = False
     """Its gain on the fit runs was clear, but the held-out runs got worse with it."""
+    implausible: list[str] = field(default_factory=list)
+    """Findings: the values it would give outside :data:`PLAUSIBLE` (then it is not applied)."""
     errors: dict[float, float] = field(default_factory=dict)
     """Mean square error of its residuals [m^2] per simulated change (fit runs)."""
 
@@ -142,17 +138,15 @@ class Calibration:
     timing_s: dict[str, float]
     baseline: list[RunResiduals]
     after: list[RunResiduals]
-    """Every run against the calibrated model (fit runs: at the friction level's nearest simulated value 1,
-    i.e. with the gradient only)."""
+    """Every run against the calibrated model (fit runs: at the levels' simulated value off, the model as given;
+    their calibrated errors are interpolated in the responses)."""
     responses: Responses | None = None
     """How the fit runs' residuals move with the levels (friction, and rigor when asked for)."""
     level_base: PlantParams | None = None
-    """The model the levels were simulated around (the calibrated gradient, friction level 1)."""
+    """The model the levels were simulated around (the model as given)."""
     sims_after: list = field(default_factory=list, repr=False)
     """Every run re-simulated (:class:`~fishfmu.analysis.resim.Resim`), in the dataset's order: the held-out
     runs with the calibrated model, the fit runs with every level off (the base of the responses)."""
-    extra_sims: list = field(default_factory=list, repr=False)
-    """The re-simulations asked for with ``extra`` (in its order)."""
     drives: list[DriveResponseFit] = field(default_factory=list)
     """Each drive's ramp, fitted on the start-ups in its log (:mod:`fishfmu.analysis.drive_response`)."""
 
@@ -266,70 +260,31 @@ def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | 
         return calibrate_with_pool(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None))
 
 
-def _grid_sims(dataset: Dataset, runs: list, variants: list[PlantParams], pool) -> list[tuple[list, list[RunResiduals]]]:
-    """(re-simulations, residuals) of ``runs`` under each of ``variants`` (one batch: the workers stay busy)."""
-    sims = resimulate_many(dataset.line, runs * len(variants), [p for p in variants for _ in runs], pool=pool, workers=1, residuals=True)
-    sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, runs)
-    out = []
-    for k in range(len(variants)):
-        part = sims[k * len(runs):(k + 1) * len(runs)]
-        out.append((part, residuals_of(sub, part)))
-    return out
-
-
-def _gradient_variants(params: PlantParams, values: list[float]) -> list[PlantParams]:
-    out = []
-    for v in values:
-        p = params.model_copy(deep=True)
-        KNOBS["belt_gradient"].apply(p, v)
-        out.append(p)
-    return out
-
-
-def _fit_gradient(dataset: Dataset, fit_runs: list, params: PlantParams, table: dict[float, dict[str, RunResiduals]],
-                  resims: dict[float, dict], pool, rng: np.random.Generator, say: Callable[[str], None]
-                  ) -> tuple[KnobFit, float, dict[str, RunResiduals], dict]:
-    """The gradient from its grid (``table``/``resims``: residuals and re-simulations of the fit runs per simulated
-    change, ``off`` among them), extended once beyond an end where the error still falls: its fit, the simulated
-    change nearest the fit (applied when kept), and the fit runs' residuals and re-simulations with it."""
-    knob = KNOBS["belt_gradient"]
-    ids = [r.id for r in fit_runs]
-    base_res, base_sims = table[knob.off], resims[knob.off]
-    values: list[float] = []
-    for _ in range(2):
-        if values:
-            say(f"belt_gradient + {', '.join(f'{v:g}' for v in values)} on {len(ids)} runs")
-            for v, (sims, res) in zip(values, _grid_sims(dataset, fit_runs, _gradient_variants(params, values), pool)):
-                table[v] = {r.run_id: (base_res[r.run_id] if r.error else r) for r in res}  # failed: no better
-                resims[v] = {s.run_id: (base_sims[s.run_id] if s.error else s) for s in sims}
-        err = {v: sum(t[r].squares("transfers")[0] for r in ids) for v, t in table.items()}
-        order = sorted(table)
-        best = min(order, key=lambda v: err[v])
-        step = order[1] - order[0]
-        lo, hi = knob.bounds[0] - params.friction.belt_gradient, knob.bounds[1] - params.friction.belt_gradient
-        nxt = (min(best + step, hi) if best == order[-1] else max(best - step, lo) if best == order[0] else None)
-        if nxt is None or nxt in table or abs(nxt - best) < 0.05:
-            break
-        values = [round(nxt, 6)]
-    fit = fit_knob(knob, ids, table, rng)
-    applied = min(table, key=lambda v: abs(v - fit.fitted)) if fit.kept else knob.off
-    fit.value = applied
-    return fit, applied, table[applied], resims[applied]
-
-
-def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
-    """The friction level (and joint stiffening, when rigor was simulated) as knobs: the ``constant`` model of
-    the level responses, with its held-out gain against leaving every level off (one gain for both)."""
+def _constant_fits(resp: Responses, base: PlantParams, rng: np.random.Generator) -> list[KnobFit]:
+    """The friction level (and joint stiffening, when rigor was simulated) as knobs: the ``constant`` model of the
+    level responses, with its held-out gain against leaving every level off (one gain for both).  A constant whose
+    best value is not physically plausible (:data:`PLAUSIBLE`) is held at the model's value and the others refitted
+    without it: it is reported as a finding, and the base the causes are judged against does not carry it."""
     resp = resp.only(MODELS["constant"].kinds)  # the rows a constant level changes: not the drops (less their mean)
+    names = ["friction_level"] + (["joint_stiffening"] if "rigor" in resp.values else [])
     m = fit_model(MODELS["constant"], resp, rng)
+    implausible: dict[str, list[str]] = {}
+    for name in names:
+        trial = base.model_copy(deep=True)
+        KNOBS[name].apply(trial, m.values[name])
+        if found := _implausible(trial, KNOBS[name].writes):
+            implausible[name] = found
+    best = dict(m.values)
+    if implausible:
+        m = fit_model(MODELS["constant"], resp, rng, fixed={n: KNOBS[n].off for n in implausible})
     off = resp.run_ss({})
     gain, ci = gain_with_ci(off - m.cv_ss, off, rng)
     n = max(int(resp.counts.sum()), 1)
-    names = ["friction_level"] + (["joint_stiffening"] if "rigor" in resp.values else [])
     fits = []
     for name in names:
         v = m.values[name]
-        f = KnobFit(name, v, v, m.ci95[name], gain, ci, kept=bool(ci[0] > 0.0))
+        f = KnobFit(name, v, best[name], m.ci95[name] if name not in implausible else (best[name], best[name]), gain,
+                    ci, kept=bool(ci[0] > 0.0) and name not in implausible, implausible=implausible.get(name, []))
         at = {"friction": np.full(len(resp.runs), m.values["friction_level"]),
               "rigor": np.full(len(resp.runs), m.values.get("joint_stiffening", 0.0))}
         f.errors = {KNOBS[name].off: float(resp.lag_ss({}).sum() / n), v: float(resp.lag_ss(at).sum() / n)}
@@ -338,92 +293,108 @@ def _constant_fits(resp: Responses, rng: np.random.Generator) -> list[KnobFit]:
 
 
 def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
-                        levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True, heldout_before: bool = True,
-                        extra: Callable[[Callable[[Run], PlantParams], list[Run]], list[tuple[Run, PlantParams]]]
-                        | None = None,
-                        heldout_levels: Callable[[Responses, PlantParams], Callable[[Run], PlantParams] | None]
-                        | None = None) -> Calibration:
-    """:func:`calibrate` with the re-simulations on ``pool``.  ``levels``: the level responses to simulate
-    on the fit runs (``diagnose`` adds rigor); ``fit_base`` False: measure the responses but change nothing
-    (a dataset this simulator made).  ``heldout_before`` False: the held-out runs are not re-simulated with
-    the model as given (their error before is then unknown; ``diagnose`` saves the time).  ``extra``: more
-    re-simulations that need the calibrated model (``extra(params_of_run, heldout_runs)`` -> (run, parameters)
-    pairs), run in the same batch as the held-out runs; they come back in :attr:`Calibration.extra_sims`.
-    ``heldout_levels(responses, level_base)``: each held-out run's parameters when a run-level effect holds on
-    the fit runs (``diagnose``: the held-out runs are then judged with it), or None: the calibrated model."""
+                        levels: tuple[Level, ...] = (FRICTION,), fit_base: bool = True,
+                        heldout_before: bool = True) -> Calibration:
+    """:func:`calibrate` with the re-simulations on ``pool``.  ``levels``: the level responses to simulate on the
+    fit runs (``diagnose`` adds rigor, whose model is fitted on them); ``fit_base`` False: measure the responses
+    but change nothing (a dataset this simulator made).  ``heldout_before`` False: the held-out runs are not
+    re-simulated with the model as given, only with the calibrated one (their error before is then unknown)."""
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
     runs = dataset.runs
-    # the fit runs are chosen from the measured tracks alone, so that the baseline and the gradient's grid
-    # run as one batch (the workers stay busy to the end)
     fit_ids, heldout_ids = choose_fit_runs(measured_rows(dataset))
     fit_runs = [r for r in runs if r.id in fit_ids]
     say(f"fitting on {len(fit_ids)} runs with the most fish alone ({', '.join(fit_ids)}); held out: "
         + (", ".join(heldout_ids) or "none"))
-    params = base.model_copy(deep=True)
-    grid = list(KNOBS["belt_gradient"].grid) if fit_base else []
     first = runs if heldout_before or not fit_base else fit_runs
-    say(f"baseline: re-simulating {len(first)} runs" + (f"; belt_gradient + {', '.join(f'{v:g}' for v in grid)} on "
-                                                        f"the {len(fit_runs)} fit runs" if grid else ""))
-    variants = _gradient_variants(params, grid)
-    sims = resimulate_many(dataset.line, first + fit_runs * len(grid),
-                           [base] * len(first) + [p for p in variants for _ in fit_runs], pool=pool, workers=1,
-                           residuals=True)
-    sims, grid_sims = sims[:len(first)], sims[len(first):]
-    failed = [(r.run_id, r.error) for r in sims if r.error]
-    if failed:
-        raise SimulationError(f"run '{failed[0][0]}': {failed[0][1]} (re-simulating it with the model as it is, "
-                              "before calibrating)")
+    say(f"baseline: re-simulating {len(first)} runs with the model as given")
+    sims = resimulate_many(dataset.line, first, [base] * len(first), pool=pool, workers=1, residuals=True)
+    failed = {r.run_id: r.error for r in sims if r.error}
+    if len(failed) == len(sims) or not set(fit_ids) - set(failed):
+        rid = next(iter(failed))
+        raise SimulationError(f"run '{rid}': {failed[rid]} (re-simulating it with the model as it is, before "
+                              "calibrating; no run to fit on is left)")
+    for rid, error in failed.items():  # a pile the model cannot simulate must not take the other runs with it
+        say(f"run {rid} could not be re-simulated with the model as given ({error}); it is left out")
+    heldout_ids = sorted(set(heldout_ids) | (set(fit_ids) & set(failed)))  # tried again with the calibrated model
+    fit_ids = [r for r in fit_ids if r not in failed]
+    fit_runs = [r for r in fit_runs if r.id not in failed]
     sim_of = {r.id: s for r, s in zip(first, sims)}
-    simulated = {b.run_id: b for b in residuals_of(Dataset(dataset.name, dataset.description, dataset.line,
-                                                            dataset.kpi, first), sims)}
-    baseline = [simulated.get(r.id) or RunResiduals(r.id, typed_frame([], BELT_RESIDUAL_DTYPES),
-                                                    typed_frame([], PAIR_RESIDUAL_DTYPES), float("nan"),
-                                                    "not re-simulated with the model as given")
+    simulated_base = {b.run_id: b for b in residuals_of(dataset.subset(first), sims)}
+    baseline = [simulated_base.get(r.id) or RunResiduals(r.id, typed_frame([], BELT_RESIDUAL_DTYPES),
+                                                         typed_frame([], PAIR_RESIDUAL_DTYPES), float("nan"),
+                                                         "not re-simulated with the model as given")
                 for r in runs]
     base_by_run = {b.run_id: b for b in baseline}
     timing["baseline"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    # a stream of its own, so that the knobs' bootstraps draw what they drew before drives were fitted
+    # a stream of its own, so that the knobs' bootstraps draw the same whether or not drives are fitted
     drives = fit_drive_responses(dataset, fit_ids, np.random.default_rng([seed, 1])) if fit_base else []
     timing["drives"] = time.perf_counter() - t1
 
-    fits: list[KnobFit] = []
-    stage_base = {r: base_by_run[r] for r in fit_ids}
-    if fit_base:
-        t1 = time.perf_counter()
-        table = {KNOBS["belt_gradient"].off: stage_base}
-        resims = {KNOBS["belt_gradient"].off: {r: sim_of[r] for r in fit_ids}}
-        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
-        for k, v in enumerate(grid):
-            part = grid_sims[k * len(fit_runs):(k + 1) * len(fit_runs)]
-            table[v] = {r.run_id: (stage_base[r.run_id] if r.error else r) for r in residuals_of(sub, part)}
-            resims[v] = {s.run_id: (sim_of[s.run_id] if s.error else s) for s in part}
-        gradient, applied, stage_base, fit_sims = _fit_gradient(dataset, fit_runs, params, table, resims, pool, rng,
-                                                                say)
-        sim_of.update(fit_sims)
-        fits.append(gradient)
-        if applied != KNOBS["belt_gradient"].off:
-            KNOBS["belt_gradient"].apply(params, applied)
-        timing["gradient"] = time.perf_counter() - t1
-
     t1 = time.perf_counter()
-    level_base = params.model_copy(deep=True)
+    params = base.model_copy(deep=True)
+    fit_base_res = {r: base_by_run[r] for r in fit_ids}
+    resp = _level_responses(dataset, fit_runs, base, fit_base_res, levels, pool, say)
+    timing["levels"] = time.perf_counter() - t1
+    fits = _constant_fits(resp, base, rng) if fit_base else []
+    for f in fits:
+        if f.kept:
+            KNOBS[f.name].apply(params, f.value)
+
+    # the held-out runs with the calibrated model
+    t1 = time.perf_counter()
+    held_runs = [r for r in runs if r.id in set(heldout_ids)]
+    resim_held = [r for r in held_runs if params != base or r.id not in sim_of]
+    held_after = {r: base_by_run[r] for r in heldout_ids}
+    if resim_held:
+        say(f"held-out runs: re-simulating {len(resim_held)} with the calibrated model")
+        held_sims = resimulate_many(dataset.line, resim_held, [params] * len(resim_held), pool=pool, workers=1,
+                                    residuals=True)
+        held_after.update({r.run_id: r for r in residuals_of(dataset.subset(resim_held), held_sims)})
+        sim_of.update({r.id: s for r, s in zip(resim_held, held_sims)})
+    timing["heldout"] = time.perf_counter() - t1
+    after = [fit_base_res.get(b.run_id) or held_after[b.run_id] for b in baseline]
+    timing["total"] = time.perf_counter() - t0
+    groups = {"fit": set(fit_ids), "heldout": set(heldout_ids), "all": set(fit_ids) | set(heldout_ids)}
+    rms_after = {g: _rms(after, ids) for g, ids in groups.items()}
+    kept = {f.name: f.value for f in fits if f.kept}
+    if kept:  # the fit runs at the fitted levels: interpolated in the responses
+        n = max(int(resp.counts.sum()), 1)
+        levels_fit = {"friction": np.full(len(resp.runs), kept.get("friction_level", 1.0))}
+        if "joint_stiffening" in kept:
+            levels_fit["rigor"] = np.full(len(resp.runs), kept["joint_stiffening"])
+        ss_fit = float(resp.lag_ss(levels_fit).sum())
+        rms_after["fit"] = float(np.sqrt(ss_fit / n))
+        held = [r for r in after if r.run_id in groups["heldout"] and not r.error]
+        ss_h, n_h = sum(r.squares("transfers")[0] for r in held), sum(r.squares("transfers")[1] for r in held)
+        rms_after["all"] = float(np.sqrt((ss_fit + ss_h) / max(n + n_h, 1)))
+    return Calibration(base, params, fits, fit_ids, heldout_ids,
+                       {g: _rms(baseline, ids) for g, ids in groups.items()}, rms_after,
+                       {g: _track_rms(baseline, ids) for g, ids in groups.items()},
+                       {g: _track_rms(after, ids) for g, ids in groups.items()}, timing, baseline, after,
+                       resp, base.model_copy(deep=True), [sim_of[r.id] for r in runs], drives)
+
+
+def _level_responses(dataset: Dataset, fit_runs: list[Run], base: PlantParams, base_res: dict[str, RunResiduals],
+                     levels: tuple[Level, ...], pool, say: Callable[[str], None]) -> Responses:
+    """The fit runs simulated at each level's grid, then up to twice beyond an end for the runs whose own best
+    level lies there (:func:`fishfmu.analysis.levels.responses`)."""
     hours = {r.id: (r.hours_post_mortem if r.hours_post_mortem is not None else 24.0) for r in fit_runs}
     simulated: dict[tuple[str, float], dict[str, RunResiduals]] = {}
     pending = [(lv, v, fit_runs) for lv in levels for v in lv.grid]
-    for _ in range(3):  # the grid, then up to twice beyond an end for the runs whose own best level lies there
+    resp = responses(base_res, simulated, hours)
+    for _ in range(3):
         jobs = [(lv, v, r) for lv, v, on in pending for r in on]
         say("levels: " + "; ".join(f"{lv.name} {v:g} on " + (f"{len(on)} runs" if len(on) > 1 else on[0].id)
                                    for lv, v, on in pending))
         level_sims = resimulate_many(dataset.line, [r for _, _, r in jobs],
-                                     [lv.params(params, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1, residuals=True)
+                                     [lv.params(base, v, hours[r.id]) for lv, v, r in jobs], pool=pool, workers=1,
+                                     residuals=True)
         for (lv, v, r), s in zip(jobs, level_sims):
-            sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, [r])
-            res = residuals_of(sub, [s])[0]
-            simulated.setdefault((lv.name, v), {})[r.id] = res
-        resp = responses(stage_base, simulated, hours)
+            simulated.setdefault((lv.name, v), {})[r.id] = residuals_of(dataset.subset([r]), [s])[0]
+        resp = responses(base_res, simulated, hours)
         own = run_levels(resp)
         pending = []
         for lv in levels:
@@ -436,56 +407,26 @@ def calibrate_with_pool(dataset: Dataset, base: PlantParams, pool, seed: int, sa
                     pending.append((lv, nxt, at_end))
         if not pending:
             break
-    timing["levels"] = time.perf_counter() - t1
-    constant = _constant_fits(resp, rng) if fit_base else []
-    fits += constant
-    for f in constant:
-        if f.kept:
-            KNOBS[f.name].apply(params, f.value)
+    return resp
 
-    # the held-out runs with the calibrated model (the fit runs' level-off simulations are the gradient stage's)
-    t1 = time.perf_counter()
-    held_runs = [r for r in runs if r.id in set(heldout_ids)]
-    per_run = heldout_levels(resp, level_base) if heldout_levels is not None else None
-    params_of = per_run or (lambda run: params)
-    resim_held = [r for r in held_runs if per_run or params != base or r.id not in sim_of]
-    extra_jobs = extra(params_of, held_runs) if extra is not None else []
-    extra_sims: list = []
-    if resim_held or extra_jobs:
-        say(f"held-out runs: re-simulating {len(resim_held)} with the calibrated model"
-            + (" and the run-level effect" if per_run else "") + (f", and {len(extra_jobs)} more" if extra_jobs else ""))
-        done = resimulate_many(dataset.line, resim_held + [r for r, _ in extra_jobs],
-                               [params_of(r) for r in resim_held] + [p for _, p in extra_jobs], pool=pool, workers=1,
-                               residuals=True)
-        held_sims, extra_sims = done[:len(resim_held)], done[len(resim_held):]
-        sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, resim_held)
-        held_after = {r: base_by_run[r] for r in heldout_ids}
-        held_after.update({r.run_id: r for r in residuals_of(sub, held_sims)})
-        sim_of.update({r.id: s for r, s in zip(resim_held, held_sims)})
-    else:
-        held_after = {r: base_by_run[r] for r in heldout_ids}
-    timing["heldout"] = time.perf_counter() - t1
-    after = [stage_base.get(b.run_id) or held_after[b.run_id] for b in baseline]
-    timing["total"] = time.perf_counter() - t0
-    groups = {"fit": set(fit_ids), "heldout": set(heldout_ids), "all": set(fit_ids) | set(heldout_ids)}
-    rms_after = {g: _rms(after, ids) for g, ids in groups.items()}
-    kept = {f.name: f.value for f in constant if f.kept}
-    if kept:  # the fit runs at the fitted levels: interpolated in the responses
-        n = max(int(resp.counts.sum()), 1)
-        levels_fit = {"friction": np.full(len(resp.runs), kept.get("friction_level", 1.0))}
-        if "joint_stiffening" in kept:
-            levels_fit["rigor"] = np.full(len(resp.runs), kept["joint_stiffening"])
-        ss_fit = float(resp.lag_ss(levels_fit).sum())
-        rms_after["fit"] = float(np.sqrt(ss_fit / n))
-        held = [r for r in after if r.run_id in groups["heldout"] and not r.error]
-        ss_h, n_h = sum(r.squares("transfers")[0] for r in held), sum(r.squares("transfers")[1] for r in held)
-        rms_after["all"] = float(np.sqrt((ss_fit + ss_h) / max(n + n_h, 1)))
-    sims_after = [sim_of[r.id] for r in runs]
-    return Calibration(base, params, fits, fit_ids, heldout_ids,
-                       {g: _rms(baseline, ids) for g, ids in groups.items()}, rms_after,
-                       {g: _track_rms(baseline, ids) for g, ids in groups.items()},
-                       {g: _track_rms(after, ids) for g, ids in groups.items()}, timing, baseline, after,
-                       resp, level_base, sims_after, extra_sims, drives)
+
+def _implausible(p: PlantParams, paths: tuple[str, ...]) -> list[str]:
+    """Each of ``paths`` whose value in ``p`` lies outside :data:`PLAUSIBLE`, as a sentence a user can act on."""
+    out = []
+    for path in paths:
+        if path in PLAUSIBLE:
+            lo, hi, why = PLAUSIBLE[path]
+            v = plant_value(p, path)
+            if not lo <= v <= hi:
+                out.append(f"{path} would be calibrated to {v:.3g}, outside the plausible {lo:g}-{hi:g} ({why}): it "
+                           "fits these runs best, but more likely stands for something the model lacks; held at the "
+                           "model's value, the other constants fitted without it")
+    return out
+
+
+def findings(c: Calibration) -> list[str]:
+    """The calibrated values that were not applied because they are not physically plausible."""
+    return [text for f in c.fits for text in f.implausible]
 
 
 def calibration_document(c: Calibration, base: PlantParams) -> dict:
@@ -495,9 +436,10 @@ def calibration_document(c: Calibration, base: PlantParams) -> dict:
         "knobs": [{"name": f.name, "description": KNOBS[f.name].description, "value": f.value,
                    "fitted": f.fitted, "fitted_ci95": list(f.ci95), "heldout_gain": f.heldout_gain,
                    "heldout_gain_ci95": list(f.heldout_gain_ci95), "kept": f.kept,
-                   "rejected_on_heldout_runs": f.rejected_on_heldout,
+                   "rejected_on_heldout_runs": f.rejected_on_heldout, "implausible": f.implausible,
                    "error_m2_per_value": {f"{k:g}": v for k, v in f.errors.items()}} for f in c.fits],
         "changed": {path: {"model": a, "calibrated": b} for path, (a, b) in c.changed(base).items()},
+        "findings": findings(c),
         "lag_rms_m": {"before": c.rms_before_m, "after": c.rms_after_m},
         "track_rms_m": {"before": c.track_rms_before_m, "after": c.track_rms_after_m},
         "drives": [{"conveyor_id": d.conveyor_id, "parameter": "ramp_acceleration", "unit": "m/s2",
@@ -529,9 +471,10 @@ def summary_lines(c: Calibration, base: PlantParams) -> list[str]:
         applied = "" if f.value == f.fitted else f", applied {kind}{f.value:.3g}"
         lines.append(f"{f.name}: fitted {kind}{f.fitted:.3g} [{f.ci95[0]:.3g}, {f.ci95[1]:.3g}]{applied}, {gain}"
                      + ("" if f.kept else " (not kept: the held-out runs got worse)" if f.rejected_on_heldout
-                        else " (not kept)"))
+                        else " (not kept: not physically plausible)" if f.implausible else " (not kept)"))
     for path, (a, b) in c.changed(base).items():
         lines.append(f"  {path}: {a:.4g} -> {b:.4g}")
+    lines += [f"finding: {f}" for f in findings(c)]
     for d in c.drives:
         if not np.isfinite(d.fitted_mps2):
             continue

@@ -1,26 +1,24 @@
 """The candidate causes ``fishfmu diagnose`` can name: a registry, one entry per cause.
 
-Each entry (a :class:`Candidate`) is everything the diagnosis knows about a cause: the parameters
-it fits and their values to try, how it sets them in the plant parameters (or the drive FMUs'),
-which test of the baseline residuals is its evidence (:mod:`fishfmu.analysis.evidence`), which residuals
-each parameter is fitted on, and how :mod:`fishfmu.analysis.synthetic` hides it in a test dataset.  The
-scenario fragment of a fitted value is written from what the entry sets, so the two cannot
-disagree.  Adding a cause is adding an entry to :data:`CANDIDATES`; its order is the order of the
-evidence table before sorting (and so of ties).
+Each entry (a :class:`Candidate`) is what the diagnosis needs to extend the model with a cause once it is
+named (:mod:`fishfmu.analysis.signatures` names it): the parameters it fits and their values to try, how it
+sets them in the plant parameters (or the drive FMUs'), which residuals each parameter is fitted on, and how
+:mod:`fishfmu.analysis.synthetic` hides it in a test dataset.  The scenario fragment of a fitted value is
+written from what the entry sets, so the two cannot disagree.
 
 The identifiers are the ones ``diagnosis.json`` reports as ``cause``:
 
-================== ====================================================================================
-``mucus_friction`` friction on belts changes with hours post mortem
-``rigor_mortis``   joints stiffen and their range shrinks with rigor (hours post mortem)
-``adhesion``       touching fish stick together
-``drive_droop``    the belts slow down under load more than the drive model says (belt creep)
-``none``           no candidate explains the data clearly better than noise
-================== ====================================================================================
+======================== ==============================================================================
+``mucus_friction``       friction on belts changes with hours post mortem
+``rigor_mortis``         joints stiffen and their range shrinks with rigor (hours post mortem)
+``directional_friction`` friction depends on the direction the fish slips in (head or tail first)
+``adhesion``             touching fish stick together
+``drive_droop``          the belts slow down under load more than the drive model says (belt creep)
+``none``                 no candidate explains the data clearly better than noise
+======================== ==============================================================================
 
-What every line has and nobody knows exactly (the fish-belt friction, how it differs along a fish) is
-no candidate: ``fishfmu calibrate`` fits it first, and the candidates are judged against the calibrated
-model (:mod:`fishfmu.analysis.calibrate`).
+What every line has and nobody knows exactly (the fish-belt friction level, the joints' stiffness) is no
+candidate: ``fishfmu calibrate`` fits it, as constants (:mod:`fishfmu.analysis.calibrate`).
 """
 
 from __future__ import annotations
@@ -32,8 +30,7 @@ from typing import Literal
 
 from plant.params import PlantParams
 
-from fishfmu.analysis.evidence_base import DriveSlope, PairSeparation, RunLevelShape
-from fishfmu.analysis.levels import mucus_index, rigor_index, rigor_limit_loss
+from fishfmu.analysis.levels import rigor_limit_loss
 
 # ---------------------------------------------------------------- what each candidate sets (fitted values)
 def _mucus(p: PlantParams, gain: float, time_constant_h: float | None = None) -> None:
@@ -55,6 +52,12 @@ def _adhesion(p: PlantParams, force_n: float) -> None:
     p.extensions.adhesion.force_n = force_n
 
 
+def _direction(p: PlantParams, asymmetry: float) -> None:
+    """Slipping head first (along the scales) x(1 - a), tail first x(1 + a), sideways unchanged."""
+    p.extensions.direction_friction.head = 1.0 - asymmetry
+    p.extensions.direction_friction.tail = 1.0 + asymmetry
+
+
 def _belt_slip(drive: dict[str, float], belt_slip: float) -> None:
     drive["belt_slip"] = belt_slip
 
@@ -62,12 +65,17 @@ def _belt_slip(drive: dict[str, float], belt_slip: float) -> None:
 # ---------------------------------------------------------------- the hidden effects of synthetic datasets
 # (strength 1: clearly visible; deliberately not the fitted family itself, e.g. rigor's range loss)
 def _hide_mucus(p: PlantParams, drive: dict[str, float], s: float) -> None:
-    p.extensions.mucus_friction.gain = -0.5 * s
+    p.extensions.mucus_friction.gain = 1.0 * s  # the mucus dries: friction doubles from fresh to dry
 
 
 def _hide_rigor(p: PlantParams, drive: dict[str, float], s: float) -> None:
     p.extensions.rigor_mortis.stiffness_gain = 15.0 * s
     p.extensions.rigor_mortis.limit_loss = min(0.8, 0.7 * s)
+
+
+def _hide_direction(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.direction_friction.head = 1.0 - 0.4 * s
+    p.extensions.direction_friction.tail = 1.0 + 0.4 * s
 
 
 def _hide_adhesion(p: PlantParams, drive: dict[str, float], s: float) -> None:
@@ -107,8 +115,6 @@ class Candidate:
     writes: tuple[str, ...]
     """What ``apply`` writes: dotted paths in ``[plant]`` (plant) or drive FMU parameter names (drive); the
     scenario fragment is these, read back after ``apply``."""
-    evidence: Callable
-    """Its test of the baseline residuals (one of :mod:`fishfmu.analysis.evidence`'s), ``(Residuals, rng) -> dict``."""
     groups: tuple[Group, ...] = (None,)
     """The residuals each parameter is fitted on (one per parameter)."""
     level_model: str | None = None
@@ -185,19 +191,23 @@ CANDIDATES: dict[str, Candidate] = {c.name: c for c in (
     Candidate("mucus_friction", "relative change of belt friction once the mucus has dried, and how fast it dries",
               ("gain", "time_constant_h"), "", 0.0, (), (-0.8, 8.0), "plant", _mucus,
               ("extensions.mucus_friction.gain", "extensions.mucus_friction.time_constant_h"),
-              RunLevelShape(mucus_index, label="mucus index"), groups=("transfers", "transfers"),
+              groups=("transfers", "transfers"),
               level_model="mucus_friction", synthetic=_hide_mucus),
     Candidate("rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it), when rigor "
               "peaks and how long it lasts", ("stiffness_gain", "peak_h", "width_h"), "x", 0.0, (), (0.0, 50.0), "plant",
               _rigor, ("extensions.rigor_mortis.stiffness_gain", "extensions.rigor_mortis.limit_loss",
                        "extensions.rigor_mortis.peak_h", "extensions.rigor_mortis.width_h"),
-              RunLevelShape(rigor_index, label="rigor index"), groups=("transfers", "transfers", "transfers"),
+              groups=("transfers", "transfers", "transfers"),
               level_model="rigor_mortis", synthetic=_hide_rigor),
+    Candidate("directional_friction", "fish-belt friction by slip direction: head first x(1 - a), tail first "
+              "x(1 + a)", ("asymmetry",), "", 0.0, (0.25, 0.5), (-0.75, 0.75), "plant", _direction,
+              ("extensions.direction_friction.head", "extensions.direction_friction.tail"), groups=("transfers",),
+              synthetic=_hide_direction),
     Candidate("adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N",
               0.0, (2.0, 6.0), (0.0, 50.0), "plant", _adhesion, ("extensions.adhesion.force_n",),
-              PairSeparation(), groups=("pairs",), synthetic=_hide_adhesion),
+              groups=("pairs",), synthetic=_hide_adhesion),
     Candidate("drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N",
-              0.0, (), (0.0, 0.01), "drive", _belt_slip, ("belt_slip",), DriveSlope(), synthetic=_hide_droop),
+              0.0, (), (0.0, 0.01), "drive", _belt_slip, ("belt_slip",), synthetic=_hide_droop),
 )}
 
 

@@ -1,27 +1,21 @@
 """``fishfmu diagnose``: name the cause of what the simulation gets wrong, fit it, measure the gain.
 
-Every candidate is fitted; cheap evidence (:mod:`fishfmu.analysis.evidence`) is shown beside the fits as an
-explanation, never as a gate.  The pipeline fits in minutes on a 2-core machine because each candidate is
-fitted on the runs that carry its signal, mostly from simulations it shares with the others:
-
-1. **Calibration** (:mod:`fishfmu.analysis.calibrate`): every run re-simulated with the model as given;
-   the runs with most fish alone are the fit runs; the friction gradient along a fish is fitted on them
-   (``--no-calibrate``: not fitted), then each fit run is simulated at two more friction levels and two
-   rigor levels (:mod:`fishfmu.analysis.levels`: the fish's lags and the photo-eyes' blocked shares), and
-   the constant friction level and joint stiffening fitted from those responses.
-2. **Run-level candidates** (mucus friction, rigor): models of the runs' levels against hours post
-   mortem, fitted on the level responses without more simulation; each run's error with parameters
-   chosen on the other runs (leave one run out) against that of the constant levels (the calibrated
-   model).  The other runs are then re-simulated with the calibrated model, or, when a run-level
-   candidate is significant, with its levels for each run's hours: what it explains in them is not left
-   for adhesion to explain (fresh, slippery fish part from a neighbour late, as sticky ones do).
-3. **Adhesion**: the runs with touching pairs simulated at a few attraction forces on top of that model;
-   the extra separation of close pairs, held-out by folds of runs.
-4. **Drive droop**: from the drive logs against the simulated belt loads, no simulation (linear).
-5. **Decision**: a candidate is *significant* when it removes at least ``MIN_GAIN`` of its held-out error
-   and the 95 % interval of that gain (a bootstrap over runs) is above zero; of the significant ones, the
-   cause is the one whose interval's lower end is highest (the most certain; gains of different
-   candidates are fractions of different residuals).  None significant: ``none``.
+1. **Calibration** (:mod:`fishfmu.analysis.calibrate`): the constants every line has (one friction level, one
+   joint stiffening, the drives' ramps), fitted on the runs with most fish alone, then every run re-simulated
+   with them (``--no-calibrate``: the model as given, e.g. data this simulator made).  The fit runs are also
+   simulated at a few friction and stiffening levels (:mod:`fishfmu.analysis.levels`), which the run-level
+   candidates' models are fitted on afterwards.
+2. **Naming** (:mod:`fishfmu.analysis.signatures`): each candidate is a physical quantity that follows a
+   covariate; it is tested where physics says the constant model predicts no dependence on that covariate,
+   against the constant refitted beside it on held-out runs, with a p-value from shuffling the covariate.  The
+   cause is the significant candidate least likely by chance; none significant: ``none``, with what the runs
+   cannot decide and what runs would.  Nothing fitted by the calibration can absorb a cause first: the
+   calibration holds constants, and the tests compare like with like within the data (adhesion: the measured
+   pairs against the same runs' pairs in the calibrated model).
+3. **The model extended** with the named cause (:data:`~fishfmu.analysis.candidates.CANDIDATES`): its
+   parameters fitted on the calibrated model, with intervals and the held-out gain of the extended model:
+   mucus and rigor from the level responses (no more simulation), adhesion and directional friction on a grid
+   of simulated strengths, drive droop from the drive logs (linear).  The result is a scenario fragment.
 """
 
 from __future__ import annotations
@@ -38,23 +32,22 @@ from plant.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, Calibration, calibrate_with_pool
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment, plant_tables, plant_value
-from fishfmu.analysis.evidence import evidence_table
 from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
-from fishfmu.analysis.levels import (FRICTION, MODELS, RIGOR, LevelModel, ModelFit, Responses, fit_model, gain_over,
-                                     run_levels)
-from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
-                                        RunResiduals, concat_typed, drive_residuals_averaged, drop_lags,
-                                        pair_residuals, residuals_of)
+from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
+from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
+                                        drop_lags, pair_residuals, residuals_of)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
+from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
 MIN_GAIN = 0.02
-"""A cause must remove at least this fraction of the held-out error (and its 95 % interval must be above
-zero): measurement noise that no model removes can be most of the error, as with noisy drive logs."""
+"""The named cause's fitted model is reported as carrying over to held-out runs when it removes at least this
+fraction of their error with its 95 % interval above zero."""
 
-DECISION_RULE = (f"every candidate is fitted; significant = held-out gain >= {MIN_GAIN:.0%} of its residuals' "
-                 "held-out error with the 95 % bootstrap interval (over runs) above zero; adhesion is judged on top "
-                 "of a significant run-level effect (mucus, rigor); the cause is the significant candidate with the "
-                 "highest lower end of that interval; none significant: none")
+DECISION_RULE = (f"a candidate is significant when its covariate test's p-value is at most {ALPHA:g} (its quantity "
+                 "follows its covariate more than shuffling the covariate makes it), the covariate's term beats the "
+                 "constant on held-out runs, and its effect is at least the smallest worth naming; the cause is the "
+                 "significant candidate with the smallest p-value (ties: the larger lower end of the held-out gain's "
+                 "interval); none significant: none")
 
 
 def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, float] | None = None) -> pd.DataFrame:
@@ -72,7 +65,6 @@ def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, flo
 @dataclass
 class CandidateFit:
     name: str
-    evidence_z: float
     values: dict[str, float] = field(default_factory=dict)
     """Fitted parameter values (all runs)."""
     ci95: dict[str, tuple[float, float]] = field(default_factory=dict)
@@ -101,7 +93,7 @@ class CandidateFit:
         return (run, u / total) if u > 0.5 * total else None
 
 
-def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]],
+def fit_plant_candidate(name: str, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]],
                         rng: np.random.Generator) -> CandidateFit:
     """Cross-validated choice of strength on the simulated grid (the ``off`` value is the baseline)."""
     cand = CANDIDATES[name]
@@ -125,7 +117,7 @@ def fit_plant_candidate(name: str, z: float, base: dict[str, RunResiduals], grid
             e0[test] += ss[g][0, test]
     gain, ci = gain_with_ci(u, e0, rng)
     n_total = sum(nn[g][0].sum() for g in groups)
-    fit = CandidateFit(name, z, heldout_gain=gain, heldout_gain_ci95=ci, gain_by_run=dict(zip(runs, map(float, u))),
+    fit = CandidateFit(name, heldout_gain=gain, heldout_gain_ci95=ci, gain_by_run=dict(zip(runs, map(float, u))),
                        heldout_rms_before=float(np.sqrt(e0.sum() / max(n_total, 1))),
                        heldout_rms_after=float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / max(n_total, 1))))
     # fitted values on all runs, with a bootstrap over runs
@@ -163,14 +155,14 @@ def beyond_the_ends(name: str, base: dict[str, RunResiduals], grid: dict[float, 
     return sorted({round(v, 6) for v in extra} - set(values))
 
 
-def fit_drive_candidate(cand: Candidate, z: float, drive: pd.DataFrame, rng: np.random.Generator) -> CandidateFit:
+def fit_drive_candidate(cand: Candidate, drive: pd.DataFrame, rng: np.random.Generator) -> CandidateFit:
     """Drive droop from the drive residuals, per conveyor's drive: the belt speed lost per newton of load force
     (the drive FMU's ``belt_slip``: creep on the drum under the force that pulls the fish along) and per
     kilogram of fish on the belt (bed friction that grows with the weight carried), fitted together by least
     squares with an offset; linear, so no simulation is needed.  Per drive, because a line's drives differ (a
     droop that is a share of the belt's speed is a different slip on each belt).  ``values``: each drive's
     ``belt_slip[c1]`` and ``droop_per_kg[c1]`` ..., and ``belt_slip`` (their mean over the drives)."""
-    fit = CandidateFit(cand.name, z, error_unit="m/s")
+    fit = CandidateFit(cand.name, error_unit="m/s")
     (pname,) = cand.parameters
     lo, hi = cand.bounds
     d = drive.dropna(subset=["residual_mps", "load_force_n"])
@@ -234,51 +226,43 @@ def fit_drive_candidate(cand: Candidate, z: float, drive: pd.DataFrame, rng: np.
 @dataclass
 class Diagnosis:
     cause: str
-    evidence: pd.DataFrame
-    fits: list[CandidateFit]
+    judgement: Judgement
+    """Every candidate's covariate test (:mod:`fishfmu.analysis.signatures`): what named the cause."""
+    fit: CandidateFit | None
+    """The named cause's model fitted on the calibrated model (None for ``none``)."""
     fragment: str
     base_rms_m: dict[str, float]
-    """Track RMS per run with the model as given."""
+    """Track RMS per run with the model as given (runs not re-simulated with it: NaN)."""
     after_rms_m: dict[str, float]
-    """Track RMS per run with the calibrated model (the fit runs: gradient only, friction level 1)."""
+    """Track RMS per run with the calibrated model."""
     timing_s: dict[str, float]
     baseline: list[RunResiduals]
-    """Every run's residuals against the calibrated model: what the candidates are judged against."""
+    """Every run's residuals against the calibrated model."""
     drive: pd.DataFrame
     calibration: Calibration
     run_levels: pd.DataFrame
-    """The signature of run-level effects: each fit run's own best friction and rigor levels, with its hours."""
+    """Each fit run's own best friction and rigor levels, with its hours: the signature of run-level effects."""
     drop_lags: pd.DataFrame = field(default_factory=pd.DataFrame)
-    """The same read from the data alone: per run, the median time a fish dropped alone has lost to the infeed
-    (:func:`fishfmu.analysis.residuals.drop_lags`), with its hours and how many drops of a fish alone it has."""
+    """Per run, the median time a fish dropped alone has lost to the infeed (:func:`drop_lag_table`)."""
 
-    def ranking(self) -> list[str]:
-        fitted = sorted(self.fits, key=lambda f: -np.nan_to_num(f.heldout_gain_ci95[0], nan=-1.0))
-        rest = [c for c in self.evidence["candidate"] if c not in {f.name for f in fitted}]
-        return [f.name for f in fitted] + rest
+    @property
+    def fits(self) -> list[CandidateFit]:
+        return [self.fit] if self.fit is not None else []
 
 
 def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
              progress: Callable[[str], None] | None = None, calibrate: bool = True) -> Diagnosis:
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
-    ``calibrate``: first fit the base model to the dataset (:mod:`fishfmu.analysis.calibrate`) and judge
-    the candidates against it; off when the base is known to be right (data made by this simulator)."""
+    ``calibrate``: first fit the base model's constants to the dataset (:mod:`fishfmu.analysis.calibrate`); off
+    when the base is known to be right (data made by this simulator)."""
     with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
         return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate)
 
 
-def level_params(level_base: PlantParams, model: LevelModel, values: dict[str, float], hours: float) -> PlantParams:
-    """The parameters of a run ``hours`` post mortem under a run-level model with these fitted values."""
-    levels = model.levels(np.array([hours]), *[values[k] for k in model.parameters])
-    p = FRICTION.params(level_base, float(levels["friction"][0]), hours)
-    RIGOR.apply(p, float(levels["rigor"][0]), hours)
-    return p
-
-
-def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFit, resp: Responses,
+def level_candidate_fit(name: str, model: ModelFit, reference: ModelFit, resp: Responses,
                         rng: np.random.Generator) -> CandidateFit:
-    """A run-level candidate's fit from its level model, judged against the constant friction level."""
-    fit = CandidateFit(name, z, values=dict(model.values), ci95=dict(model.ci95),
+    """A run-level candidate's fit from its level model, judged against the constant levels."""
+    fit = CandidateFit(name, values=dict(model.values), ci95=dict(model.ci95),
                        error_unit="x noise (the rows it is judged on: lags, drops or photo-eye passages, each "
                                   "over its noise)")
     fit.heldout_gain, fit.heldout_gain_ci95 = gain_over(reference, model, rng)
@@ -289,81 +273,58 @@ def level_candidate_fit(name: str, z: float, model: ModelFit, reference: ModelFi
     return fit
 
 
+def simulated_dataset(dataset: Dataset, sims: list[Resim]) -> Dataset:
+    """The runs as a re-simulation had them, in the measured-data format (what the measured runs are compared
+    with); runs whose re-simulation failed are left out."""
+    runs = [Run(r.id, r.hours_post_mortem, r.notes, s.sim.fish, s.sim.tracks, s.sim.photoeyes, s.sim.belts)
+            for r, s in zip(dataset.runs, sims) if not s.error]
+    return dataset.subset(runs)
+
+
 def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
               calibrate: bool = True) -> Diagnosis:
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
-    # candidates simulated on a grid of their own (adhesion) start in the batch of the held-out runs'
-    # calibrated re-simulation, on the held-out runs where the measurement shows touching pairs
-    grid_cands = [c for c in CANDIDATES.values() if c.grid]
-    grid_runs: dict[str, list] = {}
-    level_fits: list[CandidateFit] = []
-    applied: dict[str, Callable[[Run], PlantParams]] = {}
-
-    def first_grid(params_of: Callable[[Run], PlantParams], held: list) -> list:
-        jobs = []
-        for cand in grid_cands:
-            grid_runs[cand.name] = [r for r in held if not cand.needs_pairs
-                                    or len(pair_residuals(r, r.tracks, dataset.line))]
-            jobs += [(r, cand.params(params_of(r), v)) for v in cand.grid for r in grid_runs[cand.name]]
-        applied["params_of"] = params_of
-        return jobs
-
-    def run_level_effect(resp: Responses, level_base: PlantParams) -> Callable[[Run], PlantParams] | None:
-        """Fit the run-level candidates on the fit runs' responses; when one is significant, the held-out runs are
-        simulated with its levels, so that what it explains is not left for adhesion to explain."""
-        for cand in CANDIDATES.values():
-            if cand.level_model is not None:  # judged on the rows its levels change, against the constant levels there
-                on = resp.only(MODELS[cand.level_model].kinds)
-                reference = fit_model(MODELS["constant"], on, rng)
-                model = fit_model(MODELS[cand.level_model], on, rng)
-                level_fits.append(level_candidate_fit(cand.name, z_of.get(cand.name, 0.0), model, reference, on, rng))
-        best = max((f for f in level_fits if f.significant), key=lambda f: f.heldout_gain_ci95[0], default=None)
-        if best is None:
-            return None
-        say(f"held-out runs judged with {best.name} (held-out gain on the fit runs {best.heldout_gain:.0%}, "
-            f"{best.heldout_gain_ci95[0]:.0%} to {best.heldout_gain_ci95[1]:.0%})")
-        return lambda run: level_params(level_base, MODELS[CANDIDATES[best.name].level_model], best.values,
-                                        run.hours_post_mortem if run.hours_post_mortem is not None else 24.0)
-
-    z_of: dict[str, float] = {}
     cal = calibrate_with_pool(dataset, base, pool, seed, say, levels=(FRICTION, RIGOR), fit_base=calibrate,
-                              heldout_before=False, extra=first_grid, heldout_levels=run_level_effect)
+                              heldout_before=False)
     timing["calibration"] = time.perf_counter() - t0
-    sims = cal.sims_after
-    current = cal.after
-    drive = drive_table(dataset, sims)
-    rows = concat_typed([b.rows for b in current], BELT_RESIDUAL_DTYPES)
-    pairs = concat_typed([b.pairs for b in current], PAIR_RESIDUAL_DTYPES)
-    evidence = evidence_table(rows, pairs, drive, seed)
-    z_of.update(evidence.set_index("candidate")["evidence"].astype(float).to_dict())
-    for f in level_fits:  # fitted before the evidence was at hand
-        f.evidence_z = z_of.get(f.name, 0.0)
-    say("evidence (an explanation, not a gate): " + ", ".join(f"{c} z={z:.1f}" for c, z in z_of.items()))
-
-    fits: list[CandidateFit] = list(level_fits)
-    resp = cal.responses
     t1 = time.perf_counter()
-    cur_by_run = {b.run_id: b for b in current if not b.error}
-    done = iter(cal.extra_sims)
-    for cand in grid_cands:  # simulated on the runs that carry its signal (adhesion: runs with touching pairs)
-        first = {v: [next(done) for _ in grid_runs[cand.name]] for v in cand.grid}
-        fits.append(_fit_on_grid(dataset, cand, applied["params_of"], cur_by_run, grid_runs[cand.name], first,
-                                 z_of.get(cand.name, 0.0), pool, rng, say))
-        timing[f"fit_{cand.name}"] = time.perf_counter() - t1
-    for cand in CANDIDATES.values():  # fitted without simulation
-        if cand.acts_on == "drive":
-            fits.append(fit_drive_candidate(cand, z_of.get(cand.name, 0.0), drive, rng))
-
-    significant = [f for f in fits if f.significant]
-    winner = max(significant, key=lambda f: f.heldout_gain_ci95[0]) if significant else None
-    cause = winner.name if winner else "none"
-    frag = _fragment(cal, base, winner)
+    judgement = judge(dataset, rng, simulated_dataset(dataset, cal.sims_after))
+    timing["judgement"] = time.perf_counter() - t1
+    for t in judgement.tests:
+        say(f"{t.candidate}: " + (f"p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.1%}, effect {t.effect:.3g}"
+                                  if t.judged else t.note))
+    t1 = time.perf_counter()
+    drive = drive_table(dataset, cal.sims_after)
+    fit = _fit_cause(judgement.cause, dataset, cal, drive, pool, rng, say)
+    timing["fit"] = time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
-    return Diagnosis(cause, evidence, fits, frag, {b.run_id: b.track_rms_m for b in cal.baseline},
-                     {b.run_id: b.track_rms_m for b in current}, timing, current, drive, cal, run_levels(resp),
-                     drop_lag_table(dataset))
+    return Diagnosis(judgement.cause, judgement, fit, _fragment(cal, base, fit),
+                     {b.run_id: b.track_rms_m for b in cal.baseline}, {b.run_id: b.track_rms_m for b in cal.after},
+                     timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset))
+
+
+def _fit_cause(cause: str, dataset: Dataset, cal: Calibration, drive: pd.DataFrame, pool,
+               rng: np.random.Generator, say: Callable[[str], None]) -> CandidateFit | None:
+    """The named cause's model on top of the calibrated one: its parameters and the held-out gain."""
+    if cause not in CANDIDATES:
+        return None
+    cand = CANDIDATES[cause]
+    say(f"fitting {cause} on the calibrated model")
+    if cand.level_model is not None:  # judged on the rows its levels change, against the constant levels there
+        on = cal.responses.only(MODELS[cand.level_model].kinds)
+        return level_candidate_fit(cause, fit_model(MODELS[cand.level_model], on, rng),
+                                   fit_model(MODELS["constant"], on, rng), on, rng)
+    if cand.acts_on == "drive":
+        return fit_drive_candidate(cand, drive, rng)
+    # fitted on a grid of simulated strengths: on the runs with touching pairs (adhesion) or the fit runs
+    cur_by_run = {b.run_id: b for b in cal.after if not b.error}
+    if cand.needs_pairs:
+        runs = [r for r in dataset.runs if r.id in cur_by_run and len(pair_residuals(r, r.tracks, dataset.line))]
+    else:
+        runs = [r for r in dataset.runs if r.id in set(cal.fit_runs)]
+    return _fit_on_grid(dataset, cand, cal.params, cur_by_run, runs, pool, rng, say)
 
 
 def drop_lag_table(dataset: Dataset) -> pd.DataFrame:
@@ -376,34 +337,31 @@ def drop_lag_table(dataset: Dataset) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _fit_on_grid(dataset: Dataset, cand: Candidate, params_of: Callable[[Run], PlantParams],
-                 cur_by_run: dict[str, RunResiduals],
-                 fit_runs: list, first: dict[float, list], z: float, pool, rng: np.random.Generator,
-                 say: Callable[[str], None]) -> CandidateFit:
-    """A candidate at its grid of strengths (``first``: the grid's re-simulations of ``fit_runs``, done), extended
-    once beyond an end where the error still falls, against the calibrated model."""
+def _fit_on_grid(dataset: Dataset, cand: Candidate, params: PlantParams, cur_by_run: dict[str, RunResiduals],
+                 fit_runs: list, pool, rng: np.random.Generator, say: Callable[[str], None]) -> CandidateFit:
+    """A candidate at its grid of strengths on ``fit_runs``, extended once beyond an end where the error still
+    falls, against the calibrated model (``cur_by_run``: its residuals)."""
     fit_runs = [r for r in fit_runs if r.id in cur_by_run]
     if not fit_runs:  # nothing carries its signal: no gain either way
-        return CandidateFit(cand.name, z, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="m")
-    sub = Dataset(dataset.name, dataset.description, dataset.line, dataset.kpi, fit_runs)
+        return CandidateFit(cand.name, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="m")
+    sub = dataset.subset(fit_runs)
     base_by_run = {r.id: cur_by_run[r.id] for r in fit_runs}
     grid: dict[float, dict[str, RunResiduals]] = {}
-    pending = dict(first)
+    values = list(cand.grid)
     for _ in range(2):
-        for v, sims in pending.items():
-            res = residuals_of(sub, sims)
+        say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
+        sims = resimulate_many(dataset.line, fit_runs * len(values),
+                               [cand.params(params, v) for v in values for _ in fit_runs], pool=pool, workers=1,
+                               residuals=True)
+        for k, v in enumerate(values):
+            res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
             grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
             for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the base
                 grid[v][rid] = base_by_run[rid]
         values = beyond_the_ends(cand.name, base_by_run, grid)
         if not values:
             break
-        say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
-        sims = resimulate_many(dataset.line, fit_runs * len(values),
-                               [cand.params(params_of(r), v) for v in values for r in fit_runs], pool=pool, workers=1,
-                               residuals=True)
-        pending = {v: sims[k * len(fit_runs):(k + 1) * len(fit_runs)] for k, v in enumerate(values)}
-    return fit_plant_candidate(cand.name, z, base_by_run, grid, rng)
+    return fit_plant_candidate(cand.name, base_by_run, grid, rng)
 
 
 def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) -> str:
@@ -421,7 +379,8 @@ def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) 
             for c, v in slip.items())
     if cand.level_model is None:
         return cal.fragment(base) + cand.fragment(winner.values, cal.params)
-    # a run-level effect comes with its own friction level (fitted with it), on the calibrated gradient
+    # a run-level effect comes with its own constant levels (fitted with it), around the model the levels were
+    # simulated about
     p = cal.level_base.model_copy(deep=True)
     FRICTION.apply(p, winner.values["friction_level"], 0.0)
     RIGOR.apply(p, winner.values.get("joint_stiffening", 0.0), 0.0)

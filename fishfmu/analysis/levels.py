@@ -367,14 +367,20 @@ class ModelFit:
     """Per run: sum of squares with the values fitted on the other runs."""
 
 
-def _table(model: LevelModel, resp: Responses) -> tuple[list[tuple[float, ...]], np.ndarray]:
-    """Every parameter combination of the model's grid and its sum of squares per run."""
-    combos = list(itertools.product(*model.grids(resp)))
+def _table(model: LevelModel, resp: Responses, fixed: dict[str, float] | None = None
+           ) -> tuple[list[tuple[float, ...]], np.ndarray]:
+    """Every parameter combination of the model's grid (``fixed`` parameters at their value) and its sum of squares
+    per run."""
+    grids = [np.array([fixed[p]]) if fixed and p in fixed else g for p, g in zip(model.parameters, model.grids(resp))]
+    combos = list(itertools.product(*grids))
     return combos, np.array([resp.run_ss(model.levels(resp.hours, *c)) for c in combos])
 
 
-def fit_model(model: LevelModel, resp: Responses, rng: np.random.Generator, n_boot: int = 300) -> ModelFit:
-    combos, ss = _table(model, resp)
+def fit_model(model: LevelModel, resp: Responses, rng: np.random.Generator, n_boot: int = 300,
+              fixed: dict[str, float] | None = None) -> ModelFit:
+    """The model's parameters by exhaustive search over its grid (``fixed``: held at these values), with a bootstrap
+    interval over runs and each run's held-out error (its parameters chosen on the other runs)."""
+    combos, ss = _table(model, resp, fixed)
     n = len(resp.runs)
     best = int(np.argmin(ss.sum(axis=1)))
     cv = np.zeros(n)

@@ -108,7 +108,7 @@ def track_errors(measured: pd.DataFrame, simulated: pd.DataFrame, max_gap_s: flo
     return concat_typed(rows, TRACK_ERROR_DTYPES)
 
 
-def _crowding(tracks: pd.DataFrame, fid: str, t0: float, t1: float, radius_m: float) -> bool:
+def crowding(tracks: pd.DataFrame, fid: str, t0: float, t1: float, radius_m: float) -> bool:
     """Was another fish's mid-point within radius_m of this one's at some sample in [t0, t1]?"""
     window = tracks[(tracks["t_s"] >= t0 - 0.05) & (tracks["t_s"] <= t1 + 0.05)]
     me = window[window["fish_id"] == fid]
@@ -138,7 +138,7 @@ def belt_residuals(run: Run, errors: pd.DataFrame, line: Line) -> pd.DataFrame:
                 continue
             offset = float(on["ex_m"].median())
             t0, t1 = float(on["t_s"].iloc[0]), float(on["t_s"].iloc[-1])
-            crowded = _crowding(run.tracks, fid, prev_t_end, t1, length)
+            crowded = crowding(run.tracks, fid, prev_t_end, t1, length)
             rows.append({"run_id": run.id, "fish_id": fid, "belt": k, "conveyor_id": c.id, "t_start_s": t0,
                          "t_end_s": t1, "offset_m": offset, "lag_m": offset - prev_offset,
                          "heading": float(np.median(np.cos(on["yaw_rad"].to_numpy()))),
@@ -206,7 +206,7 @@ def drop_lags(run: Run, line: Line) -> pd.DataFrame:
         tr = run.tracks[(run.tracks["fish_id"] == f.fish_id) & (run.tracks["t_s"] >= t0) & (run.tracks["t_s"] <= t1)]
         tr = tr[tr["x_m"] + 0.5 * f.length_m < belt.x_end_m - EDGE_M]
         v = logged[(logged["t_s"] >= f.drop_t_s) & (logged["t_s"] <= t1)]["speed_mps"]
-        if len(tr) < 5 or v.empty or float(v.median()) < 0.05 or _crowding(run.tracks, f.fish_id, f.drop_t_s, t1,
+        if len(tr) < 5 or v.empty or float(v.median()) < 0.05 or crowding(run.tracks, f.fish_id, f.drop_t_s, t1,
                                                                          float(f.length_m)):
             continue
         speed = float(v.median())

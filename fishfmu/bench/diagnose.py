@@ -25,7 +25,8 @@ import pandas as pd
 from plant.measured import read_dataset
 
 from fishfmu.analysis.diagnose import diagnose
-from fishfmu.analysis.synthetic import EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset
+from fishfmu.analysis.synthetic import (EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset,
+                                        synthetic_base)
 
 
 def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: float = 1.0, workers: int = 2,
@@ -35,12 +36,12 @@ def run_bench(seeds: list[int], effects: tuple[str, ...] = EFFECTS, strength: fl
         for effect in effects:
             with tempfile.TemporaryDirectory() as tmp:
                 t0 = time.perf_counter()
+                base = synthetic_base()
                 path = make_dataset(Path(tmp) / "data", effect, SMALL_LINE, SMALL_KPI, SMALL_RUNS, SMALL_SPEEDS,
-                                    seed=seed, strength=strength)
-                d = diagnose(read_dataset(path), workers=workers, seed=seed, calibrate=False)  # base: the model's
-                fit = next((f for f in d.fits if f.name == d.cause), None)
+                                    seed=seed, strength=strength, base=base)
+                d = diagnose(read_dataset(path), base, workers=workers, seed=seed, calibrate=False)  # base: known
                 rows.append({"effect": effect, "seed": seed, "cause": d.cause, "correct": d.cause == effect,
-                             "heldout_gain": fit.heldout_gain if fit else 0.0, "wall_s": time.perf_counter() - t0})
+                             "heldout_gain": d.fit.heldout_gain if d.fit else 0.0, "wall_s": time.perf_counter() - t0})
                 if on_row is not None:
                     on_row(rows[-1])
     return pd.DataFrame(rows)
@@ -57,45 +58,85 @@ def bench(seeds: int = 5, first_seed: int = 100, strength: float = 1.0, workers:
 
 
 TRUTH_NAMES = {"none": "none", "mucus": "mucus_friction", "rigor": "rigor_mortis", "drive_droop": "drive_droop",
-               "adhesion": "adhesion"}
+               "adhesion": "adhesion", "directional_friction": "directional_friction"}
 """A label's effect (``NAME.truth.json``) as the candidate that names it."""
 
 
-def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None] | None = None) -> dict[str, Any]:
-    """Diagnose every labelled dataset in ``folder``; the confusion table, accuracy and times."""
+def read_splits(recipe: Path | None) -> dict[str, str]:
+    """Dataset name -> its split (``dev``, ``heldout``) from a benchmark recipe (``docs/diagnose-bench/recipe.toml``)."""
+    if recipe is None:
+        return {}
+    from plant.validation import read_toml
+    doc = read_toml(recipe)
+    return {str(d["name"]): str(d.get("split", "dev")) for d in doc.get("dataset", [])}
+
+
+def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None] | None = None,
+                   splits: dict[str, str] | None = None, only: str | None = None,
+                   on_done: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """Diagnose every labelled dataset in ``folder`` as a user would (calibrating first); the confusion table,
+    accuracy, false-positive rate and times, overall and per split (``splits``: name -> split; ``only``: that
+    split alone). ``on_done(doc)`` after each dataset: the results so far (a long benchmark keeps what it did)."""
     import json
+    splits = splits or {}
     rows = []
     for truth_file in sorted(folder.glob("*.truth.json")):
         data = folder / truth_file.name.removesuffix(".truth.json")
-        if not data.is_dir():
+        split = splits.get(data.name, "all")
+        if not data.is_dir() or (only is not None and split != only):
             continue
         label = json.loads(truth_file.read_text())["effect"]
         effect = TRUTH_NAMES.get(label, label)
         t0 = time.perf_counter()
         d = diagnose(read_dataset(data), workers=workers)
-        fit = next((f for f in d.fits if f.name == d.cause), None)
-        rows.append({"dataset": data.name, "effect": effect, "cause": d.cause, "correct": d.cause == effect,
-                     "heldout_gain": fit.heldout_gain if fit else 0.0,
-                     "heldout_gain_ci95": list(fit.heldout_gain_ci95) if fit else None,
-                     "candidates": {f.name: {"gain": f.heldout_gain, "ci95": list(f.heldout_gain_ci95),
-                                             "values": f.values} for f in d.fits},
+        rows.append({"dataset": data.name, "split": split, "effect": effect, "cause": d.cause,
+                     "correct": d.cause == effect,
+                     "tests": {t.candidate: {"p": t.p_value, "gain": t.heldout_gain, "ci95": list(t.heldout_gain_ci95),
+                                             "effect": t.effect} for t in d.judgement.tests},
+                     "fit": ({"gain": d.fit.heldout_gain, "ci95": list(d.fit.heldout_gain_ci95), "values": d.fit.values}
+                             if d.fit else None),
                      "calibration": d.calibration.changed(d.calibration.base) if d.calibration else {},
                      "wall_s": time.perf_counter() - t0})
         if on_row is not None:
             row = rows[-1]
-            on_row({k: row[k] for k in ("dataset", "effect", "cause", "heldout_gain", "wall_s")}
-                   | {"gains": {n: f"{c['gain']:.0%} [{c['ci95'][0]:.0%}, {c['ci95'][1]:.0%}]"
-                                for n, c in row["candidates"].items()}})
+            on_row({k: row[k] for k in ("dataset", "split", "effect", "cause", "wall_s")}
+                   | {"p": {n: round(t["p"], 3) for n, t in row["tests"].items()}})
+        if on_done is not None:
+            on_done(labelled_document(rows, folder))
+    return labelled_document(rows, folder)
+
+
+def labelled_document(rows: list[dict], folder: Path) -> dict[str, Any]:
+    """Confusion tables, accuracy and false-positive rate (datasets without an effect named as one), overall and
+    per split, and the times."""
     table = pd.DataFrame(rows)
     if table.empty:
-        return {"runs": [], "accuracy": {}, "overall": float("nan"), "confusion": {}}
-    return {"runs": rows, "accuracy": table.groupby("effect")["correct"].mean().to_dict(),
-            "overall": float(table["correct"].mean()),
-            "confusion": pd.crosstab(table["effect"], table["cause"]).to_dict(), "folder": str(folder)}
+        return {"runs": [], "accuracy": {}, "overall": float("nan"), "confusion": {}, "splits": {}}
+
+    def part(t: pd.DataFrame) -> dict[str, Any]:
+        none = t[t["effect"] == "none"]
+        return {"datasets": len(t), "correct": int(t["correct"].sum()), "overall": float(t["correct"].mean()),
+                "accuracy": t.groupby("effect")["correct"].mean().to_dict(),
+                "confusion": pd.crosstab(t["effect"], t["cause"]).to_dict(),
+                "false_positives": int((none["cause"] != "none").sum()), "no_effect_datasets": len(none),
+                "wall_s": {"mean": float(t["wall_s"].mean()), "max": float(t["wall_s"].max())}}
+
+    return {"runs": rows, **part(table), "splits": {s: part(t) for s, t in table.groupby("split")},
+            "folder": str(folder)}
 
 
 def summary(doc: dict[str, Any]) -> list[str]:
     """What the benchmark found, as lines for the console."""
-    confusion = pd.DataFrame(doc["confusion"]).fillna(0).astype(int)
-    return [confusion.to_string(), pd.Series(doc["accuracy"], name="accuracy").to_string(),
-            f"overall: {doc['overall']:.0%}"]
+    lines = []
+    parts = [("all", doc)] + sorted(doc.get("splits", {}).items()) if len(doc.get("splits", {})) > 1 else [("all", doc)]
+    for name, part in parts:
+        if not part.get("confusion"):
+            continue
+        confusion = pd.DataFrame(part["confusion"]).fillna(0).astype(int)
+        lines += [f"-- {name}", confusion.to_string(), pd.Series(part["accuracy"], name="accuracy").to_string(),
+                  f"overall: {part['overall']:.0%}"]
+        if "no_effect_datasets" in part:
+            lines.append(f"no-effect datasets named as an effect: {part['false_positives']} of "
+                         f"{part['no_effect_datasets']}; time per dataset {part['wall_s']['mean']:.0f} s on average, "
+                         f"{part['wall_s']['max']:.0f} s at most")
+    return lines

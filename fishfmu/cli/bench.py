@@ -118,6 +118,9 @@ def bench_diagnose(
     json_file: Path = typer.Option(Path("bench-results/diagnose_bench.json"), "--json", help="Results (JSON)."),
     labelled: Path | None = typer.Option(None, "--labelled", help="Instead: diagnose every dataset in this folder "
                                          "that has a NAME.truth.json label beside it (calibrating first)."),
+    recipe: Path | None = typer.Option(None, "--recipe", help="With --labelled: the benchmark's recipe (TOML, "
+                                       "docs/diagnose-bench/recipe.toml): tables per split (dev, heldout)."),
+    split: str | None = typer.Option(None, "--split", help="With --recipe: diagnose only this split's datasets."),
 ) -> None:
     """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
     from fishfmu import commands
@@ -126,7 +129,13 @@ def bench_diagnose(
     if labelled is not None:
         if not labelled.is_dir():
             raise InputError(f"{labelled}: not a folder of labelled datasets")
-        doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)))
+        from fishfmu.bench.diagnose import read_splits
+        splits = read_splits(recipe)
+        if split is not None and split not in set(splits.values()):
+            raise InputError(f"--split {split}: no dataset of the recipe has that split "
+                             f"(it has: {', '.join(sorted(set(splits.values()))) or 'none'})")
+        doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)), splits=splits, only=split,
+                             on_done=lambda partial: commands.write_json(json_file, partial))
     else:
         doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
     _bench_done(summary(doc), commands.write_json(json_file, doc))

@@ -1,0 +1,221 @@
+"""The quantities each candidate cause changes, read from measured data alone (no model): the rows the covariate
+tests of :mod:`fishfmu.analysis.signatures` read.
+
+- :func:`drop_rows`: each fish dropped alone onto the first belt, the time it lost to the belt beyond its fall;
+- :func:`passage_rows`: each passage of a fish alone past a photo-eye, the share of it the beam was blocked;
+- :func:`drive_rows`: each drive's speed below its setpoint against the mass on its belt (:func:`belt_loads`);
+- :func:`pair_rows`: pairs of fish side by side at a transfer, how much of the belts' speed difference their
+  separation gained.
+
+The same readers serve a re-simulation written in the measured-data format, so that measured and modelled pairs
+are compared on equal terms.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from plant.line import Line
+from plant.measured import Dataset, Run
+
+from fishfmu.analysis.residuals import EDGE_M, crowding, photoeye_passages
+
+G_MPS2 = 9.81
+DROP_READ_S = (0.8, 3.0)
+"""After its drop, when a fish's slip is read [s]: it has landed (a fall from 0.2 m takes 0.2 s) and slid up to the
+belt's speed (0.3 s at the lowest plausible friction, 0.2, on the fastest infeed, 0.5 m/s), while it lies wholly on
+the belt, for at most 3 s."""
+
+
+def _fish_hours(run: Run) -> pd.Series:
+    """Each fish's hours post mortem: its own where fish.csv gives it, else the run's."""
+    fish = run.fish.set_index("fish_id")
+    own = fish["hours_post_mortem"] if "hours_post_mortem" in fish.columns else pd.Series(np.nan, index=fish.index)
+    return own.astype(float).fillna(float(run.hours_post_mortem) if run.hours_post_mortem is not None else np.nan)
+
+
+def drop_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per fish dropped alone onto the first belt: its slip [s], the time it lost to the belt beyond its free fall
+    (``drop lag`` - sqrt(2 z / g)), with its run, hours post mortem, heading (cos of its yaw at the drop: +1
+    head downstream) and the belt's speed. Sliding alone it would be ``v / (2 mu g)``; landing and settling
+    add a part that hardly depends on the speed, so the speed is a nuisance term of the tests, not a divisor."""
+    rows = []
+    belt = dataset.line.conveyors[0]
+    for run in dataset.runs:
+        hours = _fish_hours(run)
+        logged = run.belts[run.belts["conveyor_id"] == belt.id]
+        tracks = run.tracks
+        for f in run.fish.itertuples(index=False):
+            t0, t1 = f.drop_t_s + DROP_READ_S[0], f.drop_t_s + DROP_READ_S[1]
+            tr = tracks[(tracks["fish_id"] == f.fish_id) & (tracks["t_s"] >= t0) & (tracks["t_s"] <= t1)]
+            tr = tr[tr["x_m"] + 0.5 * f.length_m < belt.x_end_m - EDGE_M]
+            v = logged[(logged["t_s"] >= f.drop_t_s) & (logged["t_s"] <= t1)]["speed_mps"]
+            if len(tr) < 5 or v.empty or float(v.median()) < 0.05:
+                continue
+            if crowding(tracks, f.fish_id, f.drop_t_s, t1, float(f.length_m)):
+                continue
+            speed = float(v.median())
+            lag_s = float(np.mean(f.drop_x_m + speed * (tr["t_s"].to_numpy(float) - f.drop_t_s)
+                                  - tr["x_m"].to_numpy(float))) / speed
+            fall_s = float(np.sqrt(2.0 * max(float(f.drop_z_m), 0.0) / G_MPS2))
+            rows.append({"run_id": run.id, "fish_id": f.fish_id, "hours_post_mortem": float(hours[f.fish_id]),
+                         "heading": float(np.cos(f.drop_yaw_rad)), "belt_speed_mps": speed,
+                         "slip_s": lag_s - fall_s})
+    return pd.DataFrame(rows, columns=["run_id", "fish_id", "hours_post_mortem", "heading", "belt_speed_mps",
+                                       "slip_s"])
+
+
+def passage_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per passage of a fish alone past a photo-eye: the share of it the beam was blocked, with run and hours."""
+    frames = []
+    for run in dataset.runs:
+        p = photoeye_passages(run.tracks, run.photoeyes, run.fish, dataset.line)
+        if len(p):
+            hours = _fish_hours(run)
+            frames.append(pd.DataFrame({"run_id": run.id, "fish_id": p["fish_id"].to_numpy(),
+                                        "sensor_id": p["sensor_id"].to_numpy(),
+                                        "hours_post_mortem": hours.reindex(p["fish_id"]).to_numpy(float),
+                                        "blocked": p["blocked"].to_numpy(float)}))
+    cols = ["run_id", "fish_id", "sensor_id", "hours_post_mortem", "blocked"]
+    return pd.concat(frames, ignore_index=True)[cols] if frames else pd.DataFrame(columns=cols)
+
+
+LOAD_GRID_S = 0.04
+"""Tracks are put on this grid (their own rate is about 25 Hz); a fish lost by the tracker for a moment (under
+another) is interpolated between its samples, so the load does not drop when the tracker loses it."""
+DRIVE_WINDOW_S = 0.5
+"""Belt speed and load are averaged over windows this long: droop follows a load that changes over tenths of a
+second, while an encoder's sample-to-sample noise is no droop."""
+SMOOTH_S = 0.12
+"""A fish's track is smoothed over +-this before its acceleration is read: a few mm of tracking noise at 25 Hz
+would otherwise be accelerations of metres per second squared."""
+DRIVE_SETTLE_S = 3.0
+"""A window counts only this long after the setpoint last changed: a drive's response to a step (a lag or a
+ramp) is not droop."""
+
+
+def belt_loads(run: Run, line: Line, t_s: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per conveyor at times ``t_s`` (a regular grid): the mass lying on it [kg] and the force with which it brings
+    fish up to its speed [N], from the tracked mid-points, yaws and the fish's weights: each fish's weight shared
+    between belts by how much of its length lies over each, and its mass times its acceleration (along the line,
+    where positive, over :data:`SMOOTH_S`) shared the same way."""
+    loads = {c.id: (np.zeros(len(t_s)), np.zeros(len(t_s))) for c in line.conveyors}
+    fish = run.fish.set_index("fish_id")
+    dt = float(t_s[1] - t_s[0]) if len(t_s) > 1 else LOAD_GRID_S
+    k = max(1, int(round(SMOOTH_S / dt)))
+    for fid, tr in run.tracks.groupby("fish_id", sort=False):
+        t = tr["t_s"].to_numpy(float)
+        inside = (t_s >= t[0]) & (t_s <= t[-1])
+        if not inside.any():
+            continue
+        x = np.interp(t_s[inside], t, tr["x_m"].to_numpy(float))
+        c = np.interp(t_s[inside], t, np.abs(np.cos(tr["yaw_rad"].to_numpy(float))))
+        xs = np.convolve(np.pad(x, k, mode="edge"), np.ones(2 * k + 1) / (2 * k + 1), mode="same")[k:-k]
+        accel = np.clip(np.gradient(np.gradient(xs, dt), dt), 0.0, None) if len(xs) > 2 else np.zeros(len(xs))
+        half = 0.5 * float(fish.loc[fid, "length_m"]) * np.maximum(c, 0.2)
+        weight = float(fish.loc[fid, "weight_kg"])
+        for conv in line.conveyors:
+            share = np.clip(np.minimum(x + half, conv.x_end_m) - np.maximum(x - half, conv.x_start_m), 0.0, None) / (
+                2.0 * half)
+            loads[conv.id][0][inside] += weight * share
+            loads[conv.id][1][inside] += weight * accel * share
+    return loads
+
+
+def drive_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per run, conveyor and window of :data:`DRIVE_WINDOW_S` with a settled setpoint: the logged speed's
+    shortfall from the setpoint as a share of it (``sag``), the mass on the belt [kg] and the force with which it
+    brings fish up to its speed [N] (:func:`belt_loads`)."""
+    rows = []
+    for run in dataset.runs:
+        b = run.belts
+        if b.empty:
+            continue
+        t_end = float(b["t_s"].max())
+        grid = np.arange(0.0, t_end, LOAD_GRID_S)
+        loads = belt_loads(run, dataset.line, grid)
+        for conv in dataset.line.conveyors:
+            log = b[b["conveyor_id"] == conv.id]
+            if len(log) < 10:
+                continue
+            t = log["t_s"].to_numpy(float)
+            sp = log["setpoint_mps"].to_numpy(float)
+            changed = np.concatenate([[t[0]], t[1:][np.abs(np.diff(sp)) > 1e-9]])
+            last_change = changed[np.searchsorted(changed, t, side="right") - 1]
+            ok = (t - last_change >= DRIVE_SETTLE_S) & (np.abs(sp) > 0.05)
+            if ok.sum() < 10:
+                continue
+            w = np.floor(t[ok] / DRIVE_WINDOW_S).astype(int)
+            frame = pd.DataFrame({"w": w, "t": t[ok], "sag": 1.0 - log["speed_mps"].to_numpy(float)[ok] / sp[ok]})
+            g = frame.groupby("w")
+            mean = g.mean()
+            enough = g.size() >= 0.5 * DRIVE_WINDOW_S / max(float(np.median(np.diff(t))), 1e-6)
+            mean = mean[enough]
+            mass, force = loads[conv.id]
+            per = int(round(DRIVE_WINDOW_S / LOAD_GRID_S))  # grid samples per window: the window's mean load
+            slices = [slice(w * per, (w + 1) * per) for w in mean.index.to_numpy()]
+            rows.append(pd.DataFrame({"run_id": run.id, "conveyor_id": conv.id, "t_s": mean["t"].to_numpy(),
+                                      "sag": mean["sag"].to_numpy(),
+                                      "load_kg": [float(np.mean(mass[sl])) if len(mass[sl]) else 0.0 for sl in slices],
+                                      "load_force_n": [float(np.mean(force[sl])) if len(force[sl]) else 0.0
+                                                       for sl in slices]}))
+    cols = ["run_id", "conveyor_id", "t_s", "sag", "load_kg", "load_force_n"]
+    return pd.concat(rows, ignore_index=True)[cols] if rows else pd.DataFrame(columns=cols)
+
+
+PAIR_AFTER_S = 1.5
+"""How long after the leading fish of a pair crosses a transfer their separation is read."""
+PAIR_SIDE_GAP_M = (0.02, 0.15)
+"""Side by side but not touching: the gap between the fish's flanks (from their mid-points' distance across the
+line less half their heights) within this range; touching: below zero. In between is left out: a few mm of
+tracking noise cannot tell touching from not."""
+
+
+def pair_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per pair of fish side by side (overlapping along the line by at least a quarter of the shorter) when the
+    leading one's mid-point crosses a transfer: how much of the belts' speed difference their separation gained
+    over :data:`PAIR_AFTER_S` (``growth``: 1 when each rode its own belt throughout), and whether they touched.
+    Without a force between fish in contact, touching pairs part as pairs with a gap do; adhesion holds them."""
+    from plant.fish_data import length_regressions
+    rows = []
+    conveyors = dataset.line.conveyors
+    for run in dataset.runs:
+        tracks = run.tracks
+        fish = run.fish.set_index("fish_id")
+        height = fish["height_m"] if "height_m" in fish.columns else pd.Series(np.nan, index=fish.index)
+        height = height.astype(float).fillna(pd.Series(length_regressions().height_m(fish["length_m"].to_numpy()),
+                                                       index=fish.index))
+        speed = {c.id: float(run.belts.loc[run.belts["conveyor_id"] == c.id, "speed_mps"].median())
+                 for c in conveyors}
+        by_fish = {fid: (m["t_s"].to_numpy(float), m["x_m"].to_numpy(float)) for fid, m in tracks.groupby("fish_id")}
+        for k, c in enumerate(conveyors[1:], start=1):
+            dv = speed[c.id] - speed[conveyors[k - 1].id]
+            if not np.isfinite(dv) or dv < 0.05:
+                continue
+            for fid, (t, x) in by_fish.items():
+                cross = np.flatnonzero((x[:-1] < c.x_start_m) & (x[1:] >= c.x_start_m))
+                if not len(cross):
+                    continue
+                tc = float(t[cross[0] + 1])
+                at = tracks[np.abs(tracks["t_s"] - tc) <= 0.03]
+                me = at[at["fish_id"] == fid]
+                if me.empty:
+                    continue
+                for o in at[at["fish_id"] != fid].drop_duplicates("fish_id").itertuples(index=False):
+                    dx = float(me["x_m"].iloc[0] - o.x_m)
+                    la, lb = float(fish.loc[fid, "length_m"]), float(fish.loc[o.fish_id, "length_m"])
+                    gap = abs(float(me["y_m"].iloc[0] - o.y_m)) - 0.5 * float(height[fid] + height[o.fish_id])
+                    if not (0.0 < dx < 0.5 * (la + lb) - 0.25 * min(la, lb)) or gap >= PAIR_SIDE_GAP_M[1]:
+                        continue
+                    if 0.0 <= gap < PAIR_SIDE_GAP_M[0]:
+                        continue
+                    to, xo = by_fish[o.fish_id]
+                    t1 = tc + PAIR_AFTER_S
+                    if t1 > t[-1] or t1 > to[-1]:
+                        continue
+                    sep = float(np.interp(t1, t, x) - np.interp(t1, to, xo))
+                    rows.append({"run_id": run.id, "conveyor_id": c.id, "leader": fid, "follower": o.fish_id,
+                                 "touching": float(gap < 0.0), "growth": (sep - dx) / (dv * PAIR_AFTER_S)})
+    cols = ["run_id", "conveyor_id", "leader", "follower", "touching", "growth"]
+    return pd.DataFrame(rows, columns=cols)
