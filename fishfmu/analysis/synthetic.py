@@ -38,12 +38,13 @@ SMALL_LINE = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
                   {"id": "pe3", "x_m": 3.12, "z_m": -0.025}]})
 SMALL_KPI = KpiSettings(outfeed_photoeye="pe3")
 SMALL_SPEEDS = [0.3, 0.7, 1.2]
-SMALL_RUNS = [(h, "sparse", 2) for h in (1.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 72.0)] + \
+SMALL_RUNS = [(h, "sparse", 5) for h in (1.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0, 72.0)] + \
              [(h, "pairs", 4) for h in (12.0, 20.0, 30.0, 40.0, 48.0, 66.0)]
-"""Fish alone at eight ages (what friction effects show in), and touching pairs in six runs (what adhesion
-shows in).  The held-out gain's interval is a bootstrap over the runs that carry the signal: with four
-pair runs its lower end was the worst run's gain, 0.0 on one machine and just above on another (a
-verdict decided by rounding); with six it is clear of zero by a margin the tests assert."""
+"""Fish alone at eight ages, five a run (what friction effects and rigor show in: 40 drops and some 120 passages
+of a fish alone past a beam, enough for a covariate test to tell an effect from chance), and touching pairs in
+six runs (what adhesion and droop show in).  The held-out gain's interval is a bootstrap over the runs that carry
+the signal: with four pair runs its lower end was the worst run's gain, 0.0 on one machine and just above on
+another (a verdict decided by rounding); with six it is clear of zero by a margin the tests assert."""
 
 
 def synthetic_base() -> PlantParams:
