@@ -1,4 +1,4 @@
-"""Output files fishfmu owns, by its manifest only: one test per promise (README, Guarantees and errors).
+"""Output files fishfmu owns, by its manifest only: one test per promise (docs/guarantees.md).
 
 Every test checks that the user's files are byte-identical afterwards.  Commands that are refused
 stop before simulating, so the subprocess calls are cheap; one real (0.5 s, one fish) run is made

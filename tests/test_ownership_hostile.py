@@ -1,5 +1,5 @@
 """The manifest and journal as a hostile or careless user leaves them, and files that must go through the
-atomic path (README, Guarantees and errors): nothing is fishfmu's without its size and hash, a manifest
+atomic path (docs/guarantees.md): nothing is fishfmu's without its size and hash, a manifest
 or journal fishfmu cannot read strictly is exit 2 naming it with nothing touched, and a file rewritten
 by fishfmu (a plot of a resumed sweep) is a new file: a hard link to the old one keeps what it held.
 
