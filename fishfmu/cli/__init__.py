@@ -399,7 +399,7 @@ def calibrate_cmd(
     workers: int | None = typer.Option(None, "--workers", help="Parallel processes (default: all cores)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
-    """Fit the line's base parameters (fish-belt friction, its gradient along the fish) on the runs with most
+    """Fit the line's constants (one friction level, one joint stiffening, the drives' ramps) on the runs with most
     fish alone, checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
     from fishfmu import commands
     from fishfmu.analysis.calibrate import summary_lines

@@ -21,7 +21,7 @@ there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled 
   the orchestrator (which stops the run where it decides and ends its workers); a worker ends when
   its socket closes, so it never outlives the orchestrator, even one killed outright.
 
-What it costs per step is measured by ``python -m fishfmu.bench.fmu_worker`` (see README).
+What it costs per step is measured by ``python -m fishfmu.bench.fmu_worker`` (see docs/performance.md).
 """
 
 from __future__ import annotations

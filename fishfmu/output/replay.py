@@ -14,7 +14,7 @@ into byte planes, so that slow or resting fish give long runs of zeros; all arra
 deflated together and base64-coded into the page, which inflates them with the browser's own
 ``DecompressionStream``.  A fish waiting to be dropped or gone from the line holds its nearest
 visible pose, which costs nothing after deflate.  A 60 s, 50-fish run gives a page of about
-0.5 MB, 0.7 MB if all 50 fish move for the whole minute (README, "Watching a run").
+0.5 MB, 0.7 MB if all 50 fish move for the whole minute (docs/replay.md).
 
 >>> codec_round_trip(np.array([[0, 5, -3, 70000, 69990]]))
 True
