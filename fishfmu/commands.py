@@ -331,7 +331,8 @@ def calibrate(dataset: str | Path, out: str | Path, scenario_file: str | Path | 
               workers: int | None = None, overwrite: bool = False,
               progress: Callable[[str], None] | None = None) -> CalibrateOutcome:
     """Fit the line's base parameters on ``dataset``; ``out`` gets ``calibrated.toml`` and ``calibration.json``."""
-    from fishfmu.analysis.calibrate import calibrate as calibrate_, write_calibration
+    from fishfmu.analysis.calibrate import calibrate as calibrate_
+    from fishfmu.analysis.calibrate_report import write_calibration
     c, params, paths, out_dir = _analysis_into(
         "calibrate", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
         lambda ds, params: calibrate_(ds, params, workers, progress=progress), write_calibration)

@@ -15,7 +15,8 @@ import pytest
 from plant.measured import Dataset, read_dataset, write_dataset
 from plant.params import PlantParams
 
-from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs, fit_knob, write_calibration
+from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs, fit_knob
+from fishfmu.analysis.calibrate_report import write_calibration
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, typed_frame
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_SPEEDS, make_dataset
 

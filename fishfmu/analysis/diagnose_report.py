@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from fishfmu.analysis.calibrate import calibration_document  # noqa: E402
+from fishfmu.analysis.calibrate_report import calibration_document  # noqa: E402
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, CandidateFit, Diagnosis  # noqa: E402
 from fishfmu.analysis.signatures import ALPHA, SUGGESTIVE, CovariateTest, significant  # noqa: E402

@@ -380,7 +380,7 @@ def diagnose_cmd(
                              progress=lambda text: err_console.print(text), calibrate=calibrate)
     d, paths = done.diagnosis, done.paths
     if d.calibration is not None:
-        from fishfmu.analysis.calibrate import summary_lines
+        from fishfmu.analysis.calibrate_report import summary_lines
         for line in summary_lines(d.calibration, d.calibration.base):
             literal_console().print("calibration: " + line)
     from fishfmu.analysis.diagnose_report import candidate_lines
@@ -402,7 +402,7 @@ def calibrate_cmd(
     """Fit the line's constants (one friction level, one joint stiffening, the drives' ramps) on the runs with most
     fish alone, checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
     from fishfmu import commands
-    from fishfmu.analysis.calibrate import summary_lines
+    from fishfmu.analysis.calibrate_report import summary_lines
     done = commands.calibrate(dataset, out, scenario, workers, overwrite, progress=lambda text: err_console.print(text))
     console = literal_console()
     for line in summary_lines(done.calibration, done.base):
