@@ -223,8 +223,8 @@ def replay(run_dir: str | Path, out: str | Path | None = None) -> Path:
 def _dataset_and_params(dataset: Path, scenario_file: Path | None):
     """The dataset, and the plant (and drive) parameters of ``scenario_file``: a whole scenario, or a fragment
     of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``)."""
-    from plant.measured import read_dataset
-    from plant.params import PlantParams
+    from plant.contract.measured import read_dataset
+    from plant.sim.params import PlantParams
     ds = read_dataset(dataset)
     if scenario_file is None:
         return ds, PlantParams(), None

@@ -71,8 +71,8 @@ from urllib.parse import urlparse
 import numpy as np
 
 from plant.errors import InputError, SimulationError, one_line
-from plant.plant import LEFT, ON_LINE, WAITING
-from plant.simulate import ClearWatch
+from plant.sim.plant import LEFT, ON_LINE, WAITING
+from plant.sim.simulate import ClearWatch
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, scenario_fish
 from fishfmu.cosim.master import CoSimulation

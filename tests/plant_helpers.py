@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from plant.fish_data import length_regressions
-from plant.line import Line
-from plant.population import FishSpec
+from plant.fish.fish_data import length_regressions
+from plant.contract.line import Line
+from plant.fish.population import FishSpec
 
 
 def straight_line(*belts: tuple[str, float, float, float], guide_width_m: float = 0.5,

@@ -81,7 +81,7 @@ def test_find_cycle_finds_a_cycle():
 def test_the_graph_sees_function_level_imports():
     graph = import_graph()
     assert "fishfmu.fmu.build" in graph["fishfmu.cosim.build"]  # imported inside fmu_path()
-    assert "plant.simulate" in graph["fishfmu.cosim.runner"]
+    assert "plant.sim.simulate" in graph["fishfmu.cosim.runner"]
 
 
 def test_no_import_cycle():
@@ -93,6 +93,34 @@ def test_plant_imports_nothing_from_fishfmu():
     bad = sorted(f"{m} -> {d}" for m, deps in import_graph().items() if m.split(".")[0] == "plant"
                  for d in deps if d.split(".")[0] == "fishfmu")
     assert not bad, "plant imports fishfmu: " + ", ".join(bad)
+
+
+PLANT_PARTS = [
+    {"plant", "plant.errors", "plant.validation"},  # shared: may import one another
+    {"plant.fish"},
+    {"plant.contract"},
+    {"plant.sim"},
+]
+"""The plant's three parts (plant/__init__.py), each a sub-package, after what all three share: the fish,
+then the measured-data and KPI contract (which knows the fish), then the line in Exudyn."""
+
+
+def _plant_part(module: str) -> str:
+    return ".".join(module.split(".")[:2])
+
+
+def test_the_plant_is_its_three_parts_in_order():
+    layer_of = {p: i for i, layer in enumerate(PLANT_PARTS) for p in layer}
+    bad = []
+    for m, deps in import_graph().items():
+        if m.split(".")[0] != "plant":
+            continue
+        a = _plant_part(m)
+        assert a in layer_of, f"{m}: not in one of the plant's parts (PLANT_PARTS)"
+        bad += [f"{m} -> {d}" for d in deps if d.split(".")[0] == "plant" and _plant_part(d) != a
+                and layer_of[_plant_part(d)] > layer_of[a]]
+    assert not bad, "plant imports against its parts' order: " + ", ".join(sorted(bad))
+    assert "plant.fish.population" in import_graph()["plant.contract.measured"]  # the check sees real imports
 
 
 LAYERS = [

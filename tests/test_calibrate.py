@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant.measured import Dataset, read_dataset, write_dataset
-from plant.params import PlantParams
+from plant.contract.measured import Dataset, read_dataset, write_dataset
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs, fit_knob
 from fishfmu.analysis.calibrate_report import write_calibration

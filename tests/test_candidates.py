@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from plant.extensions import RigorMortis
-from plant.params import PlantParams
+from plant.fish.extensions import RigorMortis
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidates import CANDIDATES, fragment
 from fishfmu.analysis.levels import rigor_index, rigor_limit_loss

@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from plant.kpis import compute_kpis
-from plant.measured import read_dataset
+from plant.contract.kpis import compute_kpis
+from plant.contract.measured import read_dataset
 
 from fishfmu.output.run_folder import prepare_out_dir, write_outputs
 from fishfmu.cosim.runner import run_scenario

@@ -19,9 +19,9 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError, SimulationError
-from plant.measured import read_dataset, write_dataset
-from plant.plausibility import MAX_RESIM_S
-from plant.state import FishStatus
+from plant.contract.measured import read_dataset, write_dataset
+from plant.contract.plausibility import MAX_RESIM_S
+from plant.sim.state import FishStatus
 
 from tests.test_measured import small_dataset  # noqa: F401 (a fixture, used by name)
 
@@ -179,7 +179,7 @@ def test_replay_of_a_corrupt_poses_npz_exits_2(small_dataset: Path, tmp_path: Pa
 
 # ------------------------------------------------------------------------- CSV text
 def test_quoted_crlf_csv_reads_and_a_trailing_comma_in_it_names_the_row(tmp_path: Path):
-    from plant.measured import PHOTOEYES, read_table
+    from plant.contract.measured import PHOTOEYES, read_table
     path = tmp_path / "photoeyes.csv"
     path.write_bytes(b'\xef\xbb\xbfsensor_id,t_on_s,t_off_s\r\n"pe_in",1.2,2.4\r\n\r\n"pe,out",8.0,9.0\r\n')
     df = read_table(path, PHOTOEYES)

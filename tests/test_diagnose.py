@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from plant.measured import read_dataset
+from plant.contract.measured import read_dataset
 
 from fishfmu.analysis.diagnose import diagnose
 from fishfmu.analysis.diagnose_report import write_diagnosis

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from plant.measured import Dataset, read_dataset, write_dataset
+from plant.contract.measured import Dataset, read_dataset, write_dataset
 
 from fishfmu.analysis.calibrate import choose_fit_runs, measured_rows
 from fishfmu.analysis.diagnose import diagnose

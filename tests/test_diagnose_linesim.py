@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant.measured import read_dataset
-from plant.params import PlantParams
+from plant.contract.measured import read_dataset
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.diagnose import simulated_dataset
 from fishfmu.analysis.resim import resimulate_many

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from plant.measured import FISH, Dataset, Run, empty_table, read_dataset
+from plant.contract.measured import FISH, Dataset, Run, empty_table, read_dataset
 
 from fishfmu.analysis.drive_response import STARTUP_MAX_S, fit_drive_responses, startup
 from fishfmu.analysis.resim import drive_response

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant.extensions import (FRICTION_LEVELS, Adhesion, DirectionFriction, adhesion_forces,
+from plant.fish.extensions import (FRICTION_LEVELS, Adhesion, DirectionFriction, adhesion_forces,
                               direction_friction_levels, friction_level)
 
 ADHESION = Adhesion(force_n=2.0, range_m=0.004)
@@ -67,7 +67,7 @@ def test_a_fish_riding_with_its_belt_keeps_its_level():
 
 
 def test_a_friction_gradient_grades_the_bodies_from_head_to_fin_around_the_fish_level():
-    from plant.extensions import body_friction_levels
+    from plant.fish.extensions import body_friction_levels
     level = int(friction_level(1.0))
     assert body_friction_levels(level, 0.0).tolist() == [level] * 5  # no gradient: the fish's level, untouched
     multipliers = FRICTION_LEVELS[body_friction_levels(level, 0.5)]

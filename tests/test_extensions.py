@@ -1,4 +1,4 @@
-"""The model extensions (plant.extensions) do what their physics says, checked against hand values."""
+"""The model extensions (plant.fish.extensions) do what their physics says, checked against hand values."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from plant.params import PlantParams
-from plant.plant import Plant
-from plant.simulate import simulate_plant
+from plant.sim.params import PlantParams
+from plant.sim.plant import Plant
+from plant.sim.simulate import simulate_plant
 from tests.plant_helpers import fish, straight_line
 from tests.test_plant_physics import G, speed_of
 
@@ -59,7 +59,7 @@ def test_rigor_mortis_stiffens_the_joints_by_its_index_of_the_hours_post_mortem(
     params.extensions.rigor_mortis.stiffness_gain = gain
     params.extensions.rigor_mortis.peak_h = 24.0  # the test fish is 24 h post mortem: full rigor
     line = straight_line(("c1", 0.0, 1.5, 0.0))
-    from plant.fish_body import fish_geometry
+    from plant.fish.fish_body import fish_geometry
     f0 = fish(length_m=0.6)
     g = fish_geometry(f0.length_m, f0.height_m, f0.width_m, f0.weight_kg)
     f = fish(length_m=0.6, x_m=1.5 - 0.035 - (g.mid_from_snout_m - g.joint_from_snout_m[0]))

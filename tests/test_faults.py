@@ -19,9 +19,9 @@ import psutil
 import pytest
 
 from plant.errors import SimulationError
-from plant.health import EnergyWatch, spring_reserve_j
-from plant.measured import read_dataset
-from plant.plant import Plant
+from plant.sim.health import EnergyWatch, spring_reserve_j
+from plant.contract.measured import read_dataset
+from plant.sim.plant import Plant
 from tests.plant_helpers import fish, straight_line
 
 from fishfmu.cosim.runner import run_scenario
@@ -158,8 +158,8 @@ def test_unstable_integration_step_is_stopped_by_the_energy_watch_before_the_spe
     assert result.status == "failed"
     assert "numerical blow-up: the fish gained" in result.error and "fish 'f01'" in result.error
     assert len(result.signals) > 300 and result.signals.t_s.iloc[-1] == pytest.approx(result.t_end_s)
-    import plant.health
-    monkeypatch.setattr(plant.health, "RESERVE_MIN_J", 1e12)
+    import plant.sim.health
+    monkeypatch.setattr(plant.sim.health, "RESERVE_MIN_J", 1e12)
     late = run_scenario(sc)
     assert "moves at" in late.error and late.t_end_s > result.t_end_s  # the speed check alone: later
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant import fish_data
-from plant.fish_body import _spheres_overlap_at_limits, fish_geometry
-from plant.fish_data import length_regressions
-from plant.joints import JointLaws, joint_laws, linearize, tangent, torque
-from plant.params import PlantParams
-from plant.plant import Plant
-from plant.population import PopulationSpec, fish_size, sample_fish
+from plant.fish import fish_data
+from plant.fish.fish_body import _spheres_overlap_at_limits, fish_geometry
+from plant.fish.fish_data import length_regressions
+from plant.sim.joints import JointLaws, joint_laws, linearize, tangent, torque
+from plant.sim.params import PlantParams
+from plant.sim.plant import Plant
+from plant.fish.population import PopulationSpec, fish_size, sample_fish
 from tests.plant_helpers import fish, straight_line
 
 SIZES = [(0.42, 0.09, 0.04, 0.57), (0.60, 0.14, 0.065, 2.0), (0.68, 0.18, 0.08, 3.698)]

@@ -25,7 +25,7 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError
-from plant.measured import read_dataset
+from plant.contract.measured import read_dataset
 from tests.test_faults import PAPER, faulty_overrides, write_scenario
 
 from fishfmu.fmu.archive import open_fmu

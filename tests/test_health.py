@@ -1,4 +1,4 @@
-"""The plant's health checks on hand-made states (no Exudyn): :func:`plant.health.check_health`
+"""The plant's health checks on hand-made states (no Exudyn): :func:`plant.sim.health.check_health`
 (non-finite, too fast, outside the guides, through a belt, but not over the end drum) and the
 energy watch with its spring reserve worked out by hand."""
 
@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from plant.errors import SimulationError
-from plant.health import EnergyWatch, check_health, floor_below, spring_reserve_j
-from plant.line import Line
-from plant.state import FishStatus, PlantOutputs, PlantState
+from plant.sim.health import EnergyWatch, check_health, floor_below, spring_reserve_j
+from plant.contract.line import Line
+from plant.sim.state import FishStatus, PlantOutputs, PlantState
 
 WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
 

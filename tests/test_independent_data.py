@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError
-from plant.measured import read_dataset
+from plant.contract.measured import read_dataset
 
 DATA = Path(__file__).parents[2] / "shared" / "data"
 TRUTHS = sorted((DATA / "dev").glob("*.truth.json"))

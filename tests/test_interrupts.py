@@ -114,9 +114,9 @@ def test_sweep_ctrl_c_to_the_process_group_keeps_the_folder_resumable(tmp_path):
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
-    from plant.line import KpiSettings
-    from plant.measured import Dataset, Run, write_dataset
-    from plant.simulate import simulate_plant
+    from plant.contract.line import KpiSettings
+    from plant.contract.measured import Dataset, Run, write_dataset
+    from plant.sim.simulate import simulate_plant
 
     from tests.plant_helpers import fish, straight_line
     line = straight_line(("c1", 0.0, 1.5, 0.0), ("c2", 1.51, 1.5, -0.02),

@@ -12,10 +12,10 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError
-from plant.kpis import compute_kpis, kpis_from_passages, paper_rounded, round_half_up, singulation_table
-from plant.line import KpiSettings, Line
-from plant.measured import PHOTOEYES, TRACKS, Run, empty_table
-from plant.passages import arrival_times, blocked_periods, passages
+from plant.contract.kpis import compute_kpis, kpis_from_passages, paper_rounded, round_half_up, singulation_table
+from plant.contract.line import KpiSettings, Line
+from plant.contract.measured import PHOTOEYES, TRACKS, Run, empty_table
+from plant.contract.passages import arrival_times, blocked_periods, passages
 
 V_MPS = 1.0
 

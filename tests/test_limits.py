@@ -59,7 +59,7 @@ def test_a_dataset_csv_over_the_limit_is_refused_before_it_is_read(tmp_path):
         fh.truncate(MAX_CSV_BYTES + 1)
     with pytest.raises(InputError, match="at most 512 MB"):
         file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")
-    from plant.measured import _read_text
+    from plant.contract.measured import _read_text
     with pytest.raises(InputError, match="at most 512 MB"):
         _read_text(path)
 

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 
 from plant.errors import InputError, SimulationError
-from plant.plant import PlantOutputs
+from plant.sim.plant import PlantOutputs
 
 from fishfmu.cosim.master import CoSimulation
 from fishfmu.scenario.schema import Event

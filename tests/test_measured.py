@@ -12,9 +12,9 @@ import pandas as pd
 import pytest
 
 from plant.errors import InputError
-from plant.fish_data import length_regressions
-from plant.kpis import compute_kpis
-from plant.measured import Run, read_dataset, write_dataset, write_run
+from plant.fish.fish_data import length_regressions
+from plant.contract.kpis import compute_kpis
+from plant.contract.measured import Run, read_dataset, write_dataset, write_run
 
 PILOT_A = Path(__file__).parents[2] / "shared" / "data" / "pilot_a"
 
@@ -281,7 +281,7 @@ BAD_INPUTS = {
                                                                 'outfeed_photoeye = "pe_end"'),
                                           ["dataset.toml", "kpi", "'pe_end' is not a photo-eye"]),
     "TOML syntax": (lambda r: _edit_toml(r, "[kpi]", "[kpi"), ["dataset.toml", "TOML syntax error"]),
-    # physically implausible: refused before anything is simulated (plant.measured's bounds)
+    # physically implausible: refused before anything is simulated (plant.contract.measured's bounds)
     "drop outside the guides": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 1, "drop_y_m", 0.4)),
                                 ["r1/fish.csv", "row 3, column drop_y_m", "outside the side guides"]),
     "drop beyond the line": (lambda r: _edit_csv(r, "r1", "fish", _set("fish", 0, "drop_x_m", 7.5)),

@@ -15,7 +15,7 @@ pytest.importorskip("pythonfmu")
 from fishfmu.cosim.build import scenario_fish  # noqa: E402
 from fishfmu.cosim.runner import run_scenario  # noqa: E402
 from fishfmu.scenario.schema import load_scenario  # noqa: E402
-from plant.plant import Plant  # noqa: E402
+from plant.sim.plant import Plant  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_dump.toml"

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from plant.params import PlantParams
-from plant.plant import Plant
-from plant.population import PopulationSpec, sample_fish
-from plant.simulate import simulate_plant
-from plant.state import FishStatus
+from plant.sim.params import PlantParams
+from plant.sim.plant import Plant
+from plant.fish.population import PopulationSpec, sample_fish
+from plant.sim.simulate import simulate_plant
+from plant.sim.state import FishStatus
 from tests.plant_helpers import fish, straight_line
 
 G = 9.81

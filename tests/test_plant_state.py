@@ -1,4 +1,4 @@
-"""The state the plant publishes after each step (:class:`plant.state.PlantState`, ``plant.state``):
+"""The state the plant publishes after each step (:class:`plant.sim.state.PlantState`, ``plant.state``):
 read-only, a true snapshot (later steps do not change it), consistent with the physics, and enough
 for the energy watch without the plant."""
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from plant.errors import SimulationError
-from plant.health import EnergyWatch
-from plant.params import PlantParams
-from plant.plant import Plant
-from plant.state import FishStatus, PlantOutputs, PlantState
+from plant.sim.health import EnergyWatch
+from plant.sim.params import PlantParams
+from plant.sim.plant import Plant
+from plant.sim.state import FishStatus, PlantOutputs, PlantState
 from tests.plant_helpers import fish, straight_line
 
 G = 9.81

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from plant.population import PopulationSpec, sample_fish
+from plant.fish.population import PopulationSpec, sample_fish
 
 
 def _fish(**kw):

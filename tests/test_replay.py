@@ -15,8 +15,8 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from typer.testing import CliRunner
 
-from plant.measured import read_dataset
-from plant.state import FishStatus
+from plant.contract.measured import read_dataset
+from plant.sim.state import FishStatus
 
 from fishfmu.cli import app
 from fishfmu.output.run_folder import prepare_out_dir, write_outputs

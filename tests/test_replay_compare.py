@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from plant.line import KpiSettings
-from plant.measured import Dataset, Run, read_dataset, write_dataset
-from plant.simulate import simulate_plant
+from plant.contract.line import KpiSettings
+from plant.contract.measured import Dataset, Run, read_dataset, write_dataset
+from plant.sim.simulate import simulate_plant
 
 from fishfmu.analysis.compare import compare_dataset, write_comparison
 from fishfmu.output.replay import read_header, unpack

@@ -16,8 +16,8 @@ from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTY
                                PASSAGE_RESIDUAL_DTYPES, TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed,
                                drive_residuals, drive_residuals_averaged, pair_residuals, passage_residuals,
                                photoeye_passages, track_errors, typed_frame, MIN_PASSAGE_SE)
-from plant.line import Line
-from plant.measured import Run
+from plant.contract.line import Line
+from plant.contract.measured import Run
 
 # Two belts end to end: "a" from x = 0 to 2 m, "b" from 2 to 6 m (the transfer at x = 2).
 LINE = Line.model_validate({

@@ -21,7 +21,7 @@ import pytest
 asyncua = pytest.importorskip("asyncua")
 from asyncua import Client, ua  # noqa: E402
 
-from plant.kpis import KPI_KEYS  # noqa: E402
+from plant.contract.kpis import KPI_KEYS  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SERVED = ROOT / "scenarios" / "paper_opcua.toml"

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from plant.kpis import KPI_KEYS, KPIS, SHOWN_KPI_KEYS, kpi_keys, kpis_from_passages
+from plant.contract.kpis import KPI_KEYS, KPIS, SHOWN_KPI_KEYS, kpi_keys, kpis_from_passages
 from plant.validation import suggest
 
 from fishfmu.output.run_folder import junit_args_of_run, write_junit

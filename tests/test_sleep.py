@@ -1,4 +1,4 @@
-"""Sleeping fish (plant.sleep) against the fully integrated plant: a fish riding alone is carried
+"""Sleeping fish (plant.sim.sleep) against the fully integrated plant: a fish riding alone is carried
 with its belt, woken before a belt speed change friction could not follow at ease, before a transfer,
 and ends where the integrated fish ends."""
 
@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from plant.params import PlantParams
-from plant.plant import Plant
-from plant.sleep import box_gap, riding
+from plant.sim.params import PlantParams
+from plant.sim.plant import Plant
+from plant.sim.sleep import box_gap, riding
 from tests.plant_helpers import fish, straight_line
 
 LINE = straight_line(("c1", 0.0, 4.0, 0.0), ("c2", 4.01, 1.5, -0.02))

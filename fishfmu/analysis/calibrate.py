@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.measured import Dataset, Run
-from plant.params import PlantParams
+from plant.contract.measured import Dataset, Run
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.drive_response import DriveResponseFit, fit_drive_responses

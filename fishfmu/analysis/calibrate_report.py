@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from plant.params import PlantParams
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, Calibration, findings
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic

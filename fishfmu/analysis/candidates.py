@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 
-from plant.params import PlantParams
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.levels import rigor_limit_loss
 

@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from plant.kpis import KPI_KEYS as ALL_KPI_KEYS, arrival_times, compute_kpis
-from plant.measured import Dataset, Run
-from plant.params import PlantParams
+from plant.contract.kpis import KPI_KEYS as ALL_KPI_KEYS, arrival_times, compute_kpis
+from plant.contract.measured import Dataset, Run
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.residuals import concat_typed, drive_residuals, track_errors, typed_frame
 from fishfmu.session import Interrupted
@@ -153,7 +153,7 @@ def write_replays(c: Comparison, folder: Path) -> dict[str, Path]:
 def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     """Tables (CSV), plots (PNG), a report (HTML), the simulated runs (measured-data format) and a
     3D replay page per run (``replay/``)."""
-    from plant.measured import write_dataset
+    from plant.contract.measured import write_dataset
 
     from fishfmu.analysis.compare_report import write_compare_report
     from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic

@@ -27,8 +27,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.measured import Dataset, Run
-from plant.params import PlantParams
+from plant.contract.measured import Dataset, Run
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, Calibration, calibrate_with_pool
 from fishfmu.analysis.candidates import CANDIDATES, Candidate, fragment, plant_tables, plant_value

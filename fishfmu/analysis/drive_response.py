@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant.measured import Dataset, Run
+from plant.contract.measured import Dataset, Run
 
 from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 

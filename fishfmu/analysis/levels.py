@@ -58,8 +58,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pandas as pd
 
-from plant.extensions import stiffening_limit_loss
-from plant.params import PlantParams
+from plant.fish.extensions import stiffening_limit_loss
+from plant.sim.params import PlantParams
 
 from fishfmu.analysis.fitting import gain_with_ci
 from fishfmu.analysis.residuals import RunResiduals, alone

@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from plant.line import Line
-from plant.measured import Dataset, Run
+from plant.contract.line import Line
+from plant.contract.measured import Dataset, Run
 
 from fishfmu.analysis.residuals import EDGE_M, crowding, photoeye_passages
 
@@ -177,7 +177,7 @@ def pair_rows(dataset: Dataset) -> pd.DataFrame:
     leading one's mid-point crosses a transfer: how much of the belts' speed difference their separation gained
     over :data:`PAIR_AFTER_S` (``growth``: 1 when each rode its own belt throughout), and whether they touched.
     Without a force between fish in contact, touching pairs part as pairs with a gap do; adhesion holds them."""
-    from plant.fish_data import length_regressions
+    from plant.fish.fish_data import length_regressions
     rows = []
     conveyors = dataset.line.conveyors
     for run in dataset.runs:

@@ -34,8 +34,8 @@ import pandas as pd
 
 from dataclasses import dataclass, field
 
-from plant.line import Line
-from plant.measured import Dataset, Run
+from plant.contract.line import Line
+from plant.contract.measured import Dataset, Run
 
 EDGE_M = 0.05
 """A fish counts as lying on a belt when its ends are this far inside the belt's ends."""
@@ -152,7 +152,7 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
     """Pairs of fish touching (side by side within their heights, overlapping along the line) when the
     leading one's mid-point crosses a transfer: separation along the line ``after_s`` later, simulated
     minus measured."""
-    from plant.fish_data import length_regressions
+    from plant.fish.fish_data import length_regressions
     rows = []
     tracks = run.tracks
     fish = run.fish.set_index("fish_id")

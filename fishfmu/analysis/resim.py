@@ -25,12 +25,12 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.line import Line
-from plant.measured import Dataset, Run
-from plant.params import PlantParams
-from plant.plausibility import MAX_RESIM_S
-from plant.population import fish_from_frame
-from plant.simulate import SimulatedRun, simulate_plant
+from plant.contract.line import Line
+from plant.contract.measured import Dataset, Run
+from plant.sim.params import PlantParams
+from plant.contract.plausibility import MAX_RESIM_S
+from plant.contract.measured import fish_from_frame
+from plant.sim.simulate import SimulatedRun, simulate_plant
 
 from fishfmu.analysis.residuals import residuals_of
 

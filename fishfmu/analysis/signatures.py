@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.measured import Dataset
+from plant.contract.measured import Dataset
 
 from fishfmu.analysis.observations import drive_rows, drop_rows, pair_rows, passage_rows
 

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from plant.line import KpiSettings, Line
-from plant.measured import Dataset, Run, write_dataset
-from plant.params import PlantParams
-from plant.population import FishSpec, fish_size
+from plant.contract.line import KpiSettings, Line
+from plant.contract.measured import Dataset, Run, write_dataset
+from plant.sim.params import PlantParams
+from plant.fish.population import FishSpec, fish_size
 
 from fishfmu.analysis.candidates import CANDIDATES
 

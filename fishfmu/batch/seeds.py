@@ -20,7 +20,7 @@ from typing import Any
 import pandas as pd
 
 from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
-from plant.kpis import KPI_KEYS
+from plant.contract.kpis import KPI_KEYS
 
 from fishfmu.cosim.results import ExpectResult
 from fishfmu.scenario.schema import load_scenario

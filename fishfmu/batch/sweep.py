@@ -37,7 +37,7 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.kpis import KPI_KEYS
+from plant.contract.kpis import KPI_KEYS
 
 from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle, progress_bar
 from fishfmu.session import STOPS

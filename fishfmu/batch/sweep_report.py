@@ -12,13 +12,13 @@ import pandas as pd
 from rich.console import Console
 from rich.table import Table
 
-from plant.kpis import kpi_keys
+from plant.contract.kpis import kpi_keys
 
 from fishfmu.terminal import labelled
 
 PLOT_KPIS = kpi_keys("singulation_rate", "throughput_time_s", "fpm_in", "fpm_out", "singulated", "lost",
                      "gap_min_m", "gap_p10_m", "gap_median_m")
-"""the headline rates and times first (names checked against :data:`plant.kpis.KPI_KEYS`)"""
+"""the headline rates and times first (names checked against :data:`plant.contract.kpis.KPI_KEYS`)"""
 TABLE_KPIS = kpi_keys("singulation_rate", "throughput_time_s", "fpm_out")
 MAX_LEGEND = 8
 

@@ -22,7 +22,7 @@ from typing import Any
 
 import pandas as pd
 
-from plant.measured import read_dataset
+from plant.contract.measured import read_dataset
 
 from fishfmu.analysis.diagnose import diagnose
 from fishfmu.analysis.synthetic import (EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset,

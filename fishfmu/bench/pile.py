@@ -78,7 +78,7 @@ def bench_scenario(n_fish: int, comm_step_s: float, threads: int):
 
 def run_case(n_fish: int, duration_s: float, comm_step_s: float, threads: int) -> BenchRecord:
     """Measure one fish count in this process (see the module docstring)."""
-    from plant.plant import Plant
+    from plant.sim.plant import Plant
 
     from fishfmu.cosim.build import build, checked, scenario_fish
     from fishfmu.cosim.master import StageClock

@@ -71,7 +71,7 @@ def print_kpis(result, console: Console) -> None:
     """The KPIs as a table, then each [expect] bound with its outcome."""
     from rich.table import Table
 
-    from plant.kpis import SHOWN_KPI_KEYS
+    from plant.contract.kpis import SHOWN_KPI_KEYS
     table = Table(title=f"KPIs: {result.scenario.run.name} (seed {result.scenario.run.seed})")
     table.add_column("KPI")
     table.add_column("value", justify="right")
@@ -250,7 +250,7 @@ def check_cmd(
 
 
 def _print_seeds(result, scenario: Path, out_dir: Path) -> None:
-    from plant.kpis import SHOWN_KPI_KEYS
+    from plant.contract.kpis import SHOWN_KPI_KEYS
 
     from fishfmu.batch.sweep_report import print_statistics
     console = literal_console()

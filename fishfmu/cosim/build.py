@@ -26,9 +26,9 @@ from typing import Any
 import numpy as np
 
 from plant.errors import InputError, SimulationError
-from plant.plant import Plant
-from plant.population import FishSpec, sample_fish
-from plant.recorder import RunRecorder
+from plant.sim.plant import Plant
+from plant.fish.population import FishSpec, sample_fish
+from plant.sim.recorder import RunRecorder
 
 from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock
 from fishfmu.cosim.preflight import describe, preflight

@@ -6,7 +6,7 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
    its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
 3. set the belt speeds from their sources and step the plant; check that the fish gained no
-   energy without a source (:mod:`plant.health`: a blow-up stops the run within this step);
+   energy without a source (:mod:`plant.sim.health`: a blow-up stops the run within this step);
 4. record every connected signal at t + dt (and the run in the measured-data format).
 
 An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
@@ -30,10 +30,10 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import SimulationError
-from plant.health import EnergyWatch
-from plant.plant import Plant
-from plant.state import PlantOutputs
-from plant.recorder import RunRecorder
+from plant.sim.health import EnergyWatch
+from plant.sim.plant import Plant
+from plant.sim.state import PlantOutputs
+from plant.sim.recorder import RunRecorder
 
 from fishfmu.scenario.schema import Event
 from fishfmu.scenario.wiring import PLANT, Connection, Wiring, signal_names

@@ -9,7 +9,7 @@ Exudyn.
 
 Variables (named as the plant's ports in a scenario's wiring):
 
-* inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
+* inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.contract.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
 * outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg),
   and counts so far: ``fish_dropped``, ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
   ``outfeed_count`` (fish heads seen at the scenario's outfeed photo-eye: its blocked edges);
@@ -42,9 +42,9 @@ import numpy as np
 from pydantic import BaseModel
 
 from plant.errors import InputError, SimulationError, one_line
-from plant.plant import LEFT, ON_LINE, WAITING, Plant
-from plant.plausibility import MAX_BELT_SPEED_MPS
-from plant.population import PopulationSpec
+from plant.sim.plant import LEFT, ON_LINE, WAITING, Plant
+from plant.contract.plausibility import MAX_BELT_SPEED_MPS
+from plant.fish.population import PopulationSpec
 
 from fishfmu.cosim.build import scenario_fish
 from fishfmu.scenario.schema import RunSettings, Scenario, load_scenario, resolved_toml

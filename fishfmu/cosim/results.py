@@ -12,8 +12,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from plant.measured import Dataset, Run
-from plant.population import FishSpec
+from plant.contract.measured import Dataset, Run
+from plant.fish.population import FishSpec
 
 from fishfmu.scenario.schema import Scenario
 
@@ -60,9 +60,9 @@ class RunResult:
     timings_s: dict[str, float] = field(default_factory=dict)
     drop_adjustments: list[Any] = field(default_factory=list)
     poses: dict[str, np.ndarray] | None = None
-    """Body poses at 25 Hz and body outlines (see :func:`plant.recorder.pose_record`), when asked for."""
+    """Body poses at 25 Hz and body outlines (see :func:`plant.sim.recorder.pose_record`), when asked for."""
     energy_watch: dict[str, float] = field(default_factory=dict)
-    """The energy watch's largest rise without a source (:mod:`plant.health`): J, and as a fraction
+    """The energy watch's largest rise without a source (:mod:`plant.sim.health`): J, and as a fraction
     of the allowed reserve (a blow-up is reported at 1)."""
     wiring: dict[str, Any] = field(default_factory=dict)
     """The stepping order, delayed links, conversions, setpoints and recorded variables

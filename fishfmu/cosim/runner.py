@@ -20,12 +20,13 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import SimulationError
-from plant.kpis import compute_kpis
-from plant.measured import Run
-from plant.plant import Plant
-from plant.population import FishSpec, fish_to_frame
-from plant.recorder import RunRecorder, pose_record
-from plant.simulate import run_loop
+from plant.contract.kpis import compute_kpis
+from plant.contract.measured import Run
+from plant.sim.plant import Plant
+from plant.contract.measured import fish_to_frame
+from plant.fish.population import FishSpec
+from plant.sim.recorder import RunRecorder, pose_record
+from plant.sim.simulate import run_loop
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, checked, scenario_fish
 from fishfmu.cosim.stop import StopRequest

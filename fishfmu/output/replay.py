@@ -36,10 +36,10 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.fish_data import length_regressions
-from plant.line import Line
-from plant.measured import Run, read_dataset
-from plant.state import FishStatus
+from plant.fish.fish_data import length_regressions
+from plant.contract.line import Line
+from plant.contract.measured import Run, read_dataset
+from plant.sim.state import FishStatus
 
 POS_UNIT_M = 0.001
 """Position quantum: 1 mm, below what a screen shows of a 6 m line (and the tracking noise)."""
@@ -169,7 +169,7 @@ def _photoeye_intervals(photoeyes: pd.DataFrame, ids: list[str]) -> dict[str, li
 
 
 Measured = Run | tuple[pd.DataFrame, pd.DataFrame] | tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]
-"""A measured run to draw with the simulated one: a :class:`plant.measured.Run`, or its ``(fish, tracks)``
+"""A measured run to draw with the simulated one: a :class:`plant.contract.measured.Run`, or its ``(fish, tracks)``
 or ``(fish, tracks, photoeyes)`` tables in the measured-data format."""
 
 
@@ -226,7 +226,7 @@ def scene(run_dir: Path, measured: Measured | None = None) -> tuple[dict[str, An
 
 POSE_ARRAYS = {"t_s": 1, "pos": 3, "quat": 3, "status": 2, "fish_id": 1, "body_fish": 1, "section_body": 1,
                "section_x": 1, "section_half_height": 1, "section_half_width": 1}
-"""The arrays of poses.npz and their number of dimensions (:func:`plant.recorder.pose_record`)."""
+"""The arrays of poses.npz and their number of dimensions (:func:`plant.sim.recorder.pose_record`)."""
 
 
 def read_poses(path: Path) -> dict[str, np.ndarray]:
@@ -282,7 +282,7 @@ def read_poses(path: Path) -> dict[str, np.ndarray]:
 def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measured: Measured | None = None,
                 run_id: str | None = None) -> tuple[dict[str, Any], str]:
     """The page's header and packed arrays from a simulated ``run`` (its belts and photo-eyes tables)
-    and its body poses ``p`` (the arrays of poses.npz: :func:`plant.recorder.pose_record`)."""
+    and its body poses ``p`` (the arrays of poses.npz: :func:`plant.sim.recorder.pose_record`)."""
     if len(p["t_s"]) == 0:
         raise InputError(f"run {run.id}: no pose frames recorded")
     stride = frame_stride(p["t_s"])
@@ -359,7 +359,7 @@ def write_replay(run_dir: str | Path, out_file: str | Path | None = None, measur
     """Write the run in ``run_dir`` (a ``fishfmu run --replay`` folder) as one HTML page that replays it
     in 3D; returns its path (``run_dir/replay.html`` unless ``out_file``).
 
-    ``measured``: optionally a measured run (a :class:`plant.measured.Run`, or its ``(fish, tracks)``
+    ``measured``: optionally a measured run (a :class:`plant.contract.measured.Run`, or its ``(fish, tracks)``
     or ``(fish, tracks, photoeyes)`` tables) drawn with the simulated fish: each tracked fish as a
     translucent ghost, its outline ``length_m`` x ``height_m`` seen from above (a salmon lies on its
     side) and ``width_m`` thick, at its tracked mid-point and heading; hidden before its first and

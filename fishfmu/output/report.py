@@ -16,8 +16,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from plant.kpis import singulation_table  # noqa: E402
-from plant.passages import belt_speed_fn, passages  # noqa: E402
+from plant.contract.kpis import singulation_table  # noqa: E402
+from plant.contract.passages import belt_speed_fn, passages  # noqa: E402
 
 from fishfmu.cosim.results import RunResult  # noqa: E402
 

@@ -22,7 +22,7 @@ from typing import Any, Iterable, Sequence
 from xml.etree import ElementTree as ET
 
 
-from plant.measured import write_dataset
+from plant.contract.measured import write_dataset
 
 from fishfmu.output import manifest, ownership
 from fishfmu.output.atomic import MARKER, json_safe, write_json_atomic, write_run_info, write_text_atomic
@@ -109,7 +109,7 @@ def _write_outputs(result: RunResult, out: Path, partial: bool, report: bool) ->
         write_report(result, out)
     import fmpy
 
-    from plant.model import exu  # where exudyn is imported (a missing system library is reported there)
+    from plant.sim.model import exu  # where exudyn is imported (a missing system library is reported there)
     write_run_info(
         out, "partial" if partial else result.status,
         error=result.error,

@@ -4,9 +4,9 @@ A scenario is one TOML file (see ``scenarios/``).  Its tables:
 
 ========== =====================================================================================
 ``[run]``   duration, seed, communication step, coupling scheme, when to stop
-``[line]``  the line, exactly as in contracts/measured-data.md (:class:`plant.line.Line`)
-``[fish]``  the batch (:class:`plant.population.PopulationSpec`)
-``[plant]`` physical and numerical plant parameters (:class:`plant.params.PlantParams`), optional
+``[line]``  the line, exactly as in contracts/measured-data.md (:class:`plant.contract.line.Line`)
+``[fish]``  the batch (:class:`plant.fish.population.PopulationSpec`)
+``[plant]`` physical and numerical plant parameters (:class:`plant.sim.params.PlantParams`), optional
 ``[[fmu]]`` FMU instances: a built-in one by name or any FMI 2.0/3.0 co-simulation ``.fmu`` by path,
             with start values (inline or from a parameter file) and a step multiple
 ``[system]`` ``ssp``: an SSP archive or SSD file whose components, connections and parameter values
@@ -41,10 +41,10 @@ import tomli_w
 from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
 
 from plant.errors import InputError
-from plant.kpis import KPI_KEYS
-from plant.line import KpiSettings, Line
-from plant.params import PlantParams
-from plant.population import PopulationSpec
+from plant.contract.kpis import KPI_KEYS
+from plant.contract.line import KpiSettings, Line
+from plant.sim.params import PlantParams
+from plant.fish.population import PopulationSpec
 from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
 
 from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem

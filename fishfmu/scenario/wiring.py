@@ -40,7 +40,7 @@ from typing import Any
 
 from plant.errors import InputError
 from plant.validation import suggest
-from plant.line import Line
+from plant.contract.line import Line
 
 from fishfmu.fmu.archive import FmuVariable
 from fishfmu.scenario.schema import Scenario

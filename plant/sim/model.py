@@ -9,17 +9,17 @@ What is in it:
   each belt body back in place and gives it the belt speed: the surface moves, the geometry
   stays (to within half a step of travel).  The body's momentum change over the step is the
   force the fish put on the belt.
-- **Fish**: five rigid bodies each (``plant.fish_body``), rotation-vector nodes for the explicit
+- **Fish**: five rigid bodies each (``plant.fish.fish_body``), rotation-vector nodes for the explicit
   Lie-group integrator, gravity as a mass-proportional load per body (switched off while a fish
   waits for its drop or after it has left the line), contact spheres, and four rigid-body
-  spring-dampers (stiff in translation, ``plant.joints`` laws in rotation).
+  spring-dampers (stiff in translation, ``plant.sim.joints`` laws in rotation).
 - Only the fish in play are in the system: every contact sphere costs time at every force
   evaluation whether it touches anything or not, so a fish waiting for its drop or gone past the
   outfeed would cost as much as one on the line.  The plant rebuilds the system when fish are
   about to be dropped or enough have left (:class:`Member` carries each body's state over); a fish
   admitted shortly before its drop waits in a parking grid below the line with gravity off.
 
-The numbers that decide stability are documented in ``plant.params.NumericsParams``.
+The numbers that decide stability are documented in ``plant.sim.params.NumericsParams``.
 """
 
 from __future__ import annotations
@@ -82,18 +82,18 @@ from exudyn.itemInterface import (  # noqa: E402
     LoadForceVector, LoadMassProportional, MarkerBodyMass, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG,
     ObjectConnectorRigidBodySpringDamper, ObjectGround, ObjectRigidBody)
 
-from plant.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
-from plant.fish_body import FishGeometry, fish_geometry  # noqa: E402
-from plant.joints import JointLaws, joint_laws  # noqa: E402
-from plant.line import Line  # noqa: E402
-from plant.params import PlantParams  # noqa: E402
-from plant.population import FishSpec  # noqa: E402
-from plant.rotations import matrix_to_rotvec  # noqa: E402
+from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
+from plant.fish.fish_body import FishGeometry, fish_geometry  # noqa: E402
+from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
+from plant.contract.line import Line  # noqa: E402
+from plant.sim.params import PlantParams  # noqa: E402
+from plant.fish.population import FishSpec  # noqa: E402
+from plant.sim.rotations import matrix_to_rotvec  # noqa: E402
 
 exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
 MAT_BELT, MAT_GUIDE, MAT_FISH0 = 0, 1, 2
-"""Friction materials: belts, guides, then one per fish friction level (plant.extensions.FRICTION_LEVELS)."""
+"""Friction materials: belts, guides, then one per fish friction level (plant.fish.extensions.FRICTION_LEVELS)."""
 BELT_MASS_KG = 1.0e5
 """Mass of a belt body: the fish cannot move it measurably within one step (1 N for 10 ms -> 1e-7 m/s)."""
 TRIANGLE_STIFFNESS = 1.0e8
@@ -129,7 +129,7 @@ class Member:
     """(5, 6): velocity and angular velocity (body frame) of each body."""
     gravity: bool
     joint_k: np.ndarray
-    """(4, 3) current rotational stiffness of each joint (see plant.joints.linearize)."""
+    """(4, 3) current rotational stiffness of each joint (see plant.sim.joints.linearize)."""
     joint_offset: np.ndarray
     friction_level: int = 80
     """Index into FRICTION_LEVELS of the fish's current friction multiplier (80: x 1.0)."""
@@ -177,7 +177,7 @@ class PlantModel:
     """(n_spheres, 3) sphere centre in its body's frame."""
     sphere_radius: np.ndarray
     section_body: np.ndarray
-    """(n_sections,) body index of each outline cross-section (for sensors, see plant.sensors)."""
+    """(n_sections,) body index of each outline cross-section (for sensors, see plant.sim.sensors)."""
     section_x: np.ndarray
     """(n_sections,) local x of each cross-section."""
     section_half_len: np.ndarray

@@ -1,6 +1,6 @@
 """What the plant publishes after each communication step: a read-only snapshot of its state.
 
-:class:`Plant <plant.plant.Plant>` builds a :class:`PlantState` at the end of every step (and one at
+:class:`Plant <plant.sim.plant.Plant>` builds a :class:`PlantState` at the end of every step (and one at
 rest when it is made) and exposes it as ``plant.state``.  Readers outside the plant (the energy
 watch, the health checks, re-simulation) read this snapshot, never the plant's private fields.
 
@@ -105,7 +105,7 @@ class PlantState:
     outputs: PlantOutputs | None = None
     """The sensor readings of the step (at rest before the first step)."""
     asleep: np.ndarray | None = None
-    """(n_fish,) True for fish on the line carried with their belt outside the system (plant.sleep);
+    """(n_fish,) True for fish on the line carried with their belt outside the system (plant.sim.sleep);
     their bodies are not among the bodies above."""
 
     def __post_init__(self) -> None:

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from pydantic import Field
 
-from plant.extensions import Extensions
+from plant.fish.extensions import Extensions
 from plant.validation import Strict
 
 
@@ -112,7 +112,7 @@ class PlantParams(Strict):
         "tilts gravity about y (positive: the line rises downstream), for incline tests and inclined lines"))
     extensions: Extensions = Field(default_factory=Extensions, description=(
         "effects beyond the paper's model (direction-dependent and mucus friction, rigor mortis, adhesion); "
-        "all off by default, see plant.extensions"))
+        "all off by default, see plant.fish.extensions"))
     retire_after_m: float = Field(0.3, ge=0.0, le=5.0, description=(
         "a fish whose every body is this far beyond the end of the last conveyor has left the line and is "
         "taken out of the simulation"))

@@ -31,8 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant import fish_data
-
+from plant.fish import fish_data
 # Outline of an Atlantic salmon seen from the side (height) and from above (width), as fractions
 # of the fish's maximum height and width, against the position along the length from the snout
 # (0) to the tip of the tail fin (1).  Read off photographs of farmed salmon (an assumption: the
@@ -206,7 +205,7 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
     ``min_radius_fraction``: no sphere is thinner than this fraction of the fish's thickness: the
     snout and the fin are thinner, but a linear penalty contact stops a sphere only within its
     radius, and these are the parts that other fish land on.
-    ``min_body_fraction``: numerical mass scaling, see ``plant.params.NumericsParams``; the paper's
+    ``min_body_fraction``: numerical mass scaling, see ``plant.sim.params.NumericsParams``; the paper's
     2.2 % tail fin is raised to it with mass taken from the tail body (total mass unchanged).
     """
     if joint_limits_rad is None:

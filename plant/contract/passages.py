@@ -47,8 +47,8 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.fish_data import length_regressions
-from plant.line import KpiSettings, Line
+from plant.fish.fish_data import length_regressions
+from plant.contract.line import KpiSettings, Line
 
 MAX_TRACK_GAP_S = 0.5
 """Longest gap between two track samples that a crossing may be interpolated across (assumption:

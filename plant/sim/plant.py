@@ -1,6 +1,6 @@
 """Stepping the plant from outside, one communication step at a time (the co-simulation interface).
 
->>> from plant.line import Line
+>>> from plant.contract.line import Line
 >>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
 ...     {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0}],
 ...     "photoeyes": [{"id": "pe1", "x_m": 1.5, "z_m": 0.015}]})
@@ -16,12 +16,12 @@ One step is a short, fixed pipeline (read it top to bottom):
 1. admit and release the fish whose drop time has come (placed clear of the fish already there);
 2. set the belt speeds (each belt body back in place, moving at its speed);
 3. re-linearise the joints that are at or running into their limits; with the model's extensions
-   (plant.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
+   (plant.fish.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
 4. let Exudyn integrate to the end of the step;
 5. read the state, work out the sensors, retire fish that have left the line, publish the state
-   (:attr:`Plant.state`, a read-only :class:`plant.state.PlantState`), check its health.
+   (:attr:`Plant.state`, a read-only :class:`plant.sim.state.PlantState`), check its health.
 
-Only fish in play are in the Exudyn system (see :mod:`plant.model`): when fish are about to be
+Only fish in play are in the Exudyn system (see :mod:`plant.sim.model`): when fish are about to be
 dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
 state of every body carried over.
 """
@@ -34,19 +34,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.extensions import (FRICTION_LEVELS, adhesion_forces, body_friction_levels, direction_friction_levels,
+from plant.fish.extensions import (FRICTION_LEVELS, adhesion_forces, body_friction_levels, direction_friction_levels,
                               friction_level, stiffening_limit_loss)
-from plant.health import check_health, floor_below
-from plant.joints import JointLaws, linearize, stack_laws
-from plant.line import Line
-from plant.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, park_positions, parked_member,
+from plant.sim.health import check_health, floor_below
+from plant.sim.joints import JointLaws, linearize, stack_laws
+from plant.contract.line import Line
+from plant.sim.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, park_positions, parked_member,
                          pose_coordinates, prepare_fish)
-from plant.params import PlantParams
-from plant.population import FishSpec
-from plant.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
-from plant.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
-from plant import sleep as sleeping
-from plant.state import FishStatus, PlantOutputs, PlantState
+from plant.sim.params import PlantParams
+from plant.fish.population import FishSpec
+from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
+from plant.sim.sensors import belt_loads, photoeyes_blocked, sphere_centres, spine_point_local
+from plant.sim import sleep as sleeping
+from plant.sim.state import FishStatus, PlantOutputs, PlantState
 
 WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
 ADMIT_AHEAD_S = 1.0
@@ -117,7 +117,7 @@ class Plant:
         """Wall time spent in Exudyn's solver and in rebuilding the system (for benchmarks)."""
         self._steps = 0
         self._t_model0 = 0.0
-        # sleeping fish (plant.sleep): carried with their belt outside the system
+        # sleeping fish (plant.sim.sleep): carried with their belt outside the system
         n = len(self.fish_specs)
         self._sleep_enabled = self.params.numerics.sleep
         self._asleep = np.zeros(n, dtype=bool)
@@ -188,7 +188,7 @@ class Plant:
 
     # ---- the system: which fish are in it ----------------------------------------------------
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
-        from plant.model import exu  # imported there once, with a missing system library reported as such
+        from plant.sim.model import exu  # imported there once, with a missing system library reported as such
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
         self._member = model.member_index
@@ -498,7 +498,7 @@ class Plant:
             return
         check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self.line, s.t_s)
 
-    # ---- sleeping fish (plant.sleep) -----------------------------------------------------------
+    # ---- sleeping fish (plant.sim.sleep) -----------------------------------------------------------
     def _member_boxes(self) -> np.ndarray:
         """(n_slots, 2, 3) boxes around the contact spheres of each fish in the system."""
         m = self.model

@@ -7,7 +7,7 @@ against the relative rotation angle ``theta`` is
 
 where ``phi`` is zero inside ``limit - w``, quadratic across ``[limit - w, limit + w]`` and
 linear beyond, so the stiffness rises smoothly (C1) from ``k_soft`` to ``k_limit`` around the
-limit.  ``k_soft`` follows the sag rule of :class:`plant.params.JointParams`; ``k_limit`` is
+limit.  ``k_soft`` follows the sag rule of :class:`plant.sim.params.JointParams`; ``k_limit`` is
 the bodies' reduced inertia times the limit frequency of the numerics.
 
 Exudyn's rigid-body spring-damper is linear, and a Python callback per joint per step would
@@ -29,9 +29,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant import fish_data
-from plant.fish_body import FishGeometry
-from plant.params import JointParams, NumericsParams
+from plant.fish import fish_data
+from plant.fish.fish_body import FishGeometry
+from plant.sim.params import JointParams, NumericsParams
 
 AXES = ("twist", "lateral", "dorsoventral")
 

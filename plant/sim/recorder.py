@@ -17,10 +17,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.measured import BELTS, PHOTOEYES, TRACKS
-from plant.plant import FishState, Plant
-from plant.rotations import matrix_to_quaternion
-from plant.state import FishStatus
+from plant.contract.measured import BELTS, PHOTOEYES, TRACKS
+from plant.sim.plant import FishState, Plant
+from plant.sim.rotations import matrix_to_quaternion
+from plant.sim.state import FishStatus
 
 TRACK_PERIOD_S = 0.04
 BELT_PERIOD_S = 0.01
@@ -82,7 +82,7 @@ class RunRecorder:
 
     def poses(self) -> dict[str, np.ndarray] | None:
         """Body poses at the track rate: ``t_s`` (F,), ``pos`` (F, B, 3), ``quat`` (F, B, 4: w, x, y, z),
-        ``status`` (F, n_fish) of :class:`plant.state.FishStatus` (int8); None unless ``record_poses``."""
+        ``status`` (F, n_fish) of :class:`plant.sim.state.FishStatus` (int8); None unless ``record_poses``."""
         if not self.record_poses:
             return None
         n_b = 5 * len(self.fish_ids)

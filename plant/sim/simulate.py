@@ -2,7 +2,7 @@
 
 Used to test the physics, to re-simulate measured runs with their logged belt speeds, and as
 the inner loop of the co-simulation's plant.  The co-simulation master has its own loop
-(fishfmu.cosim.master) but records through the same :class:`plant.recorder.RunRecorder`.
+(fishfmu.cosim.master) but records through the same :class:`plant.sim.recorder.RunRecorder`.
 """
 
 from __future__ import annotations
@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.line import Line
-from plant.params import PlantParams
-from plant.health import EnergyWatch
-from plant.plant import DropAdjustment, Plant
-from plant.population import FishSpec, fish_to_frame
-from plant.recorder import RunRecorder, pose_record
-from plant.state import FishStatus
+from plant.contract.line import Line
+from plant.sim.params import PlantParams
+from plant.sim.health import EnergyWatch
+from plant.sim.plant import DropAdjustment, Plant
+from plant.contract.measured import fish_to_frame
+from plant.fish.population import FishSpec
+from plant.sim.recorder import RunRecorder, pose_record
+from plant.sim.state import FishStatus
 
 BeltSpeeds = dict[str, float] | Callable[[float], dict[str, float]]
 
@@ -38,7 +39,7 @@ class SimulatedRun:
     drop_adjustments: list[DropAdjustment] = field(default_factory=list)
     fish_status: np.ndarray | None = None
     poses: dict[str, np.ndarray] | None = None
-    """Every body's pose at 25 Hz and the bodies' outlines (:func:`plant.recorder.pose_record`, the
+    """Every body's pose at 25 Hz and the bodies' outlines (:func:`plant.sim.recorder.pose_record`, the
     arrays of a run's poses.npz), when asked for with ``record_poses``."""
 
     @property

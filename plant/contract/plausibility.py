@@ -1,7 +1,7 @@
-"""Physical plausibility of a measured run, checked by :func:`plant.measured.read_run` (unless told
+"""Physical plausibility of a measured run, checked by :func:`plant.contract.measured.read_run` (unless told
 not to) before anything is simulated.
 
-What is checked, and why: the format (:mod:`plant.measured`) only knows that a value is a finite number;
+What is checked, and why: the format (:mod:`plant.contract.measured`) only knows that a value is a finite number;
 a length typed in feet, a mass in grams, a drop outside the line or a drive log with a belt at 1e6 m/s
 passes it, and the simulation would then run on nonsense (or blow up, or run for hours) instead of
 refusing the input.  So a run must have
@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import InputError
-from plant.fish_data import length_regressions
-from plant.line import Line
-from plant.row_errors import first_row, refuse
+from plant.fish.fish_data import length_regressions
+from plant.contract.line import Line
+from plant.contract.row_errors import first_row, refuse
 
 LENGTH_RANGE_M = (0.2, 1.5)
 """Salmon length: the population model samples 0.42-0.75 m (Table I: 0.42-0.68 m) and a scenario allows
@@ -42,7 +42,7 @@ WIDTH_PER_LENGTH = (0.02, 0.4)
 """Body height and thickness as a fraction of length (Table I: about 0.24-0.29 and 0.10-0.14)."""
 MAX_HOURS_POST_MORTEM = 10000.0
 """Hours since slaughter, in fish.csv and as ``hours_post_mortem`` of a ``[[runs]]`` entry (the schema,
-:class:`plant.measured.RunEntry`, uses this bound too): over a year, any real value fits."""
+:class:`plant.contract.measured.RunEntry`, uses this bound too): over a year, any real value fits."""
 MAX_DROP_HEIGHT_M = 2.0
 """Height of a fish's lowest point above the belt at release: a fish dropped by hand or from a chute
 falls at most this far (a 2 m fall lands at 6.3 m/s; the plant's health check stops at 25 m/s); the

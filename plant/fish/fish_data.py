@@ -2,7 +2,7 @@
 
 The paper mapped every dimension to length by polynomial regression over 49 salmon (Fig. 2)
 but published only seven of them (Table I).  We fit to those seven, shipped in
-``plant/data/paper_table1.csv``:
+``plant/fish/data/paper_table1.csv``:
 
 - height and width: straight lines in length (the measured values are whole centimetres, so a
   higher order would fit rounding noise);
@@ -28,7 +28,7 @@ import pandas as pd
 
 
 def _read(name: str) -> pd.DataFrame:
-    with resources.files("plant").joinpath("data", name).open("r") as fh:
+    with resources.files("plant.fish").joinpath("data", name).open("r") as fh:
         return pd.read_csv(fh)
 
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plant.fish_body import FishGeometry
+from plant.fish.fish_body import FishGeometry
 
 
 def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.ndarray,

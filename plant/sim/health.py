@@ -17,7 +17,7 @@ Guides and the end plate are fixed and do no work; contact and joint dampers and
 only take energy out.  Contact and joint springs store some for a moment (a landing fish) and give
 it back, so the check allows the fish that much: :func:`spring_reserve_j`.
 
-The watch reads only the plant's published state (:class:`plant.state.PlantState`, ``plant.state``
+The watch reads only the plant's published state (:class:`plant.sim.state.PlantState`, ``plant.sim.state``
 after each step): positions, velocities, masses, gravity, the adhesion forces and the belt speeds
 and loads of the step.
 
@@ -41,14 +41,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from plant.errors import SimulationError
-from plant.state import FishStatus, PlantState
+from plant.sim.state import FishStatus, PlantState
 
 MAX_SPEED_MPS = 25.0
 """Anything faster than this in a fish plant is a numerical blow-up, not physics."""
 
 
 def floor_below(line, x_m: np.ndarray) -> np.ndarray:
-    """Lowest belt top of ``line`` (a :class:`plant.line.Line`) within 0.1 m of each x: where a fish
+    """Lowest belt top of ``line`` (a :class:`plant.contract.line.Line`) within 0.1 m of each x: where a fish
     can lie, drape or hang over a drum (``inf`` where no belt is that near)."""
     x = np.asarray(x_m, dtype=float)[:, None]
     starts = np.array([c.x_start_m for c in line.conveyors])
@@ -63,7 +63,7 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     faster than :data:`MAX_SPEED_MPS`, outside the guides or fallen through a belt.
 
     ``pos`` and ``vel`` (n, 3) are those bodies' positions and velocities, ``fish_of`` (n,) each
-    body's fish as an index into ``fish_ids``; ``line`` the :class:`plant.line.Line`; ``t_s`` the
+    body's fish as an index into ``fish_ids``; ``line`` the :class:`plant.contract.line.Line`; ``t_s`` the
     time reported with the error.  A body over the last 0.1 m of the line (hanging over the end drum)
     or past its end is not checked against the belts: a fish leaving the line over the end."""
     if len(pos) == 0:

@@ -9,8 +9,8 @@ speed at the middle of that time; it is negative when passages overlap.  The fir
 gap before it, the last none after.  A gap must also be positive: touching fish are not apart,
 even with ``min_gap_m = 0``.  Comparisons allow 1 nm for floating-point rounding.
 
-Passages come from :func:`plant.passages.passages` (re-exported here with
-:func:`~plant.passages.arrival_times`); :func:`kpis_from_passages` takes any table of passages,
+Passages come from :func:`plant.contract.passages.passages` (re-exported here with
+:func:`~plant.contract.passages.arrival_times`); :func:`kpis_from_passages` takes any table of passages,
 so the arithmetic can be checked by hand:
 
 >>> p = pd.DataFrame({"t_start_s": [10.0, 12.0, 12.5], "t_end_s": [10.5, 12.75, 13.0]})
@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from plant.line import KpiSettings, Line
-from plant.passages import MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages
+from plant.contract.line import KpiSettings, Line
+from plant.contract.passages import MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages
 
 __all__ = ["KPIS", "KPI_KEYS", "Kpi", "SHOWN_KPI_KEYS", "arrival_times", "compute_kpis", "kpi_keys",
            "kpis_from_passages", "paper_rounded", "passages", "round_half_up", "singulation_table"]

@@ -14,7 +14,7 @@ A CSV must be UTF-8 (a byte-order mark is allowed) and no row may have more fiel
 trailing comma): the error names the row.
 
 A run must also be physically plausible before anything is simulated: :func:`read_run` calls the
-checks of :mod:`plant.plausibility`, where the bounds and their reasons are.
+checks of :mod:`plant.contract.plausibility`, where the bounds and their reasons are.
 """
 
 from __future__ import annotations
@@ -32,12 +32,13 @@ import pydantic
 import tomli_w
 from pydantic import Field
 
-from plant import plausibility
+from plant.contract import plausibility
 from plant.errors import InputError
-from plant.fish_data import length_regressions
-from plant.line import Id, KpiSettings, Line
-from plant.plausibility import MAX_HOURS_POST_MORTEM
-from plant.row_errors import fail_first, row_number
+from plant.fish.fish_data import length_regressions
+from plant.fish.population import FishSpec
+from plant.contract.line import Id, KpiSettings, Line
+from plant.contract.plausibility import MAX_HOURS_POST_MORTEM
+from plant.contract.row_errors import fail_first, row_number
 from plant.validation import MAX_CSV_BYTES, Strict, file_size_checked, read_toml, suggest, validate
 
 
@@ -275,7 +276,7 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
 
     ``check_physics``: also check that the run is physically plausible and can be re-simulated (fish
     sizes, drops within the line and above a belt, belt speeds, times within the drive log and
-    :data:`~plant.plausibility.MAX_RESIM_S`, every conveyor logged); off only for a run this program simulated itself
+    :data:`~plant.contract.plausibility.MAX_RESIM_S`, every conveyor logged); off only for a run this program simulated itself
     (a replay of a run that stopped early has fish that were never dropped)."""
     entry = run_entry if isinstance(run_entry, RunEntry) else validate(RunEntry, dict(run_entry), prefix="runs")
     folder = Path(dataset_path) / "runs" / entry.id
@@ -396,3 +397,31 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
         tomli_w.dump(doc, fh)
     for r in dataset.runs:
         write_run(r, root / "runs" / r.id)
+
+
+# ---- fish.csv and the fish of a run ---------------------------------------------------------------------
+def fish_to_frame(fish: list[FishSpec]) -> pd.DataFrame:
+    """fish.csv as a table (contracts/measured-data.md column order)."""
+    columns = list(FISH.columns)
+    return pd.DataFrame([{c: getattr(f, c) for c in columns} for f in fish], columns=columns)
+
+
+def fish_from_frame(df: pd.DataFrame, run_hours_post_mortem: float, rng: np.random.Generator) -> list[FishSpec]:
+    """Fish from a measured fish.csv: the measured values where given, the regressions where empty.
+
+    The side a fish lies on is not measured; it is drawn from ``rng``.
+    """
+    out = []
+    reg = length_regressions()
+    for row in df.itertuples(index=False):
+        length = float(row.length_m)
+        h = float(row.height_m) if pd.notna(getattr(row, "height_m", np.nan)) else float(reg.height_m(length))
+        w = float(row.width_m) if pd.notna(getattr(row, "width_m", np.nan)) else float(reg.width_m(length))
+        hpm = getattr(row, "hours_post_mortem", np.nan)
+        out.append(FishSpec(
+            fish_id=str(row.fish_id), length_m=length, height_m=h, width_m=w, weight_kg=float(row.weight_kg),
+            hours_post_mortem=float(hpm) if pd.notna(hpm) else float(run_hours_post_mortem),
+            drop_t_s=float(row.drop_t_s), drop_x_m=float(row.drop_x_m), drop_y_m=float(row.drop_y_m),
+            drop_yaw_rad=float(row.drop_yaw_rad), drop_z_m=float(row.drop_z_m),
+            side=1 if rng.random() < 0.5 else -1))
+    return out

@@ -1,4 +1,5 @@
-"""The fish of a run: sampled from the paper's statistics, or taken row by row from a measured fish.csv.
+"""The fish of a run: sampled from the paper's statistics (a measured fish.csv is read into the same
+:class:`FishSpec` by :func:`plant.contract.measured.fish_from_frame`).
 
 A sampled fish's length is normal (mean, sd, clipped); height, width and weight follow the
 length regressions of Table I *plus* a residual drawn with the spread of that fit, so that two
@@ -20,11 +21,9 @@ from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
-import pandas as pd
 from pydantic import Field, model_validator
 
-from plant.fish_data import length_regressions
-from plant.measured import FISH
+from plant.fish.fish_data import length_regressions
 from plant.validation import Strict
 
 
@@ -146,35 +145,6 @@ def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_widt
         first = spec.first_drop_s
         fish = [replace(f, drop_t_s=max(first, f.drop_t_s + float(s))) for f, s in zip(fish, shifts)]
     return fish
-
-
-FISH_COLUMNS = list(FISH.columns)
-
-
-def fish_to_frame(fish: list[FishSpec]) -> pd.DataFrame:
-    """fish.csv as a table (contracts/measured-data.md column order)."""
-    return pd.DataFrame([{c: getattr(f, c) for c in FISH_COLUMNS} for f in fish], columns=FISH_COLUMNS)
-
-
-def fish_from_frame(df: pd.DataFrame, run_hours_post_mortem: float, rng: np.random.Generator) -> list[FishSpec]:
-    """Fish from a measured fish.csv: the measured values where given, the regressions where empty.
-
-    The side a fish lies on is not measured; it is drawn from ``rng``.
-    """
-    out = []
-    reg = length_regressions()
-    for row in df.itertuples(index=False):
-        length = float(row.length_m)
-        h = float(row.height_m) if pd.notna(getattr(row, "height_m", np.nan)) else float(reg.height_m(length))
-        w = float(row.width_m) if pd.notna(getattr(row, "width_m", np.nan)) else float(reg.width_m(length))
-        hpm = getattr(row, "hours_post_mortem", np.nan)
-        out.append(FishSpec(
-            fish_id=str(row.fish_id), length_m=length, height_m=h, width_m=w, weight_kg=float(row.weight_kg),
-            hours_post_mortem=float(hpm) if pd.notna(hpm) else float(run_hours_post_mortem),
-            drop_t_s=float(row.drop_t_s), drop_x_m=float(row.drop_x_m), drop_y_m=float(row.drop_y_m),
-            drop_yaw_rad=float(row.drop_yaw_rad), drop_z_m=float(row.drop_z_m),
-            side=1 if rng.random() < 0.5 else -1))
-    return out
 
 
 def with_drop(f: FishSpec, **changes: float) -> FishSpec:

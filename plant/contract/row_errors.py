@@ -1,6 +1,6 @@
 """Where a problem is in a CSV file of a dataset: the row (as a person counts lines in the file: the
-header is line 1, blank lines counted) and the column, for :mod:`plant.measured` (the format) and
-:mod:`plant.plausibility` (the physics) alike."""
+header is line 1, blank lines counted) and the column, for :mod:`plant.contract.measured` (the format) and
+:mod:`plant.contract.plausibility` (the physics) alike."""
 
 from __future__ import annotations
 
