@@ -13,7 +13,7 @@ import pytest
 from plant.contract.measured import FISH, Dataset, Run, empty_table, read_dataset
 
 from fishfmu.analysis.drive_response import STARTUP_MAX_S, fit_drive_responses, startup
-from fishfmu.analysis.resim import drive_response
+from fishfmu.analysis.resim import simulate_drive
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE
 from fishfmu.fmu.archive import open_fmu
 from fishfmu.fmu.build import builtin_fmu
@@ -36,7 +36,7 @@ def _logged_startups(n_runs: int, rng: np.random.Generator) -> Dataset:
             rows = []
             for c, base in zip(TRUE_RAMPS, (0.3, 0.7, 1.2)):
                 sp = np.where(t >= 0.2, base * rng.uniform(0.8, 1.2), 0.0)
-                v = drive_response(fmu, c, t, sp, np.zeros_like(t), 0.0, {"ramp_acceleration": TRUE_RAMPS[c]})
+                v = simulate_drive(fmu, c, t, sp, np.zeros_like(t), 0.0, {"ramp_acceleration": TRUE_RAMPS[c]})
                 rows.append(pd.DataFrame({"t_s": t, "conveyor_id": c, "setpoint_mps": sp,
                                           "speed_mps": v + rng.normal(0.0, 0.003, len(t))}))
             runs.append(Run(f"r{k:02d}", 10.0, "", fish.copy(), belts=pd.concat(rows, ignore_index=True)))

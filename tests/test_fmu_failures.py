@@ -141,7 +141,7 @@ def test_library_is_checked_again_right_before_loading(tmp_path: Path, builtin_f
     import copy
     import dataclasses
 
-    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.instance import InProcessFmu
     from fishfmu.fmu.worker import WorkerFmu
     evil, marker = evil_library
     with open_fmu(builtin_fmus["conveyor_drive"]) as fmu:
@@ -149,7 +149,7 @@ def test_library_is_checked_again_right_before_loading(tmp_path: Path, builtin_f
         binary.unlink()
         binary.symlink_to(evil)
         with pytest.raises(InputError, match="outside the unpacked archive") as failure:
-            FmuInstance("drive", fmu, {})
+            InProcessFmu("drive", fmu, {})
         assert Path(failure.value.file) == builtin_fmus["conveyor_drive"]
         worker = WorkerFmu("drive", fmu, {})
         try:
@@ -161,7 +161,7 @@ def test_library_is_checked_again_right_before_loading(tmp_path: Path, builtin_f
         md.coSimulation = copy.copy(md.coSimulation)
         md.coSimulation.modelIdentifier = str(evil.with_suffix(""))
         with pytest.raises(InputError, match="modelIdentifier"):
-            FmuInstance("drive", dataclasses.replace(fmu, model_description=md), {})
+            InProcessFmu("drive", dataclasses.replace(fmu, model_description=md), {})
     assert not marker.exists(), "the library outside the archive was loaded"
 
 
@@ -313,10 +313,10 @@ def test_log_message_is_one_line_and_bounded() -> None:
 # ---------------------------------------------------------------- 6. Booleans and Strings
 
 def test_booleans_come_out_of_an_fmu_as_bool_in_process_and_in_a_worker(builtin_fmus) -> None:
-    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.instance import InProcessFmu
     from fishfmu.fmu.worker import WorkerFmu
     with open_fmu(builtin_fmus["singulation_controller"]) as fmu:
-        for instance in (FmuInstance("c", fmu, {}), WorkerFmu("c", fmu, {})):
+        for instance in (InProcessFmu("c", fmu, {}), WorkerFmu("c", fmu, {})):
             try:
                 instance.set({"pe_1": True})
                 instance.do_step(0.0, 0.01)
@@ -330,7 +330,7 @@ def test_booleans_come_out_of_an_fmu_as_bool_in_process_and_in_a_worker(builtin_
 def test_strings_pass_as_str_and_booleans_as_bool(builtin_fmus) -> None:
     """fmpy's getString gives bytes and getBoolean C ints; an FMU instance gives str and bool."""
     from fishfmu.fmu.archive import FmuVariable
-    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.instance import InProcessFmu
 
     class Slave:  # stands in for fmpy's FMU2Slave
         def __init__(self) -> None:
@@ -353,7 +353,7 @@ def test_strings_pass_as_str_and_booleans_as_bool(builtin_fmus) -> None:
             self.booleans.update(zip(vrs, values))
 
     with open_fmu(builtin_fmus["conveyor_drive"]) as fmu:
-        instance = FmuInstance("d", fmu, {})
+        instance = InProcessFmu("d", fmu, {})
         instance.terminate()
     instance._slave = Slave()
     instance._ref_cache.clear()

@@ -81,7 +81,7 @@ def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Ge
     """Each drive's ramp from the start-ups of ``fit_runs`` (the others held out); see the module docstring.  The
     model's ramp is the built-in drive's (``model_mps2`` None: its declared start value, 2 m/s^2), not one a
     scenario may set: the gains say what the fitted ramp gains over that."""
-    from fishfmu.analysis.resim import drive_response
+    from fishfmu.analysis.resim import simulate_drive
     from fishfmu.fmu.archive import open_fmu
     from fishfmu.fmu.build import builtin_fmu
     out = []
@@ -94,7 +94,7 @@ def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Ge
 
             def sq(run_id: str, ramp: float) -> float:
                 t, sp, v = ups[run_id]
-                model = drive_response(fmu, f"drive_{c.id}", t, sp, np.zeros_like(t), v[0], {"ramp_acceleration": ramp})
+                model = simulate_drive(fmu, f"drive_{c.id}", t, sp, np.zeros_like(t), v[0], {"ramp_acceleration": ramp})
                 return float(np.sum((v - model) ** 2))
             fit_ids = [r for r in fit_runs if r in ups]
             held_ids = [r for r in ups if r not in fit_runs]

@@ -245,19 +245,19 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
     force = np.interp(t, ld["t_s"].to_numpy(float), ld["load_force_n"].to_numpy(float)) if len(ld) else np.zeros_like(t)
     mass = np.interp(t, ld["t_s"].to_numpy(float), ld["load_mass_kg"].to_numpy(float)) if len(ld) else np.zeros_like(t)
     with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
-        model = drive_response(fmu, f"drive_{conveyor_id}", t, sp, force, float(measured[0]), drive_parameters)
+        model = simulate_drive(fmu, f"drive_{conveyor_id}", t, sp, force, float(measured[0]), drive_parameters)
     return pd.DataFrame({"t_s": t, "setpoint_mps": sp, "measured_mps": measured, "model_mps": model,
                          "load_force_n": force, "load_mass_kg": mass})
 
 
-def drive_response(fmu, name: str, t: np.ndarray, setpoint_mps: np.ndarray, load_force_n: np.ndarray,
+def simulate_drive(fmu, name: str, t: np.ndarray, setpoint_mps: np.ndarray, load_force_n: np.ndarray,
                    initial_mps: float, drive_parameters: dict | None = None) -> np.ndarray:
     """Belt speed of the conveyor-drive FMU ``fmu`` (an open archive) at the times ``t``, fed each sample's
     setpoint and load force over the step that follows it, starting at ``initial_mps``."""
-    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.instance import InProcessFmu
     params = {"initial_belt_speed": float(np.clip(initial_mps, -2.0, 2.0)), **(drive_parameters or {})}
     model = np.empty_like(t)
-    drive = FmuInstance(name, fmu, params, start_time_s=float(t[0]))
+    drive = InProcessFmu(name, fmu, params, start_time_s=float(t[0]))
     try:
         model[0] = drive.get(["belt_speed"])["belt_speed"]
         for i in range(1, len(t)):

@@ -111,7 +111,7 @@ class BuildFailed(SimulationError):
 def instantiate(scenario: Scenario, opened: dict[str, OpenedFmu], stack: contextlib.ExitStack) -> dict[str, Any]:
     """One instance per ``[[fmu]]``, in-process or in a worker process as ``run.fmu_process`` says;
     each is terminated when ``stack`` closes, also when a later one fails to start."""
-    from fishfmu.fmu.instance import FmuInstance
+    from fishfmu.fmu.instance import InProcessFmu
     fmus = {}
     for f in scenario.fmu:
         try:
@@ -119,7 +119,7 @@ def instantiate(scenario: Scenario, opened: dict[str, OpenedFmu], stack: context
                 from fishfmu.fmu.worker import WorkerFmu
                 fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
             else:
-                fmus[f.name] = FmuInstance(f.name, opened[f.name], f.parameters)
+                fmus[f.name] = InProcessFmu(f.name, opened[f.name], f.parameters)
         except InputError as exc:  # a binary that does not load
             raise as_the_user_names_it(f, exc) from None
         stack.callback(fmus[f.name].terminate)

@@ -174,8 +174,10 @@ def _from(kind: str, value: Any) -> Any:
     return value
 
 
-class FmuInstance:
-    """An instantiated, initialised FMI 2.0 or 3.0 co-simulation FMU; ``set``/``get`` take variable names."""
+class InProcessFmu:
+    """An instantiated, initialised FMI 2.0 or 3.0 co-simulation FMU in this process (``run.fmu_process =
+    "in-process"``; :class:`fishfmu.fmu.worker.WorkerFmu` is the same in a worker process); ``set``/``get`` take
+    variable names."""
 
     def __init__(self, name: str, fmu: OpenedFmu, parameters: Mapping[str, Any], start_time_s: float = 0.0) -> None:
         check_parameters(name, fmu, parameters)

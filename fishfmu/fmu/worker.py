@@ -1,10 +1,10 @@
 """One FMU instance in a worker process of its own, so that an FMU that crashes or hangs cannot take
 the run down (``run.fmu_process = "worker"`` in a scenario).
 
-:class:`WorkerFmu` stands in for :class:`fishfmu.fmu.instance.FmuInstance`: the same calls
+:class:`WorkerFmu` stands in for :class:`fishfmu.fmu.instance.InProcessFmu`: the same calls
 (``set``, ``do_step``, ``get``, ``terminate``) and the same errors.  The worker is a fresh
 interpreter (``python -m fishfmu.fmu.worker FD``, not a fork: the FMU's library is loaded only
-there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled message per call.
+there) that runs an ``InProcessFmu`` and answers over a socket pair, one pickled message per call.
 
 - ``set`` and ``do_step`` are collected and sent together with the ``get`` that the master calls
   after every step of an FMU: one message there and one back per FMU and step (one wake-up of the
@@ -16,7 +16,7 @@ there) that runs an ``FmuInstance`` and answers over a socket pair, one pickled 
   time.  A worker that dies (a segmentation fault, ``abort()``, ``exit()`` inside the FMU) is named
   with the signal or exit code.
 - Values and errors come back as in-process: Booleans as bool, Strings as str, and an FMU's
-  failure with the message it logged (built in the worker by ``FmuInstance``).
+  failure with the message it logged (built in the worker by ``InProcessFmu``).
 - The worker runs in a session of its own and ignores SIGINT, so Ctrl-C in a terminal reaches only
   the orchestrator (which stops the run where it decides and ends its workers); a worker ends when
   its socket closes, so it never outlives the orchestrator, even one killed outright.
@@ -202,9 +202,9 @@ class WorkerFmu:
 # ---------------------------------------------------------------------------------------- worker
 
 def serve(conn: Connection) -> None:
-    """The worker's loop: one FmuInstance, one answer per message, until terminate or end of input."""
-    from fishfmu.fmu.instance import FmuInstance, one_line
-    instance: FmuInstance | None = None
+    """The worker's loop: one InProcessFmu, one answer per message, until terminate or end of input."""
+    from fishfmu.fmu.instance import InProcessFmu, one_line
+    instance: InProcessFmu | None = None
     name = "?"
     failed = False
     while True:
@@ -225,7 +225,7 @@ def serve(conn: Connection) -> None:
             result = None
             if op == "open":
                 _, name, fmu, parameters, start_time_s = message
-                instance = FmuInstance(name, fmu, parameters, start_time_s)
+                instance = InProcessFmu(name, fmu, parameters, start_time_s)
             elif instance is None:
                 raise SimulationError(f"FMU '{name}': {op} before the instance was created")
             elif op == "batch":
