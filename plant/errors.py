@@ -1,28 +1,17 @@
-"""The kinds of failure a user can meet, and the exit codes the command line maps them to.
+"""The kinds of failure a user can meet, as exceptions (the command line maps them to its exit codes:
+``fishfmu.cli.exit_codes``).
 
-`InputError` is anything wrong with what the user gave (a file, a key, a row, a column):
-exit code 2.  `SimulationError` is a run that could not go on (a blow-up, an FMU that failed):
-exit code 3.  `SystemDependencyError` is a machine that lacks a system package fishfmu needs (a
-shared library Exudyn loads, a C compiler for the built-in FMUs): exit code 3 as well, since the run
-could not be made and nothing the user gave is wrong.  Anything else is a bug (exit code 4).  Each
-carries a message meant to be read by a person, naming where the problem is.
+`InputError` is anything wrong with what the user gave (a file, a key, a row, a column).
+`SimulationError` is a run that could not go on (a blow-up, an FMU that failed).
+`SystemDependencyError` is a machine that lacks a system package fishfmu needs (a shared library Exudyn
+loads, a C compiler for the built-in FMUs): the run could not be made and nothing the user gave is wrong.
+Anything else is a bug.  Each carries a message meant to be read by a person, naming where the problem is.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-
-EXIT_OK = 0
-EXIT_EXPECT_FAILED = 1
-EXIT_BAD_INPUT = 2
-EXIT_SIMULATION_FAILED = 3
-EXIT_INTERNAL_ERROR = 4
-"""Anything else: a bug in fishfmu, reported in one line (``FISHFMU_DEBUG=1`` shows the traceback)."""
-EXIT_INTERRUPTED_SIGINT = 130
-EXIT_INTERRUPTED_SIGTERM = 143
-"""A run stopped by Ctrl-C / SIGTERM (128 + signal number), its partial results written."""
-
 
 _LINE_BREAKING = {c: repr(chr(c))[1:-1] for c in [*range(32), 127, 0x85, 0x2028, 0x2029]}
 

@@ -225,3 +225,45 @@ def test_the_private_read_check_sees_one(tmp_path):
         globals()["ROOT"] = saved
     assert any("a._x" in f for f in found) and any("_hidden" in f for f in found), found
     assert not any(f.startswith("plant/a.py") for f in found), found
+
+
+def _exits_and_exit_codes(path: Path) -> list[str]:
+    """``EXIT_*`` names defined, and ``sys.exit``/``typer.Exit``/``SystemExit`` called, outside an
+    ``if __name__ == "__main__":`` block."""
+    tree = ast.parse(path.read_text(), str(path))
+    main_blocks = {id(n) for node in ast.walk(tree) if isinstance(node, ast.If) and "__main__" in ast.unparse(node.test)
+                   for n in ast.walk(node)}
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Assign, ast.AnnAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            found += [f"{path.relative_to(ROOT)}:{node.lineno}: {t.id} =" for t in targets
+                      if isinstance(t, ast.Name) and t.id.startswith("EXIT_")]
+        elif isinstance(node, ast.Call) and id(node) not in main_blocks and ast.unparse(node.func) in (
+                "sys.exit", "typer.Exit", "SystemExit"):
+            found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node.func)}(...)")
+    return found
+
+
+def test_exit_codes_are_the_command_lines():
+    """Exit codes are defined in one module (fishfmu/cli/exit_codes.py) and only the command line ends the
+    process with one; below it, failures are exceptions (plant.errors) and outcomes are results."""
+    home = ROOT / "fishfmu" / "cli" / "exit_codes.py"
+    defined = [f for f in _exits_and_exit_codes(home) if "EXIT_" in f]
+    assert defined, "fishfmu/cli/exit_codes.py defines no exit code"
+    bad = [f for m, path in _modules().items() if path != home
+           for f in _exits_and_exit_codes(path)
+           if "EXIT_" in f or not m.startswith("fishfmu.cli")]
+    assert not bad, "exit codes outside the command line: " + "; ".join(bad)
+
+
+def test_the_exit_code_check_sees_one(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("import sys\nEXIT_X = 5\n\ndef f():\n    sys.exit(EXIT_X)\n\nif __name__ == '__main__':\n"
+                 "    raise SystemExit(f())\n")
+    globals()["ROOT"], saved = tmp_path, ROOT
+    try:
+        found = _exits_and_exit_codes(f)
+    finally:
+        globals()["ROOT"] = saved
+    assert [x.split(": ", 1)[1] for x in found] == ["EXIT_X =", "sys.exit(...)"], found

@@ -14,7 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from plant.errors import EXIT_SIMULATION_FAILED, SystemDependencyError
+from plant.errors import SystemDependencyError
+
+from fishfmu.cli.exit_codes import EXIT_SIMULATION_FAILED
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "paper_test.toml"

@@ -19,7 +19,7 @@ from typing import Any
 
 import pandas as pd
 
-from plant.errors import EXIT_EXPECT_FAILED, EXIT_OK, EXIT_SIMULATION_FAILED, InputError
+from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 
 from fishfmu.cosim.results import ExpectResult
@@ -39,14 +39,6 @@ class SeedsResult:
     @property
     def n_failed(self) -> int:
         return int(self.statistics["n_failed"])
-
-    @property
-    def exit_code(self) -> int:
-        if self.sweep.interrupted:
-            return self.sweep.exit_code_interrupted  # 130 / 143: partial results
-        if self.n_failed:
-            return EXIT_SIMULATION_FAILED
-        return EXIT_OK if all(e.ok for e in self.expect) else EXIT_EXPECT_FAILED
 
 
 def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,

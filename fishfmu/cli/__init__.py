@@ -15,9 +15,10 @@ from pathlib import Path
 import typer
 from rich.console import Console
 
-from plant.errors import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED, InputError,
-                          SimulationError, SystemDependencyError)
+from plant.errors import InputError, SimulationError, SystemDependencyError
 
+from fishfmu.cli.exit_codes import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED,
+                                    for_seeds)
 from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -111,7 +112,7 @@ def run(
         result, out_dir = commands.run_seeds(scenario, seeds, out, overrides, junit=junit, overwrite=overwrite,
                                              scheduler=scheduler, workers=workers, progress=_show_progress())
         _print_seeds(result, scenario, out_dir)
-        raise typer.Exit(result.exit_code)
+        raise typer.Exit(for_seeds(result))
     console = literal_console()
     if _show_progress():
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
