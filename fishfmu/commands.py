@@ -1,10 +1,12 @@
 """One function per ``fishfmu`` command, callable from a script as from the command line.
 
-Each does what its command does (checks the input, prepares the output folder under the rules of
-:mod:`fishfmu.output.ownership`, runs, writes) and returns what it produced; it prints nothing.
-:mod:`fishfmu.cli` parses arguments, calls one of these and prints the outcome.  Bad input raises
-InputError before anything is written; a failure inside a run is reported in the returned outcome
-(``status``) or raised as SimulationError where the command has nothing to return.
+Each does what its command does (checks the input, runs, writes) and returns what it produced; it prints
+nothing.  :mod:`fishfmu.cli` parses arguments, calls one of these and prints the outcome.  Every command that
+writes a folder goes through one lifecycle, :class:`fishfmu.output.run_folder.RunFolder`: the folder is made
+under the ownership rules only once the input has been checked, ``run_info.json`` says ``running`` until one
+finish writes it last, a signal stops the command with what there is written (``partial``).  Bad input raises
+InputError before anything is written; a failure inside a run is reported in the returned outcome (``status``)
+or raised as SimulationError where the command has nothing to return.
 
 >>> from fishfmu import commands                                                     # doctest: +SKIP
 >>> outcome = commands.run("scenarios/paper_test.toml", out="out/pt", overwrite=True) # doctest: +SKIP
@@ -14,14 +16,35 @@ InputError before anything is written; a failure inside a run is reported in the
 from __future__ import annotations
 
 import json
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from plant.contract.measured import read_dataset
 from plant.errors import InputError, SimulationError
+from plant.sim.params import PlantParams
+from plant.validation import read_toml, validate
 
+from fishfmu import serve as serving
+from fishfmu.analysis.calibrate import calibrate as calibrate_dataset
+from fishfmu.analysis.calibrate_report import write_calibration
+from fishfmu.analysis.compare import compare_dataset, write_comparison
+from fishfmu.analysis.diagnose import diagnose as diagnose_dataset
+from fishfmu.batch.seeds import run_over_seeds, write_junit_means
+from fishfmu.batch.sweep import check_size, make_spec, run_sweep
+from fishfmu.cosim.build import check_scenario, checked
+from fishfmu.cosim.plant_fmu import export_plant_fmu
 from fishfmu.cosim.results import RunResult
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
+from fishfmu.output.atomic import json_safe, write_bytes_atomic, write_text_atomic
+from fishfmu.output.junit import junit_args_of_run, write_junit
+from fishfmu.output.ownership import check_single_file_target
+from fishfmu.output.replay import write_replay
+from fishfmu.output.run_folder import RunFolder
+from fishfmu.scenario import schema  # schema.load_scenario at each call: a test replaces it to play a bug
 
 
 def default_out(scenario_file: str | Path) -> Path:
@@ -29,9 +52,8 @@ def default_out(scenario_file: str | Path) -> Path:
     return Path("out") / Path(scenario_file).stem
 
 
-def run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
+def run_inputs(scenario_file: Path, sc: schema.Scenario, junit: Path | None) -> list:
     """The files a run reads (never written over); checks ``junit`` against them and for ownership."""
-    from fishfmu.output.ownership import check_single_file_target
     inputs = [scenario_file, *(f.path for f in sc.fmu if f.path), *(f.parameter_file for f in sc.fmu if f.parameter_file),
               *([sc.system.ssp] if sc.system.ssp else [])]
     if junit is not None:
@@ -39,7 +61,7 @@ def run_inputs(scenario_file: Path, sc, junit: Path | None) -> list:
     return inputs
 
 
-def refuse_served(sc, scenario_file: Path) -> None:
+def refuse_served(sc: schema.Scenario, scenario_file: Path) -> None:
     """A scenario whose ``[opcua] inputs`` a PLC writes is served, not run: a run would hold them at their start
     values (no belt moves) and fail its bounds as if the line had."""
     if sc.opcua.inputs:
@@ -53,11 +75,6 @@ def refuse_served(sc, scenario_file: Path) -> None:
 def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] | None = None) -> list[Path]:
     """Build built-in FMUs (all when ``names`` is empty) as .fmu files in ``out``; ``defaults`` bakes in
     parameter defaults (one FMU only).  Raises FmuBuildError naming the FMU that failed."""
-    import tempfile
-
-    from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
-    from fishfmu.output.atomic import write_bytes_atomic
-    from fishfmu.output.ownership import check_single_file_target
     names = list(names) or list(BUILTIN_FMUS)
     if defaults and len(names) != 1:
         raise InputError("--param needs exactly one FMU name (parameters differ between FMUs)")
@@ -79,16 +96,10 @@ def build_fmus(names: Sequence[str], out: str | Path, defaults: dict[str, Any] |
 def export_fmu(scenario_file: str | Path, dest: str | Path, overrides: dict[str, Any] | None = None) -> Path:
     """The plant of a scenario as an FMI 2.0 co-simulation FMU at ``dest`` (see :mod:`fishfmu.cosim.plant_fmu`);
     an existing file is replaced only if fishfmu wrote it."""
-    import tempfile
-
-    from fishfmu.cosim.plant_fmu import export_plant_fmu
-    from fishfmu.output.atomic import write_bytes_atomic
-    from fishfmu.output.ownership import check_single_file_target
-    from fishfmu.scenario.schema import load_scenario
     dest = Path(dest)
     if dest.suffix != ".fmu":
         raise InputError(f"'{dest}': an FMU file ends in .fmu", where="--out")
-    sc = load_scenario(scenario_file, overrides or {})
+    sc = schema.load_scenario(scenario_file, overrides or {})
     check_single_file_target(dest, [scenario_file])
     with tempfile.TemporaryDirectory(prefix="fishfmu-export-") as tmp:
         built = export_plant_fmu(sc, Path(tmp))
@@ -96,10 +107,12 @@ def export_fmu(scenario_file: str | Path, dest: str | Path, overrides: dict[str,
     return dest
 
 
-# ---------------------------------------------------------------- run
+# ---------------------------------------------------------------- run and serve
 
 @dataclass
 class RunOutcome:
+    """A single run written into its folder (``fishfmu run``, ``fishfmu serve``)."""
+
     result: RunResult
     out_dir: Path
     replay: Path | None
@@ -114,47 +127,70 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
     """Run a scenario into ``out`` (default ``out/<name>``): KPIs, signals, the run, report, JUnit.
     SIGINT/SIGTERM stop it after the current step with what there is written (``status = "partial"``).
     ``clock``: a :class:`fishfmu.cosim.master.StageClock` to time the master's stages (benchmarks)."""
-    from fishfmu.cosim.build import checked
-    from fishfmu.cosim.stop import stop_on_signals
-    from fishfmu.session import register_output
-    from fishfmu.cosim.runner import run_scenario
-    from fishfmu.output.run_folder import (discard_if_unused, junit_args_of_run, mark_running, prepare_out_dir,
-                                           write_junit, write_outputs)
-    from fishfmu.scenario.schema import load_scenario
     scenario_file = Path(scenario_file)
     junit = Path(junit) if junit is not None else None
-    sc = load_scenario(scenario_file, overrides or {})
+    sc = schema.load_scenario(scenario_file, overrides or {})
     refuse_served(sc, scenario_file)
     # every FMU opened and checked once: bad input is found before anything is written
     with checked(sc, scenario_file) as checked_scenario:
-        out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
-                                  run_inputs(scenario_file, sc, junit), "run")
-        mark_running(out_dir, scenario_file)
-        register_output(out_dir)
-        with stop_on_signals() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
-            try:
+        with RunFolder.open(out if out is not None else default_out(scenario_file), overwrite,
+                            run_inputs(scenario_file, sc, junit), "run", scenario=str(scenario_file)) as folder:
+            with folder.stopping() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
                 result = run_scenario(sc, scenario_file, on_progress, record_poses=replay, stop=stop,
                                       checked_scenario=checked_scenario, **({"clock": clock} if clock else {}))
-            except InputError:
-                discard_if_unused(out_dir)
-                raise
-            write_outputs(result, out_dir, report=report)
-    replay_path = None
-    if replay:
-        from fishfmu.output.replay import write_replay
-        replay_path = write_replay(out_dir)
+                folder.finish_run(result, report=report)
+    replay_path = write_replay(folder.path) if replay else None
     if junit is not None:
         write_junit(junit, **junit_args_of_run(result, str(scenario_file)))
-    return RunOutcome(result, out_dir, replay_path, stop.exit_code if result.status == "partial" else None)
+    return RunOutcome(result, folder.path, replay_path, stop.exit_code if result.status == "partial" else None)
+
+
+def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
+          endpoint: str = serving.DEFAULT_ENDPOINT, realtime: float | None = None, allow_remote: bool = False,
+          user: str | None = None, certificates: serving.Certificates | None = None, overwrite: bool = False,
+          report: bool = True, on_ready: Callable[[Any], None] | None = None) -> RunOutcome:
+    """Serve a scenario's line over OPC UA (:mod:`fishfmu.serve`) until its run ends (real time), a client calls
+    stop() or a signal comes, then write the run into ``out`` (default ``out/<name>``) as :func:`run` does.
+
+    Bad options (the endpoint, a port in use, the real-time factor, certificates, the user's password) are
+    refused before the output folder is made; anything that fails after leaves ``run_info.json`` at ``failed``
+    with what happened, never at ``running``.  ``on_ready(line)`` is called once clients can connect."""
+    # slow (asyncua, about 0.4 s) and needed only here: the other commands start without it
+    from fishfmu.serve.line import LineServer
+    scenario_file = Path(scenario_file)
+    problem = serving.options_problem(endpoint, allow_remote, realtime, certificates)
+    if problem:
+        raise problem
+    sc = schema.load_scenario(scenario_file, overrides or {})
+    with checked(sc, scenario_file) as c:
+        line = LineServer(c, endpoint, allow_remote, realtime, user, certificates)
+        try:
+            problem = serving.listen_problem(endpoint)
+            if problem:
+                raise InputError(problem, where="--endpoint")
+            folder = RunFolder.open(out if out is not None else default_out(scenario_file), overwrite,
+                                    run_inputs(scenario_file, sc, None), "serve", scenario=str(scenario_file))
+        except BaseException:
+            line.close()
+            raise
+        # a signal from here on only sets a flag: the server ends at its next look and the run is written
+        with folder, folder.stopping() as stop:
+            try:
+                result = line.run(on_ready, stop)
+            except InputError as exc:  # the port taken since it was checked: this served run failed, and says why
+                folder.fail(exc)
+                raise
+            finally:
+                line.close()
+            folder.finish_run(result, report=report)
+    return RunOutcome(result, folder.path, None, stop.exit_code if result.status == "partial" else None)
 
 
 def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Everything a run checks before it starts (the scenario, every FMU's archive, parameters and start values,
     the wiring, units, [record] and [expect]), without running: the stepping order, delayed links, conversions,
     setpoints and recorded variables.  Raises InputError naming what is wrong; writes nothing."""
-    from fishfmu.cosim.build import checked
-    from fishfmu.scenario.schema import load_scenario
-    sc = load_scenario(scenario_file, overrides)
+    sc = schema.load_scenario(scenario_file, overrides)
     with checked(sc, scenario_file) as c:
         return {"scenario": str(scenario_file), "fmus": {n: {"path": str(o.path), "fmi": o.model_description.fmiVersion}
                                                          for n, o in c.opened.items()}, **c.wiring.describe(),
@@ -166,43 +202,34 @@ def run_seeds(scenario_file: str | Path, n_seeds: int, out: str | Path | None = 
               scheduler: str | None = None, workers: int | None = None, progress: bool = False):
     """Run a scenario for ``n_seeds`` seeds on Dask into ``out``: KPIs as mean and 95 % CI, ``[expect]``
     on the means (:class:`fishfmu.batch.seeds.SeedsResult`)."""
-    from fishfmu.batch.seeds import run_seeds as run_seeds_
-    from fishfmu.batch.seeds import write_junit_means
-    from fishfmu.batch.sweep import check_size
-    from fishfmu.cosim.build import check_scenario
-    from fishfmu.session import register_output
-    from fishfmu.output.run_folder import prepare_out_dir
-    from fishfmu.scenario.schema import load_scenario
     scenario_file = Path(scenario_file)
     junit = Path(junit) if junit is not None else None
     overrides = overrides or {}
     check_size(1, n_seeds)  # before anything is written
-    sc = load_scenario(scenario_file, overrides)
+    sc = schema.load_scenario(scenario_file, overrides)
     refuse_served(sc, scenario_file)
-    check_scenario(sc, scenario_file)
-    out_dir = prepare_out_dir(Path(out) if out is not None else default_out(scenario_file), overwrite,
-                              run_inputs(scenario_file, sc, junit), "run")
-    register_output(out_dir, {"command": "run", "seeds": n_seeds})  # a signal: run_info.json says partial
-    result = run_seeds_(scenario_file, overrides, n_seeds, out_dir, scheduler=scheduler, workers=workers,
-                        progress=progress)
+    check_scenario(sc, scenario_file)  # every FMU opened and checked: bad input before the folder
+    spec = make_spec(scenario_file, {}, n_seeds, overrides)
+    with RunFolder.open(out if out is not None else default_out(scenario_file), overwrite,
+                        run_inputs(scenario_file, sc, junit), "run", scenario=str(scenario_file),
+                        seeds=spec.seeds) as folder:
+        result = run_over_seeds(scenario_file, sc, spec, folder, scheduler=scheduler, workers=workers,
+                                progress=progress)
     if junit is not None:
         write_junit_means(result, junit, str(scenario_file))
-    return result, out_dir
+    return result, folder.path
 
 
 # ---------------------------------------------------------------- sweep
 
 def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, out: str | Path,
           fixed: dict[str, Any] | None = None, scales: dict[str, list[str]] | None = None, **options: Any):
-    """Sweep parameters x seeds on Dask into ``out`` (resumable); ``scales``: named factors on several keys
+    """Sweep parameters x seeds on Dask into ``out`` (resumable; the sweep opens its folder as a
+    :class:`~fishfmu.output.run_folder.RunFolder` of its own); ``scales``: named factors on several keys
     (:class:`fishfmu.batch.sweep.SweepSpec`); ``options`` as :func:`fishfmu.batch.sweep.run_sweep` takes them
     (scheduler, workers, max_runs, retry_failed, ...)."""
-    from fishfmu.batch.sweep import make_spec, run_sweep
-    from fishfmu.scenario.schema import load_scenario
-    from fishfmu.session import register_output
-    refuse_served(load_scenario(scenario_file, fixed or {}), Path(scenario_file))
+    refuse_served(schema.load_scenario(scenario_file, fixed or {}), Path(scenario_file))
     spec = make_spec(Path(scenario_file), params, seeds, fixed or {}, scales)
-    register_output(Path(out), {"command": "sweep"})
     return spec, run_sweep(spec, Path(out), **options)
 
 
@@ -210,30 +237,24 @@ def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, o
 
 def replay(run_dir: str | Path, out: str | Path | None = None) -> Path:
     """Write a run (of ``fishfmu run --replay``) as one HTML page that replays it in 3D."""
-    from fishfmu.output.ownership import check_single_file_target
-    from fishfmu.output.replay import write_replay
     run_dir = Path(run_dir)
     check_single_file_target(Path(out) if out is not None else run_dir / "replay.html",
                              [run_dir / "run", run_dir / "poses.npz", run_dir / "scenario.resolved.toml"])
     return write_replay(run_dir, Path(out) if out is not None else None)
 
 
-# ---------------------------------------------------------------- compare and diagnose
+# ---------------------------------------------------------------- compare, diagnose, calibrate
 
 def _dataset_and_params(dataset: Path, scenario_file: Path | None):
     """The dataset, and the plant (and drive) parameters of ``scenario_file``: a whole scenario, or a fragment
     of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``)."""
-    from plant.contract.measured import read_dataset
-    from plant.sim.params import PlantParams
     ds = read_dataset(dataset)
     if scenario_file is None:
         return ds, PlantParams(), None
-    from fishfmu.scenario.schema import load_scenario
-    from plant.validation import read_toml, validate
     data = read_toml(scenario_file)
     if set(data) <= {"plant"}:
         return ds, validate(PlantParams, data.get("plant", {}), file=scenario_file, prefix="plant."), None
-    sc = load_scenario(scenario_file)
+    sc = schema.load_scenario(scenario_file)
     drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
     return ds, sc.plant, (drives[0] if drives else None)
 
@@ -255,25 +276,18 @@ class CompareOutcome:
 def compare(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
             workers: int | None = None, overwrite: bool = False) -> CompareOutcome:
     """Re-simulate every measured run of ``dataset`` and write what the simulation gets wrong into ``out``."""
-    from fishfmu.analysis.compare import compare_dataset, write_comparison
-    from fishfmu.session import current, register_output
-    from fishfmu.output.run_folder import prepare_out_dir
-    from fishfmu.output.atomic import write_run_info
     dataset = Path(dataset)
     scenario_file = Path(scenario_file) if scenario_file is not None else None
     ds, params, drive = _dataset_and_params(dataset, scenario_file)
-    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], "compare")
-    register_output(out_dir, {"command": "compare", "dataset": str(dataset)})  # a signal: run_info.json says partial
-    c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
-    paths = write_comparison(c, out_dir)
-    session = current()
-    stopped = session is not None and session.requested
-    failure = None if stopped else c.failure()
-    write_run_info(out_dir, "partial" if stopped else "failed" if failure else "ok", command="compare",
-                   dataset=str(dataset), **({"stopped_by": session.signal_name} if stopped else {}),
-                   **({"error": failure} if failure else {}))
-    return CompareOutcome(ds.name, len(ds.runs), c, paths, out_dir, session.signal_name if stopped else None,
-                          session.exit_code if stopped else None, failure)
+    with RunFolder.open(out, overwrite, [dataset, scenario_file], "compare", dataset=str(dataset)) as folder:
+        c = compare_dataset(ds, params, workers, drive)  # a signal: the runs re-simulated by then are compared
+        paths = write_comparison(c, folder.path)
+        stopped = folder.stopped
+        failure = None if stopped else c.failure()
+        folder.finish("partial" if stopped else "failed" if failure else "ok",
+                      **({"stopped_by": stopped.signal_name} if stopped else {}), **({"error": failure} if failure else {}))
+    return CompareOutcome(ds.name, len(ds.runs), c, paths, folder.path, stopped.signal_name if stopped else None,
+                          stopped.exit_code if stopped else None, failure)
 
 
 @dataclass
@@ -288,31 +302,23 @@ def _analysis_into(command: str, dataset: Path, out: str | Path, scenario_file: 
                    analyse: Callable[[Any, Any], Any], write: Callable[[Any, Any, Path], dict[str, Path]]):
     """An analysis of ``dataset`` written into the folder ``out``: (result, base plant parameters, paths,
     folder).  A run the model cannot re-simulate is exit 3, with run_info.json saying why."""
-    from fishfmu.session import register_output
-    from fishfmu.output.run_folder import prepare_out_dir
-    from fishfmu.output.atomic import write_run_info
     ds, params, _ = _dataset_and_params(dataset, scenario_file)
-    out_dir = prepare_out_dir(Path(out), overwrite, [dataset, scenario_file], command)
-    register_output(out_dir, {"command": command, "dataset": str(dataset)})  # a signal: run_info.json says partial
-    try:
+    with RunFolder.open(out, overwrite, [dataset, scenario_file], command, dataset=str(dataset)) as folder:
         result = analyse(ds, params)
-    except SimulationError as exc:
-        write_run_info(out_dir, "failed", command=command, dataset=str(dataset), error=str(exc))
-        raise
-    paths = write(result, params, out_dir)
-    write_run_info(out_dir, "ok", command=command, dataset=str(dataset))
-    return result, params, paths, out_dir
+        paths = write(result, params, folder.path)
+        folder.finish("ok")
+    return result, params, paths, folder.path
 
 
 def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
              workers: int | None = None, overwrite: bool = False,
              progress: Callable[[str], None] | None = None, calibrate: bool = True) -> DiagnoseOutcome:
     """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
-    from fishfmu.analysis.diagnose import diagnose as diagnose_
+    # slow (matplotlib, about 0.5 s) and needed only here: the other commands start without it
     from fishfmu.analysis.diagnose_report import write_diagnosis
     d, _, paths, out_dir = _analysis_into(
         "diagnose", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
-        lambda ds, params: diagnose_(ds, params, workers, progress=progress, calibrate=calibrate),
+        lambda ds, params: diagnose_dataset(ds, params, workers, progress=progress, calibrate=calibrate),
         lambda d, params, folder: write_diagnosis(d, folder))
     return DiagnoseOutcome(d, paths, out_dir)
 
@@ -331,11 +337,9 @@ def calibrate(dataset: str | Path, out: str | Path, scenario_file: str | Path | 
               workers: int | None = None, overwrite: bool = False,
               progress: Callable[[str], None] | None = None) -> CalibrateOutcome:
     """Fit the line's base parameters on ``dataset``; ``out`` gets ``calibrated.toml`` and ``calibration.json``."""
-    from fishfmu.analysis.calibrate import calibrate as calibrate_
-    from fishfmu.analysis.calibrate_report import write_calibration
     c, params, paths, out_dir = _analysis_into(
         "calibrate", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
-        lambda ds, params: calibrate_(ds, params, workers, progress=progress), write_calibration)
+        lambda ds, params: calibrate_dataset(ds, params, workers, progress=progress), write_calibration)
     return CalibrateOutcome(c, params, paths, out_dir)
 
 
@@ -343,7 +347,6 @@ def calibrate(dataset: str | Path, out: str | Path, scenario_file: str | Path | 
 
 def check_targets(*paths: Path | None) -> None:
     """Before measuring: each single-file output may be replaced only if fishfmu wrote it."""
-    from fishfmu.output.ownership import check_single_file_target
     for p in paths:
         if p is not None:
             check_single_file_target(p)
@@ -351,6 +354,5 @@ def check_targets(*paths: Path | None) -> None:
 
 def write_json(path: Path, doc: Any) -> Path:
     """A JSON document written atomically (under the folder's manifest)."""
-    from fishfmu.output.atomic import json_safe, write_text_atomic
     write_text_atomic(path, json.dumps(json_safe(doc), indent=2) + "\n")
     return path

@@ -1,37 +1,53 @@
-"""One fishfmu command as a process: its temporary folder, its worker processes, and Ctrl-C.
+"""One fishfmu command as a process: its signals, its temporary folder and its worker processes.
 
-The commands with worker processes (``run --seeds``, ``sweep``, ``compare``, ``diagnose``) run
-inside :func:`session` (``fishfmu.cli.main`` opens one for every command): there the first SIGINT or
-SIGTERM raises :class:`Interrupted` in the main thread, so that a loop waiting for workers stops at
-once, cancels what has not run, shuts its cluster or pool down and writes what finished; the session
-owns the command's temporary folder (``TMPDIR`` of the command and its workers), removes it at the
-end and terminates any child process still alive.  The output folder a command registers
-(:func:`register_output`) is marked ``partial`` when it is stopped.  A single run stops between two
-steps instead (:mod:`fishfmu.cosim.stop`).
+The one place where fishfmu's own process answers SIGINT and SIGTERM (a worker process only ignores
+SIGINT, so that a Ctrl-C to the process group is the command's to handle).  The first signal is
+answered in one of two ways, by what the command is doing when it comes:
+
+- a loop waiting for worker processes (``run --seeds``, ``sweep``, ``compare``, ``diagnose``,
+  ``calibrate``) gets :class:`Interrupted` in the main thread: it stops at once, cancels what has not
+  run, shuts its cluster or pool down and writes what finished (inside :func:`deferred_signals` the
+  exception waits for the end of the block);
+- a loop that steps a run (``run``, ``serve``) inside :func:`stop_between_steps` is only asked to stop:
+  it polls ``requested`` between two steps, ends after the current one and writes what there is.
+
+A second signal stops at once: child processes are killed, the temporary folder removed, the command's
+output folder told (``run_info.json`` says ``partial``) and the process ends by the signal.
+
+Every command runs inside :func:`session` (``fishfmu.cli.main`` opens one): it owns the command's
+temporary folder (``TMPDIR`` of the command and its workers), removes it at the end and terminates any
+child process still alive.  The output folder a command registers (:func:`register_output`, done by
+:class:`fishfmu.output.run_folder.RunFolder`) is told when a signal ends the command.  fishfmu used as a
+library has no session: :func:`stop_between_steps` then takes the signals for its block alone.
 """
 
 from __future__ import annotations
 
 import contextlib
-import json
+import multiprocessing.util as mp_util
 import os
 import shutil
 import signal
 import sys
 import tempfile
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from fishfmu.cosim.stop import SIGNALS, StopRequest
+import psutil
 
-# ---------------------------------------------------------------- commands with worker processes
+from fishfmu.cosim.stop import StopRequest, exit_status
+
+SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals that stop a command."""
+
 
 class Interrupted(BaseException):
     """Raised in the main thread by the first SIGINT/SIGTERM inside :func:`session` (outside a
-    :func:`deferred_signals` block, where it is raised at the block's end).
+    :func:`deferred_signals` block, where it is raised at the block's end, and outside
+    :func:`stop_between_steps`, where it is not raised at all).
 
     A BaseException, not an Exception, so that ``except Exception`` (a failed run, a bug) never
     swallows it; not a KeyboardInterrupt, so that the command-line framework does not turn it into
@@ -45,7 +61,7 @@ class Interrupted(BaseException):
 
     @property
     def exit_code(self) -> int:
-        return 128 + self.signum
+        return exit_status(self.signum)
 
     @property
     def signal_name(self) -> str:
@@ -57,20 +73,32 @@ STOPS = (KeyboardInterrupt, Interrupted)
 
 
 class Session(StopRequest):
-    """One command's ownership of its temporary folder and worker processes (see :func:`session`)."""
+    """One command's signals, temporary folder and worker processes (see :func:`session`); the stop request
+    a stepping loop polls (:func:`stop_between_steps`)."""
 
-    def __init__(self, tmp: Path, before: set[int]) -> None:
+    def __init__(self, tmp: Path | None, before: set[int]) -> None:
         super().__init__()
         self.tmp = tmp
-        """the temporary folder every process of the command uses (``TMPDIR``); removed at the end"""
+        """the temporary folder every process of the command uses (``TMPDIR``); removed at the end (None: a
+        library's :func:`stop_between_steps` block, which has none)"""
         self.out_dir: Path | None = None
-        """the output folder, once made: marked ``partial`` when the command is stopped"""
-        self.out_info: dict[str, Any] = {}
-        """what ``run_info.json`` says if the command had not written one yet"""
+        """the command's output folder, once registered (:func:`register_output`)"""
+        self.on_stopped: Callable[[int], None] | None = None
+        """what tells that folder a signal ended the command (``run_info.json``: ``partial``)"""
         self._raised = False
         self._deferred = 0
+        self._polled = 0
         self._before = before
         self._seen: list[Any] = []
+
+    def ours(self, procs: list[Any]) -> list[Any]:
+        """The processes of ``procs`` started since the session began."""
+        return [p for p in procs if p.pid not in self._before]
+
+    def tell_output(self, signum: int) -> None:
+        """Tell the registered output folder that the signal ``signum`` ended the command."""
+        if self.on_stopped is not None:
+            self.on_stopped(signum)
 
 
 _current: Session | None = None
@@ -81,18 +109,18 @@ def current() -> Session | None:
     return _current
 
 
-def register_output(out_dir: Path, info: dict[str, Any] | None = None) -> None:
-    """Tell the session which folder to mark ``partial`` if the command is stopped (``info``: what
-    its ``run_info.json`` says, if the command has not written one by then)."""
-    if _current is not None:
-        _current.out_dir = Path(out_dir)
-        _current.out_info = dict(info or {})
+def register_output(out_dir: Path, on_stopped: Callable[[int], None]) -> None:
+    """Make ``out_dir`` the command's output folder, told by ``on_stopped(signum)`` when a signal ends the command
+    (an exception :class:`Interrupted` leaving the session, or a second signal).  The first folder registered is
+    the command's (``run --seeds`` writes a sweep into a folder of its own); outside a session nothing happens."""
+    if _current is not None and _current.out_dir is None:
+        _current.out_dir, _current.on_stopped = Path(out_dir), on_stopped
 
 
 def raise_if_stopped() -> None:
     """Raise :class:`Interrupted` now if a signal came while it could not be raised."""
     s = _current
-    if s is not None and s.signum is not None and not s._raised and s._deferred == 0:
+    if s is not None and s.signum is not None and not s._raised and s._deferred == 0 and s._polled == 0:
         s._raised = True
         raise Interrupted(s.signum)
 
@@ -119,8 +147,31 @@ def deferred_signals() -> Iterator[None]:
     raise_if_stopped()
 
 
+@contextmanager
+def stop_between_steps() -> Iterator[StopRequest]:
+    """A block whose loop steps a run: the first SIGINT/SIGTERM only sets ``requested`` on the request yielded,
+    which the loop polls between two steps (:func:`fishfmu.cosim.runner.run_scenario`, the served line); the
+    command then writes what there is, marked ``partial``.  A second signal stops at once.
+
+    Inside a session the request is the session's; outside one (fishfmu used as a library, in the main thread)
+    the block takes the signals for itself, and a second one goes to the handler from before the block."""
+    s = _current
+    if s is None:
+        s = Session(None, {p.pid for p in _descendants()})
+        s._polled = 1
+        with _answer_signals(s, SIGNALS, second_to_previous=True):
+            yield s
+        return
+    s._polled += 1
+    try:
+        yield s
+    finally:
+        s._polled -= 1
+        if s.signum is not None:
+            s._raised = True  # answered by the loop, which stopped: not raised again
+
+
 def _descendants() -> list[Any]:
-    import psutil
     try:
         return psutil.Process().children(recursive=True)
     except psutil.Error:
@@ -129,7 +180,6 @@ def _descendants() -> list[Any]:
 
 def reap(procs: list[Any], grace_s: float = 3.0) -> None:
     """Terminate these processes (psutil), then kill what is left after ``grace_s``."""
-    import psutil
     alive = []
     for p in procs:
         try:
@@ -145,24 +195,45 @@ def reap(procs: list[Any], grace_s: float = 3.0) -> None:
     psutil.wait_procs(left, timeout=1.0)
 
 
-def mark_partial(out_dir: Path | None, signum: int, info: dict[str, Any] | None = None) -> None:
-    """Set ``status`` to ``partial`` in ``out_dir/run_info.json``, written with ``info`` if the
-    folder holds none yet (nothing happens when the folder does not exist)."""
-    if out_dir is None or not Path(out_dir).is_dir():
+@contextmanager
+def _answer_signals(s: Session, signals: tuple[int, ...], second_to_previous: bool) -> Iterator[None]:
+    """The handler of ``signals`` for the block (main thread only: elsewhere none can be set; the block then only
+    manages what it owns).  The first signal sets ``s.signum`` and raises :class:`Interrupted` unless the session
+    defers it or a loop polls for it; the second kills the session's child processes, removes its temporary
+    folder, tells its output folder, and delivers itself again to the default handler (the process ends by it),
+    or with ``second_to_previous`` to the handler from before the block."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
         return
-    info_path = Path(out_dir) / "run_info.json"
+    previous = {sig: signal.getsignal(sig) for sig in signals}
+
+    def handler(signum: int, _frame) -> None:  # noqa: ANN001
+        if s.signum is None:
+            s.signum = signum
+            s._seen = s.ours(_descendants())  # orphans-to-be: a worker's own children outlive a killed worker
+            if s._deferred == 0 and s._polled == 0:
+                s._raised = True
+                raise Interrupted(signum)
+            return
+        # second signal: no more waiting
+        for p in s.ours(_descendants()) + s._seen:
+            with contextlib.suppress(Exception):
+                p.kill()
+        if s.tmp is not None:
+            shutil.rmtree(s.tmp, ignore_errors=True)
+        with contextlib.suppress(Exception):
+            s.tell_output(s.signum)
+        for sig, h in previous.items():
+            signal.signal(sig, h if second_to_previous else signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+    for sig in signals:
+        signal.signal(sig, handler)
     try:
-        info = json.loads(info_path.read_text())
-    except FileNotFoundError:
-        info = dict(info or {})
-    except (OSError, ValueError):
-        return
-    if not isinstance(info, dict) or info.get("status") == "partial":
-        return
-    info.update(status="partial", stopped_by=signal.Signals(signum).name)
-    from fishfmu.output.atomic import write_run_info
-    with contextlib.suppress(OSError):
-        write_run_info(out_dir, **info)
+        yield
+    finally:
+        for sig, h in previous.items():
+            signal.signal(sig, h)
 
 
 def _spawn_ignoring_sigint(spawn: Any) -> Any:
@@ -191,16 +262,18 @@ def session(signals: tuple[int, ...] = SIGNALS, prefix: str = "fishfmu-") -> Ite
     - Every temporary file of the command and of the processes it starts (unpacked FMUs, Dask's
       scratch space, FMU worker processes) goes into one folder made here (``TMPDIR`` and
       :data:`tempfile.tempdir` point to it); the folder is removed at the end, whatever happened.
-    - The first signal raises :class:`Interrupted` in the main thread: loops over worker results
-      stop, cancel what has not run, shut their pools and clusters down and write what finished.
+    - The first signal raises :class:`Interrupted` in the main thread (see the module docstring for
+      :func:`deferred_signals` and :func:`stop_between_steps`): loops over worker results stop, cancel
+      what has not run, shut their pools and clusters down and write what finished.  When it leaves
+      the block, the registered output folder is told (``run_info.json``: ``partial``).
     - Worker processes (multiprocessing spawn: Dask workers, process pools) ignore SIGINT from
       their start (:func:`_spawn_ignoring_sigint`; elsewhere than Linux from the moment they import
       fishfmu, ``FISHFMU_SESSION`` is set for them): a Ctrl-C to the process group is the
       command's, which stops them in order; none dies of it half-started.
     - Child processes started inside the block and still alive at its end (or at the signal) are
       terminated, then killed.
-    - A second signal stops at once: the children are killed, the folder removed, the process
-      ends by the signal (exit status 128 + its number).
+    - A second signal stops at once: the children are killed, the folder removed, the output folder
+      told, and the process ends by the signal (exit status 128 + its number).
 
     Handlers can only be set from the main thread; elsewhere only the folder is managed.
     """
@@ -212,56 +285,32 @@ def session(signals: tuple[int, ...] = SIGNALS, prefix: str = "fishfmu-") -> Ite
     os.environ["TMPDIR"] = str(tmp)
     os.environ["FISHFMU_SESSION"] = str(tmp)  # worker processes ignore Ctrl-C from the start (fishfmu/__init__.py)
     tempfile.tempdir = str(tmp)
-    main = threading.current_thread() is threading.main_thread()
-    previous = {sig: signal.getsignal(sig) for sig in signals} if main else {}
-
-    def ours(procs: list[Any]) -> list[Any]:
-        return [p for p in procs if p.pid not in s._before]
-
-    def handler(signum: int, _frame) -> None:  # noqa: ANN001
-        if s.signum is None:
-            s.signum = signum
-            s._seen = ours(_descendants())  # orphans-to-be: a worker's own children outlive a killed worker
-            if s._deferred == 0:
-                s._raised = True
-                raise Interrupted(signum)
-            return
-        # second signal: no more waiting
-        for p in ours(_descendants()) + s._seen:
-            with contextlib.suppress(Exception):
-                p.kill()
-        shutil.rmtree(tmp, ignore_errors=True)
-        mark_partial(s.out_dir, s.signum, s.out_info)
-        for sig in previous:
-            signal.signal(sig, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-
-    for sig in previous:
-        signal.signal(sig, handler)
-    import multiprocessing.util as mp_util
     original_spawn = mp_util.spawnv_passfds
+    main = threading.current_thread() is threading.main_thread()
     if main and sys.platform == "linux" and not hasattr(original_spawn, "fishfmu_wraps"):
         mp_util.spawnv_passfds = _spawn_ignoring_sigint(original_spawn)
     _current = s
     try:
-        yield s
+        with _answer_signals(s, signals, second_to_previous=False):
+            try:
+                yield s
+            except Interrupted as exc:  # the command ends by the signal: its output folder says partial
+                s.tell_output(exc.signum)
+                raise
+            finally:
+                if s.signum is None:  # the clean-up below is not to be broken into
+                    s._deferred += 1
+                reap(s.ours(_descendants()) + s._seen)
+                shutil.rmtree(tmp, ignore_errors=True)
     finally:
-        if s.signum is None:  # the clean-up below is not to be broken into
-            s._deferred += 1
-        try:
-            reap(ours(_descendants()) + s._seen)
-            shutil.rmtree(tmp, ignore_errors=True)
-        finally:
-            _current = None
-            mp_util.spawnv_passfds = original_spawn
-            if old_env is None:
-                os.environ.pop("TMPDIR", None)
-            else:
-                os.environ["TMPDIR"] = old_env
-            tempfile.tempdir = old_tempdir
-            if old_session is None:
-                os.environ.pop("FISHFMU_SESSION", None)
-            else:
-                os.environ["FISHFMU_SESSION"] = old_session
-            for sig, h in previous.items():
-                signal.signal(sig, h)
+        _current = None
+        mp_util.spawnv_passfds = original_spawn
+        if old_env is None:
+            os.environ.pop("TMPDIR", None)
+        else:
+            os.environ["TMPDIR"] = old_env
+        tempfile.tempdir = old_tempdir
+        if old_session is None:
+            os.environ.pop("FISHFMU_SESSION", None)
+        else:
+            os.environ["FISHFMU_SESSION"] = old_session

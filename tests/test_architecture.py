@@ -128,17 +128,17 @@ LAYERS = [
     {"fishfmu.terminal", "fishfmu.fmu"},
     {"fishfmu.scenario"},
     {"fishfmu.cosim"},
-    {"fishfmu.output"},
     {"fishfmu.session"},
     {"fishfmu.batch", "fishfmu.analysis"},
-    {"fishfmu.commands"},
+    {"fishfmu.output"},
     {"fishfmu.serve"},
     {"fishfmu.bench"},
+    {"fishfmu.commands"},
     {"fishfmu.cli"},
 ]
-"""Each part may import only parts of lower layers (and itself): physics, FMUs, scenario, one run,
-what a run writes, the command's process, many runs and measured data, commands, serving over OPC UA, benchmarks (which
-measure what the commands do), CLI."""
+"""Each part may import only parts of lower layers (and itself): physics, FMUs, scenario, one run, the command's
+process (its signals), what a command writes (its folder's lifecycle), many runs and measured data, serving over
+OPC UA, commands, benchmarks (which measure what the commands do), CLI."""
 
 
 def _part(module: str) -> str:

@@ -92,7 +92,7 @@ def test_run_refuses_a_scenario_whose_inputs_a_plc_writes(tmp_path):
 
 def _serve_in_process(out: Path, **options):  # noqa: ANN003, ANN202
     """serve_scenario as the CLI calls it; a server that starts anyway (today's code) is stopped at once."""
-    from fishfmu.serve import serve_scenario
+    from fishfmu.commands import serve as serve_scenario
     return serve_scenario(SERVED, out, {"fish.count": 1, "run.duration_s": 0.05}, report=False,
                           on_ready=lambda line: line.stop_requested.set(), **options)
 

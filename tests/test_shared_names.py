@@ -16,9 +16,10 @@ import pytest
 from plant.contract.kpis import KPI_KEYS, KPIS, SHOWN_KPI_KEYS, kpi_keys, kpis_from_passages
 from plant.validation import suggest
 
-from fishfmu.output.run_folder import junit_args_of_run, write_junit
+from fishfmu.output.junit import junit_args_of_run, write_junit
 
-from fishfmu.output.atomic import MARKER, json_safe, write_run_info
+from fishfmu.output.atomic import json_safe
+from fishfmu.output.run_folder import MARKER, mark_partial, write_run_info
 from fishfmu.cosim.runner import ExpectResult
 
 
@@ -112,7 +113,6 @@ def test_json_safe() -> None:
 
 
 def test_run_info_is_written_json_safe_and_kept_by_mark_partial(tmp_path) -> None:
-    from fishfmu.session import mark_partial
     write_run_info(tmp_path, "running", command="sweep", n_done=np.int64(4), wall_s=float("nan"))
     assert json.loads((tmp_path / MARKER).read_text()) == {"status": "running", "command": "sweep", "n_done": 4,
                                                            "wall_s": None}

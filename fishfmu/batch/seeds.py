@@ -5,8 +5,9 @@ The output folder holds ``kpis.json`` (each KPI's mean as a plain number, as for
 plus ``statistics`` per KPI and ``expect``), ``run_info.json``, and the sweep itself in
 ``seeds/`` (``runs.csv``, ``summary.csv``, ...).
 
-Exit code, as ``fishfmu run``: 3 when any seed's run failed, else 1 when an ``[expect]`` bound
-fails **on the mean over seeds** (not on single runs, nor on the interval), else 0.
+Its exit code (:func:`fishfmu.cli.exit_codes.for_seeds`), as ``fishfmu run``'s: 3 when any seed's run failed,
+else 1 when an ``[expect]`` bound fails **on the mean over seeds** (not on single runs, nor on the interval),
+else 0.
 """
 
 from __future__ import annotations
@@ -22,9 +23,12 @@ import pandas as pd
 from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 
+from fishfmu.batch.sweep import SweepResult, SweepSpec, run_sweep
 from fishfmu.cosim.results import ExpectResult
-from fishfmu.scenario.schema import load_scenario
-from fishfmu.batch.sweep import SweepResult, make_spec, run_sweep
+from fishfmu.output.junit import write_junit
+from fishfmu.output.run_folder import RunFolder
+from fishfmu.scenario.schema import Scenario
+from fishfmu.session import Interrupted
 
 
 @dataclass
@@ -41,23 +45,20 @@ class SeedsResult:
         return int(self.statistics["n_failed"])
 
 
-def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out_dir: Path, *,
-              scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
-    """Run the scenario for ``n_seeds`` seeds into ``out_dir`` (already prepared) and write its KPIs."""
-    from fishfmu.output.atomic import json_safe, write_json_atomic, write_run_info
-    sc = load_scenario(scenario, overrides)
-    spec = make_spec(scenario, {}, n_seeds, overrides)
+def run_over_seeds(scenario_file: Path, sc: Scenario, spec: SweepSpec, folder: RunFolder, *,
+                   scheduler: str | None = None, workers: int | None = None, progress: bool = False) -> SeedsResult:
+    """Run the scenario ``sc`` of ``scenario_file`` (loaded and checked) for the seeds of ``spec`` into ``folder``
+    (open, ``running``): the sweep in ``seeds/``, then ``kpis.json`` and the finish of ``run_info.json``."""
     t0 = time.perf_counter()
-    write_run_info(out_dir, "running", seeds=spec.seeds)  # marks the folder ours
-    sweep = run_sweep(spec, out_dir / "seeds", scheduler=scheduler, workers=workers, progress=progress, plots=False)
+    sweep = run_sweep(spec, folder.path / "seeds", scheduler=scheduler, workers=workers, progress=progress,
+                      plots=False)
+    stopped_by = signal.Signals(sweep.stop_signal).name if sweep.interrupted else None
     if sweep.summary.empty:
         if sweep.interrupted:  # stopped before any run finished: nothing to average, the folder says so
-            from fishfmu.session import Interrupted
-            write_run_info(out_dir, "partial", seeds=spec.seeds, n_ok=0, n_failed=0,
-                           stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name,
-                           wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
-            raise Interrupted(sweep.exit_code_interrupted - 128)
-        raise InputError("no run finished", file=scenario)
+            folder.finish("partial", n_ok=0, n_failed=0, stopped_by=stopped_by,
+                          wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
+            raise Interrupted(sweep.stop_signal)
+        raise InputError("no run finished", file=scenario_file)
     stats = sweep.summary.iloc[0]
     # bounds on recorded signals are checked by single runs (a signal has no mean over seeds)
     expect = [ExpectResult(k, _mean(stats, k), b.min, b.max) for k, b in sc.expect.items() if "." not in k]
@@ -73,10 +74,9 @@ def run_seeds(scenario: str | Path, overrides: dict[str, Any], n_seeds: int, out
                        for e in expect},
                expect_not_checked={k: "a bound on a signal is checked by a single run (fishfmu run), not on means"
                                    for k in sc.expect if "." in k})
-    write_json_atomic(out_dir / "kpis.json", json_safe(doc))
-    write_run_info(out_dir, status, seeds=spec.seeds, n_ok=int(stats["n_ok"]), n_failed=result.n_failed,
-                   stopped_by=signal.Signals(sweep.exit_code_interrupted - 128).name if sweep.interrupted else None,
-                   wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
+    folder.write_kpis(doc)
+    folder.finish(status, n_ok=int(stats["n_ok"]), n_failed=result.n_failed, stopped_by=stopped_by,
+                  wall_s=round(time.perf_counter() - t0, 3), workers=workers, scheduler=scheduler)
     return result
 
 
@@ -87,6 +87,5 @@ def _mean(stats: pd.Series, kpi: str) -> float | None:
 
 def write_junit_means(result: SeedsResult, path: Path, scenario_file: str) -> None:
     """Each [expect] bound, checked on the mean over seeds, as a JUnit test case."""
-    from fishfmu.output.run_folder import write_junit
     write_junit(path, f"fishfmu:{Path(scenario_file).stem}:seeds", "fishfmu.seeds", result.expect, on="mean",
                 error=(f"{result.n_failed} runs failed", str(result.statistics["errors"])) if result.n_failed else None)

@@ -40,6 +40,7 @@ from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 
 from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle, progress_bar
+from fishfmu.output.run_folder import RunFolder
 from fishfmu.session import STOPS
 from fishfmu.cosim.preflight import FmuDescription, check_start_values, describe_file, preflight, preflight_changes
 from fishfmu.scenario.schema import (RunSettings, Scenario, ScenarioLoader, dotted_parts, get_dotted, load_scenario,
@@ -376,8 +377,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     """
     t0 = time.perf_counter()
     out = open_folder(Path(out), spec)
-    from fishfmu.output.atomic import write_run_info
-    write_run_info(out, "running", command="sweep")  # "partial" if killed
+    folder = RunFolder.start(out, command="sweep")  # "partial" if stopped outside the runs, "running" if killed
     done = finished_rows(out)
     keep = {k: r for k, r in done.items() if r["status"] == "ok" or (r["error_kind"] in FINAL_ERROR_KINDS
                                                                      and not retry_failed)}
@@ -431,8 +431,8 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
         from fishfmu.batch.sweep_report import write_plots
         paths["plots"] = write_plots(summary, list(spec.parameters), out / "plots")
     n_runs = len(points) * len(spec.seeds)
-    write_run_info(out, "partial" if interrupted or len(rows) < n_runs else "ok", command="sweep", n_runs=n_runs,
-                   n_done=len(rows), stopped_by=signal.Signals(stop_signal).name if interrupted else None)
+    folder.finish("partial" if interrupted or len(rows) < n_runs else "ok", n_runs=n_runs, n_done=len(rows),
+                  stopped_by=signal.Signals(stop_signal).name if interrupted else None)
     return SweepResult(out, runs, summary, n_runs, executed, len(keep), interrupted, time.perf_counter() - t0, paths,
                        stop_signal)
 

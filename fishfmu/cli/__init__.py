@@ -1,24 +1,33 @@
-"""The ``fishfmu`` command: parses arguments and calls functions that a script can call too.
+"""The ``fishfmu`` command: parses arguments and calls functions that a script can call too (:mod:`fishfmu.commands`).
 
-Exit codes: 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or an FMU failed (or the machine
-lacks a system package it needs), 4 an internal error (a bug), 130/143 a run stopped by SIGINT/SIGTERM (partial
-results written).
+Exit codes (:mod:`fishfmu.cli.exit_codes`): 0 ok, 1 an ``[expect]`` bound failed, 2 bad input, 3 the simulation or
+an FMU failed (or the machine lacks a system package it needs), 4 an internal error (a bug), 130/143 a run stopped
+by SIGINT/SIGTERM (partial results written).
+
+Each command imports what it runs (:mod:`fishfmu.commands`, the scenario schema, the KPI keys: numpy, pandas,
+pydantic, Exudyn, about 1.5 s) inside its function, each such import saying so: ``fishfmu --help``, a command's
+help and a bad option answer at once without them.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sys
+import traceback
 from pathlib import Path
 
 import typer
 from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
 
-from plant.errors import InputError, SimulationError, SystemDependencyError
+from plant.errors import InputError, SimulationError
 
-from fishfmu.cli.exit_codes import (EXIT_BAD_INPUT, EXIT_EXPECT_FAILED, EXIT_INTERNAL_ERROR, EXIT_SIMULATION_FAILED,
-                                    for_seeds)
+from fishfmu.cli.bench import bench_app
+from fishfmu.cli.exit_codes import EXIT_INTERNAL_ERROR, for_error, for_run, for_seeds
+from fishfmu.session import Interrupted, session
 from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
@@ -32,13 +41,7 @@ def _root() -> None:
     """Co-simulate salmon singulation lines."""
 
 
-
-def _add_bench() -> None:
-    from fishfmu.cli.bench import bench_app
-    app.add_typer(bench_app, name="bench")
-
-
-_add_bench()
+app.add_typer(bench_app, name="bench")
 
 
 def _show_progress() -> bool:
@@ -55,23 +58,18 @@ def build_fmus(
                                                          "(repeatable; needs a single FMU name)."),
 ) -> None:
     """Build the built-in FMUs as standalone .fmu files (Linux binary and C sources inside)."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.fmu.build import FmuBuildError
     from fishfmu.scenario.schema import parse_assignments
-    try:
-        for path in commands.build_fmus(names or [], out, parse_assignments(param, "--param")):
-            print(path)
-    except FmuBuildError as exc:
-        print_error("build failed", exc)
-        raise typer.Exit(EXIT_SIMULATION_FAILED) from exc
+    for path in commands.build_fmus(names or [], out, parse_assignments(param, "--param")):  # a failure: exit 3
+        print(path)
 
 
 # ---------------------------------------------------------------- run
 
 def print_kpis(result, console: Console) -> None:
     """The KPIs as a table, then each [expect] bound with its outcome."""
-    from rich.table import Table
-
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from plant.contract.kpis import SHOWN_KPI_KEYS
     table = Table(title=f"KPIs: {result.scenario.run.name} (seed {result.scenario.run.seed})")
     table.add_column("KPI")
@@ -101,6 +99,7 @@ def run(
     scheduler: str | None = typer.Option(None, "--scheduler", help="With --seeds: address of a running Dask scheduler."),
 ) -> None:
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.scenario.schema import parse_assignments
     overrides = parse_assignments(set_)
@@ -115,7 +114,6 @@ def run(
         raise typer.Exit(for_seeds(result))
     console = literal_console()
     if _show_progress():
-        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
         with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.fields[t]:.1f} s simulated"),
                       TimeElapsedColumn(), console=literal_console(stderr=True), transient=True) as bar:
             task = bar.add_task(scenario.stem, total=None, t=0.0)
@@ -137,11 +135,9 @@ def _finish(result, out_dir: Path, stop_exit_code: int | None, console) -> None:
     if result.status == "partial":
         err_console.print(labelled("stopped:", f"{result.error}; partial results written to {out_dir}",
                                    "bold yellow"))
-        raise typer.Exit(stop_exit_code)
-    if result.status != "ok":
+    elif result.status != "ok":
         raise SimulationError(f"{result.error} (results so far written to {out_dir})")
-    if not result.expect_ok:
-        raise typer.Exit(EXIT_EXPECT_FAILED)
+    raise typer.Exit(for_run(result, stop_exit_code))
 
 
 @app.command("serve")
@@ -170,12 +166,12 @@ def serve_cmd(
 ) -> None:
     """Serve the line over OPC UA for a PLC (lockstep, or real time with --realtime); when it ends (its duration in
     real time, a client's stop(), Ctrl-C/SIGTERM) the run is written like any run."""
-    from fishfmu.commands import default_out
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
+    from fishfmu import commands
     from fishfmu.scenario.schema import parse_assignments
-    from fishfmu.serve import serve_scenario
+    from fishfmu.serve import Certificates
     if lockstep and realtime is not None:
         raise InputError("--lockstep and --realtime exclude each other: give one")
-    from fishfmu.serve import Certificates
     given = [certificate, private_key, trusted_clients]
     if any(g is not None for g in given) and not all(g is not None for g in given):
         raise InputError("--certificate, --private-key and --trusted-clients go together")
@@ -187,10 +183,8 @@ def serve_cmd(
         console.print(f"serving {scenario} at {line.endpoint} (namespace urn:fishfmu, folder fishfmu), {mode}; "
                       f"clients write: {', '.join(line.external) or 'nothing'}")
 
-    done = serve_scenario(scenario, out if out is not None else default_out(scenario), parse_assignments(set_),
-                          endpoint=endpoint, realtime=realtime, allow_remote=allow_remote, user=user,
-                          certificates=certificates,
-                          overwrite=overwrite,
+    done = commands.serve(scenario, out, parse_assignments(set_), endpoint=endpoint, realtime=realtime,
+                          allow_remote=allow_remote, user=user, certificates=certificates, overwrite=overwrite,
                           report=report, on_ready=ready)
     result = done.result
     pacing = (result.served or {}).get("pacing")
@@ -209,6 +203,7 @@ def export_fmu_cmd(
 ) -> None:
     """The plant (line, fish, drops, extensions) as an FMI 2.0 co-simulation FMU for other masters; it needs Python
     with fishfmu installed on the host (made with pythonfmu)."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.scenario.schema import parse_assignments
     path = commands.export_fmu(scenario, out, parse_assignments(set_))
@@ -223,8 +218,7 @@ def check_cmd(
 ) -> None:
     """Check a scenario without running it: exit 0 and the stepping order, delayed links, conversions,
     setpoints and recorded variables; exit 2 and what is wrong."""
-    import json
-
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.scenario.schema import parse_assignments
     doc = commands.check(scenario, parse_assignments(set_))
@@ -250,9 +244,9 @@ def check_cmd(
                       "links in [wiring])")
 
 
-def _print_seeds(result, scenario: Path, out_dir: Path) -> None:
+def _print_seeds(result, scenario: Path, out_dir: Path) -> None:  # noqa: ANN001
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from plant.contract.kpis import SHOWN_KPI_KEYS
-
     from fishfmu.batch.sweep_report import print_statistics
     console = literal_console()
     seeds = result.sweep.runs["seed"]
@@ -289,6 +283,7 @@ def sweep(
     retry_failed: bool = typer.Option(False, "--retry-failed", help="Re-run failed runs when resuming."),
 ) -> None:
     """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.batch.sweep import parse_param
     from fishfmu.batch.sweep_report import print_summary
@@ -328,6 +323,7 @@ def replay_cmd(
     out: Path | None = typer.Option(None, "--out", help="HTML file to write (default: RUN_DIR/replay.html)."),
 ) -> None:
     """Write a run as one HTML page that replays it in 3D in a browser (offline, from the file)."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     print(commands.replay(run_dir, out))
 
@@ -344,8 +340,7 @@ def compare(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
 ) -> None:
     """Re-simulate every measured run and show what the simulation gets wrong (KPIs, arrivals, tracks, belts)."""
-    from rich.table import Table
-
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     done = commands.compare(dataset, out, scenario, workers, overwrite)
     table = Table(title=f"{done.dataset_name}: simulated - measured, over {done.n_runs} runs")
@@ -375,16 +370,16 @@ def diagnose_cmd(
 ) -> None:
     """Calibrate the base model, then name the cause of what it still gets wrong, fit it, and measure the gain
     on held-out runs."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.analysis.diagnose_report import decision_text
+    from fishfmu.analysis.calibrate_report import summary_lines
+    from fishfmu.analysis.diagnose_report import candidate_lines, decision_text
     done = commands.diagnose(dataset, out, scenario, workers, overwrite,
                              progress=lambda text: err_console.print(text), calibrate=calibrate)
     d, paths = done.diagnosis, done.paths
     if d.calibration is not None:
-        from fishfmu.analysis.calibrate_report import summary_lines
         for line in summary_lines(d.calibration, d.calibration.base):
             literal_console().print("calibration: " + line)
-    from fishfmu.analysis.diagnose_report import candidate_lines
     for line in candidate_lines(d):
         literal_console().print("candidate " + line)
     literal_console().print(labelled("cause:", d.cause, "bold"))
@@ -402,6 +397,7 @@ def calibrate_cmd(
 ) -> None:
     """Fit the line's constants (one friction level, one joint stiffening, the drives' ramps) on the runs with most
     fish alone, checked on held-out runs; the result is a fragment for --scenario of compare and diagnose."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.analysis.calibrate_report import summary_lines
     done = commands.calibrate(dataset, out, scenario, workers, overwrite, progress=lambda text: err_console.print(text))
@@ -412,54 +408,30 @@ def calibrate_cmd(
 
 
 def main() -> None:
-    """Entry point: turn our own errors into one clear line and the matching exit code."""
-    from fishfmu.session import Interrupted, mark_partial, session
+    """Entry point: turn our own errors into one clear line and the matching exit code (:mod:`.exit_codes`)."""
+    s = None
     try:
-        code = 0
         with session() as s:  # SIGINT/SIGTERM: workers stopped, temporary folder removed, exit 130/143
-            try:
-                app(standalone_mode=True)
-            except Interrupted as exc:
-                mark_partial(s.out_dir, exc.signum, s.out_info)
-                where = f"; what finished is in {s.out_dir} (run_info.json: partial)" if s.out_dir is not None else ""
-                err_console.print(labelled("stopped:", f"by {exc.signal_name}{where}", "bold yellow"))
-                code = exc.exit_code
-        sys.exit(code)
-    except InputError as exc:
-        print_error("error", exc)
-        sys.exit(EXIT_BAD_INPUT)
-    except SimulationError as exc:
-        print_error("simulation failed", exc)
-        sys.exit(EXIT_SIMULATION_FAILED)
-    except SystemDependencyError as exc:  # the machine, not the user's files: the run cannot be made (exit 3)
-        print_error("missing system package", exc)
-        sys.exit(EXIT_SIMULATION_FAILED)
-    except OSError as exc:  # an output location that cannot be written (disk full, read-only): not a bug
-        from fishfmu.output.manifest import os_error
-        print_error("error", os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error"))
-        sys.exit(EXIT_BAD_INPUT)
-    except RuntimeError as exc:  # Path.resolve() on a symbolic link loop (Python < 3.13): bad input, not a bug
-        from fishfmu.fmu.build import FmuBuildError
-        if isinstance(exc, FmuBuildError):  # the compiler failed on a built-in FMU's sources (first use, any command)
-            print_error("build failed", exc)
-            sys.exit(EXIT_SIMULATION_FAILED)
-        if not str(exc).startswith("Symlink loop from "):
+            app(standalone_mode=True)
+    except Interrupted as exc:  # the session has told the output folder (run_info.json: partial)
+        where = f"; what finished is in {s.out_dir} (run_info.json: partial)" if s and s.out_dir is not None else ""
+        err_console.print(labelled("stopped:", f"by {exc.signal_name}{where}", "bold yellow"))
+        sys.exit(exc.exit_code)
+    except Exception as exc:
+        known = for_error(exc)
+        if known is None:  # a bug: say so in one line, with where it happened (traceback on request)
             _internal_error(exc)
-        print_error("error", f"{str(exc).removeprefix('Symlink loop from ').strip(chr(39))}: a symbolic link loop "
-                             "(the path leads back to itself)")
-        sys.exit(EXIT_BAD_INPUT)
-    except Exception as exc:  # a bug: say so in one line, with where it happened (traceback on request)
-        _internal_error(exc)
+        label, message, code = known
+        print_error(label, message)
+        sys.exit(code)
 
 
 def _internal_error(exc: Exception) -> None:
     """A bug: one line saying where it happened (the traceback with FISHFMU_DEBUG=1); exit 4."""
     if os.environ.get("FISHFMU_DEBUG"):
         raise exc
-    import traceback
     frame = traceback.extract_tb(exc.__traceback__)[-1]
     err_console.print(labelled("internal error", "(a bug in fishfmu; please report it, FISHFMU_DEBUG=1 shows "
                                f"the traceback): {type(exc).__name__}: {exc} "
                                f"[{Path(frame.filename).name}:{frame.lineno}]", "bold red"))
     sys.exit(EXIT_INTERNAL_ERROR)
-

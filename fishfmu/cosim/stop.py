@@ -1,24 +1,22 @@
-"""Stopping a run cleanly on Ctrl-C (SIGINT) or SIGTERM.
+"""What a run loop polls to stop between two steps.
 
-Inside :func:`stop_on_signals` the first SIGINT or SIGTERM only sets a flag; the run loop
-(:func:`fishfmu.cosim.runner.run_scenario`) sees it at the end of the current communication step, stops,
-and the command writes what was recorded so far, marked ``"status": "partial"``, and exits with
-128 + the signal number (130 for SIGINT, 143 for SIGTERM), the shell's convention.  A second
-signal is not waited on: the previous handler is put back and the signal delivered again (Ctrl-C
-twice stops at once; files are written atomically, so none is left half-written under its name).
-
-Commands with worker processes stop through :mod:`fishfmu.session` instead.
+A :class:`StopRequest` is set by a signal (SIGINT, SIGTERM) and read by the loop that steps a run
+(:func:`fishfmu.cosim.runner.run_scenario`, the served line): it ends after the current communication
+step, and the command writes what was recorded, marked ``"status": "partial"``.  The signals themselves
+are answered in one place, :mod:`fishfmu.session` (:func:`fishfmu.session.stop_between_steps` gives the
+request a run polls); this module only holds the request, so that the co-simulation does not depend on how
+a command handles its process.
 """
 
 from __future__ import annotations
 
-import os
 import signal
-import threading
-from collections.abc import Iterator
-from contextlib import contextmanager
 
-SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+def exit_status(signum: int) -> int:
+    """How a shell reports a process ended by the signal ``signum``: 128 + its number (130 for SIGINT, 143 for
+    SIGTERM).  A command stopped by a signal exits with it, its partial results written."""
+    return 128 + signum
 
 
 class StopRequest:
@@ -37,31 +35,5 @@ class StopRequest:
 
     @property
     def exit_code(self) -> int:
-        """128 + the signal number, as a shell reports a process ended by that signal."""
-        return 128 + (self.signum or 0)
-
-
-@contextmanager
-def stop_on_signals(signals: tuple[int, ...] = SIGNALS) -> Iterator[StopRequest]:
-    """Turn the first of ``signals`` into a stop request for the duration of the block."""
-    request = StopRequest()
-    if threading.current_thread() is not threading.main_thread():
-        yield request  # signal handlers can only be set from the main thread
-        return
-    previous = {s: signal.getsignal(s) for s in signals}
-
-    def handler(signum: int, _frame) -> None:  # noqa: ANN001
-        if request.signum is None:
-            request.signum = signum
-            return
-        for s, h in previous.items():  # second signal: the old behaviour, now
-            signal.signal(s, h)
-        os.kill(os.getpid(), signum)
-
-    for s in signals:
-        signal.signal(s, handler)
-    try:
-        yield request
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
+        """The exit status of a command this signal stopped (:func:`exit_status`)."""
+        return exit_status(self.signum or 0)

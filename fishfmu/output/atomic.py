@@ -3,9 +3,9 @@ its folder's manifest (:mod:`fishfmu.output.manifest`, where the file writers li
 place, so a crash or an interrupt never leaves a half-written file under its final name, and a file
 that was there (a hard link to it, a backup's copy) keeps what it held.
 
-A module of its own, below :mod:`fishfmu.output.run_folder` (which re-exports all of it), so that what only
-needs to write a file (the report, :func:`fishfmu.session.mark_partial`) does not import the run's
-output writer and, through it, the runner.
+A module of its own, below :mod:`fishfmu.output.run_folder` (a command's folder, the one writer of
+``run_info.json`` and ``kpis.json``), so that what only needs to write a file (the report, a sweep's tables)
+does not import the run's output writer and, through it, the runner.
 """
 
 from __future__ import annotations
@@ -20,10 +20,8 @@ import numpy as np
 
 from fishfmu.output.manifest import write_bytes_atomic, write_file_atomic, write_tree_atomic
 
-__all__ = ["MARKER", "json_safe", "write_bytes_atomic", "write_file_atomic", "write_figure_atomic", "write_json_atomic",
-           "write_run_info", "write_text_atomic", "write_tree_atomic"]
-
-MARKER = "run_info.json"
+__all__ = ["json_safe", "write_bytes_atomic", "write_file_atomic", "write_figure_atomic", "write_json_atomic",
+           "write_text_atomic", "write_tree_atomic"]
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -63,10 +61,3 @@ def json_safe(x: Any) -> Any:
     if isinstance(x, np.bool_):
         return bool(x)
     return x
-
-
-def write_run_info(out: Path, /, status: str, **fields: Any) -> None:
-    """Write ``out/run_info.json``: ``status`` and ``fields`` (made JSON-safe, see :func:`json_safe`).
-    The one writer of that file, for every command (run, run --seeds, sweep, compare, diagnose) and
-    for :func:`fishfmu.session.mark_partial`."""
-    write_json_atomic(Path(out) / MARKER, json_safe({"status": status, **fields}))

@@ -1,0 +1,32 @@
+"""``fishfmu serve``: the line as an OPC UA server, for a PLC to commission against (asyncua).
+
+The command itself is :func:`fishfmu.commands.serve`: it checks the options and the scenario, opens the run's
+folder, serves the line until its run ends and writes the run like any run, through the same lifecycle as
+``fishfmu run`` (:class:`fishfmu.output.run_folder.RunFolder`).  This package is what it serves:
+
+- :mod:`fishfmu.serve.options`: the endpoint (loopback only unless ``allow_remote``; a port of 1-65535 that is
+  free), the real-time factor (0.001 to 1000), certificates and keys, all checked before the output folder is
+  made (bad options are exit 2 naming the option);
+- :mod:`fishfmu.serve.address_space`: what a client sees: a folder ``fishfmu`` in the namespace ``urn:fishfmu``
+  with one variable per signal of the run (every connected variable, constant input, external input and
+  ``[record]``ed variable, named as the scenario names it: ``plant.pe_c4.blocked``, ``drive_c1.belt_speed``) and
+  every output of the plant (each belt's ``speed``, ``load_force`` and ``load_mass``, each photo-eye's
+  ``blocked``), recorded or not: a PLC always needs its sensors; ``fishfmu.time_s``, ``fishfmu.run_state``
+  (``running``, ``finished``, ``stopped``, ``failed: ...``), the fish counts, and the methods ``step(n)``,
+  ``stop()`` and ``reset()``.  Only the inputs of ``[opcua] inputs`` are writable; a write an input cannot take
+  and a method called with bad arguments get an OPC UA status;
+- :mod:`fishfmu.serve.line`: the co-simulation stepped in a worker thread, in lockstep (a client's ``step(n)``)
+  or in real time (:mod:`fishfmu.serve.pacing`: p50/p99/max lateness and overruns go to ``run_info.json``,
+  ``served``); the run ends at ``run.duration_s``, a client's ``stop()`` or a signal;
+- :mod:`fishfmu.serve.server`: the asyncua server, its identity (``--user``, the password from
+  ``FISHFMU_OPCUA_PASSWORD``) and security (Basic256Sha256 SignAndEncrypt with certificates, else NoSecurity).
+
+Importing this package does not import asyncua (about 0.4 s): the option checks here are what the command line
+needs before it serves; :mod:`fishfmu.serve.line` brings the server.
+"""
+
+from fishfmu.serve.options import (DEFAULT_ENDPOINT, PASSWORD_ENV, Certificates, endpoint_problem, listen_problem,
+                                   options_problem, realtime_problem)
+
+__all__ = ["DEFAULT_ENDPOINT", "PASSWORD_ENV", "Certificates", "endpoint_problem", "listen_problem",
+           "options_problem", "realtime_problem"]

@@ -1,0 +1,250 @@
+"""The served line's address space: what an OPC UA client of ``fishfmu serve`` sees and may write.
+
+A folder ``fishfmu`` under Objects, in the namespace ``urn:fishfmu``: one variable per signal (node id ``s=<its
+name>``) with its OPC UA data type, an ``EngineeringUnits`` property where a unit is known and ``EURange`` from a
+declared min/max; ``fishfmu.time_s``, ``fishfmu.run_state`` and the fish counts; the methods ``step(n)``,
+``stop()`` and ``reset()``, whose arguments are checked here (what they do is the line's,
+:class:`fishfmu.serve.line.LineServer`).  Only the external inputs are writable, and a write one cannot take is
+refused item by item with its status before asyncua stores it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Awaitable, Callable
+from typing import Any
+
+import numpy as np
+from asyncua import ua
+
+from plant.sim.plant import LEFT, ON_LINE, WAITING
+
+from fishfmu.cosim.build import CheckedScenario
+from fishfmu.cosim.master import CoSimulation
+from fishfmu.scenario.wiring import PLANT, PLANT_UNITS
+
+NAMESPACE = "urn:fishfmu"
+FOLDER = "fishfmu"
+UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
+
+# UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)
+_UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "RPM", "1/min": "RPM",
+          "rad/s": "2A", "A": "AMP", "V": "VLT", "W": "WTT", "Hz": "HTZ", "K": "KEL", "degC": "CEL"}
+_FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT}
+
+_VARIANT_TYPES = {"Real": (ua.VariantType.Double, 0.0), "Integer": (ua.VariantType.Int32, 0),
+                  "Enumeration": (ua.VariantType.Int32, 0), "Boolean": (ua.VariantType.Boolean, False),
+                  "String": (ua.VariantType.String, "")}
+"""Each FMI type's OPC UA data type and the value a node holds before the first publication."""
+_INTEGER_TYPES = {ua.VariantType.SByte, ua.VariantType.Byte, ua.VariantType.Int16, ua.VariantType.UInt16,
+                  ua.VariantType.Int32, ua.VariantType.UInt32, ua.VariantType.Int64, ua.VariantType.UInt64}
+
+
+def _unit_id(code: str) -> int:
+    """The UnitId of a UNECE code as OPC UA Part 8 defines it (each character's code, big-endian)."""
+    out = 0
+    for ch in code.rjust(3, "\0")[-3:]:
+        out = (out << 8) | ord(ch)
+    return out
+
+
+def _variant(value: Any, vtype: Any) -> Any:
+    """``value`` as an OPC UA Variant of its node's type (a Real signal holding an int is still a Double)."""
+    cast = {ua.VariantType.Double: float, ua.VariantType.Int32: int, ua.VariantType.Boolean: bool,
+            ua.VariantType.String: str}[vtype]
+    return ua.Variant(cast(value), vtype)
+
+
+def _signal_info(checked: CheckedScenario, keys: list[str]
+                 ) -> dict[str, tuple[str, str | None, tuple[float, float] | None]]:
+    """Per signal: its type, unit and declared (min, max) where both are given."""
+    out = {}
+    for key in keys:
+        comp, _, var = key.partition(".")
+        if comp == PLANT:
+            signal = var.rpartition(".")[2]
+            out[key] = ("Boolean" if signal == "blocked" else "Real", PLANT_UNITS.get(signal), None)
+            continue
+        v = checked.opened[comp].variables[var]
+        md_var = next((m for m in checked.opened[comp].model_description.modelVariables if m.name == var), None)
+        lo, hi = getattr(md_var, "min", None), getattr(md_var, "max", None)
+        rng = (float(lo), float(hi)) if lo is not None and hi is not None else None
+        out[key] = (v.type, v.unit, rng)
+    return out
+
+
+def served_signals(checked: CheckedScenario, names: list[str]) -> list[str]:
+    """Every signal in the address space: the run's signals ``names``, then the plant's outputs it does not record
+    (a PLC always needs its sensors)."""
+    sc = checked.scenario
+    plant_outputs = [*(f"{PLANT}.{c.id}.{s}" for c in sc.line.conveyors for s in ("speed", "load_force",
+                                                                                      "load_mass")),
+                     *(f"{PLANT}.{p.id}.blocked" for p in sc.line.photoeyes)]
+    return [*names, *(k for k in plant_outputs if k not in names)]
+
+
+def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str]) -> dict[str, Any]:
+    """What the address space shows of the co-simulation ``c`` (None: not built) in the run state ``state``."""
+    values: dict[str, Any] = {"fishfmu.time_s": c.t_s if c is not None else 0.0, "fishfmu.run_state": state}
+    if c is not None:
+        # the last recorded row (inputs as sent, outputs as they are); before the first step the start values;
+        # the plant's outputs not recorded as they are now
+        row = c.signals[-1][1:] if c.signals else [c.values.get(k, c.constants.get(k)) for k in names]
+        values.update(zip(names, row))
+        values.update((k, c.values.get(k)) for k in served[len(names):])
+        status = c.plant.status
+        values.update((k, int(np.count_nonzero(status == s))) for k, s in _FISH_COUNTS.items())
+    return values
+
+
+def refused(code: Any, per_argument: list[Any] | None = None) -> Any:
+    """A method call's answer when it is refused: ``code``, and a status per argument."""
+    return ua.CallMethodResult(StatusCode=ua.StatusCode(code),
+                               InputArgumentResults=[ua.StatusCode(c) for c in per_argument or []])
+
+
+class AddressSpace:
+    """The line's nodes in a server (see the module docstring); :meth:`build` makes them."""
+
+    def __init__(self, checked: CheckedScenario, served: list[str], external: list[str]) -> None:
+        self.checked, self.served, self.external = checked, served, external
+        self.nodes: dict[str, Any] = {}
+        self.types: dict[str, Any] = {}
+        self.ranges: dict[str, tuple[float, float] | None] = {}
+        self.last_written: dict[str, Any] = {}
+        """Each external input's value as last taken by the line (or its start value)."""
+        self.server: Any = None
+
+    async def build(self, server: Any, lockstep: bool, step: Callable[[int], Awaitable[float]],
+                    stop: Callable[[], Awaitable[None]], reset: Callable[[], Awaitable[float]]) -> None:
+        """The folder, its variables and methods in ``server``; ``step(n)``, ``stop()`` and ``reset()`` do what
+        the methods of the same names are asked (with their arguments checked); ``step`` only in ``lockstep``."""
+        self.server = server
+        idx = await server.register_namespace(NAMESPACE)
+        folder = await server.nodes.objects.add_folder(ua.NodeId(FOLDER, idx), ua.QualifiedName(FOLDER, idx))
+        types = _signal_info(self.checked, self.served)
+        extra = {"fishfmu.time_s": ("Real", "s", None), "fishfmu.run_state": ("String", None, None),
+                 **{k: ("Integer", None, None) for k in _FISH_COUNTS}}
+        for name in [*extra, *self.served]:
+            kind, unit, rng = extra[name] if name in extra else types[name]
+            vtype, initial = _VARIANT_TYPES[kind]
+            node = await folder.add_variable(ua.NodeId(name, idx), ua.QualifiedName(name, idx),
+                                             ua.Variant(initial, vtype))
+            if unit:
+                code = _UNECE.get(unit)
+                eu = ua.EUInformation(NamespaceUri=UNITS_NAMESPACE, UnitId=_unit_id(code) if code else -1,
+                                      DisplayName=ua.LocalizedText(unit), Description=ua.LocalizedText(unit))
+                await node.add_property(idx, "EngineeringUnits", eu)
+            if rng is not None:
+                await node.add_property(idx, "EURange", ua.Range(Low=float(rng[0]), High=float(rng[1])))
+            self.nodes[name], self.types[name], self.ranges[name] = node, vtype, rng
+            if name in self.external:
+                await node.set_writable()
+        await self.restart_inputs()
+        self._guard_writes(server)
+
+        async def _step(parent, *args):  # noqa: ANN001, ANN002 - asyncua's method signature
+            if not lockstep:  # the wall clock steps the line; a client's step would race it
+                return refused(ua.StatusCodes.BadInvalidState)
+            if not args:
+                return refused(ua.StatusCodes.BadArgumentsMissing)
+            if len(args) > 1:
+                return refused(ua.StatusCodes.BadTooManyArguments)
+            n = args[0]
+            if (not isinstance(n, ua.Variant) or n.VariantType not in _INTEGER_TYPES or n.is_array
+                    or not isinstance(n.Value, int) or isinstance(n.Value, bool)):
+                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadTypeMismatch])
+            if n.Value < 0:
+                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadOutOfRange])
+            return [ua.Variant(await step(n.Value), ua.VariantType.Double)]
+
+        async def _stop(parent, *args):  # noqa: ANN001, ANN002
+            if args:
+                return refused(ua.StatusCodes.BadTooManyArguments)
+            await stop()
+            return []
+
+        async def _reset(parent, *args):  # noqa: ANN001, ANN002
+            if args:
+                return refused(ua.StatusCodes.BadTooManyArguments)
+            return [ua.Variant(await reset(), ua.VariantType.Double)]
+
+        n_arg = ua.Argument(Name="n", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1,
+                            Description=ua.LocalizedText("communication steps to advance (0 or more)"))
+        t_out = ua.Argument(Name="time_s", DataType=ua.NodeId(ua.ObjectIds.Double), ValueRank=-1,
+                            Description=ua.LocalizedText("simulated time after the steps, s"))
+        await folder.add_method(ua.NodeId("fishfmu.step", idx), ua.QualifiedName("step", idx), _step, [n_arg],
+                                [t_out])
+        await folder.add_method(ua.NodeId("fishfmu.stop", idx), ua.QualifiedName("stop", idx), _stop, [], [])
+        await folder.add_method(ua.NodeId("fishfmu.reset", idx), ua.QualifiedName("reset", idx), _reset, [],
+                                [t_out])
+
+    async def restart_inputs(self) -> None:
+        """Every external input back at its start value (the scenario's), as the line takes it."""
+        for key in self.external:
+            start = self.checked.wiring.constants[key]
+            await self.nodes[key].write_value(_variant(start, self.types[key]))
+            self.last_written[key] = start
+
+    def changed_inputs(self) -> list[tuple[str, Any]]:
+        """The external inputs a client changed since the last call, with their values (read from the address
+        space directly: a plain read, safe from the line's worker thread)."""
+        changed = []
+        for key in self.external:
+            value = self.server.iserver.aspace.read_attribute_value(self.nodes[key].nodeid,
+                                                                    ua.AttributeIds.Value).Value.Value
+            if value != self.last_written.get(key):
+                self.last_written[key] = value
+                changed.append((key, value))
+        return changed
+
+    async def publish(self, values: dict[str, Any]) -> None:
+        """Write ``values`` (see :func:`shown_values`) into their nodes; an external input is the clients'."""
+        for name, value in values.items():
+            if name in self.external or value is None:
+                continue
+            await self.nodes[name].write_value(_variant(value, self.types[name]))
+
+    def write_refusal(self, key: str, value: Any) -> Any:
+        """The status a write of the DataValue ``value`` to the external input ``key`` is refused with, or None.
+        asyncua checks a written Variant's type, not its shape nor its value."""
+        if value.StatusCode is not None and not value.StatusCode.is_good():
+            return ua.StatusCodes.BadWriteNotSupported  # asyncua would store a null the line cannot use
+        v = value.Value
+        if v is None or v.VariantType != self.types[key] or v.is_array or v.Dimensions:
+            return ua.StatusCodes.BadTypeMismatch
+        x = v.Value
+        if isinstance(x, float) and not math.isfinite(x):
+            return ua.StatusCodes.BadOutOfRange
+        rng = self.ranges[key]
+        if rng is not None and isinstance(x, (int, float)) and not rng[0] <= x <= rng[1]:
+            return ua.StatusCodes.BadOutOfRange
+        return None
+
+    def _guard_writes(self, server: Any) -> None:
+        """Refuse, item by item, the writes an external input cannot take (see :meth:`write_refusal`), before
+        asyncua's attribute service stores them."""
+        service = server.iserver.attribute_service
+        write = service.write
+        inputs = {self.nodes[k].nodeid: k for k in self.external}
+
+        async def guarded(params: Any, *args: Any, **kwargs: Any) -> list[Any]:
+            refusals: dict[int, Any] = {}
+            for i, item in enumerate(params.NodesToWrite):
+                key = inputs.get(item.NodeId)
+                if key is None:
+                    continue
+                if item.AttributeId == ua.AttributeIds.Value and item.IndexRange:
+                    refusals[i] = ua.StatusCodes.BadWriteNotSupported
+                elif item.AttributeId == ua.AttributeIds.Value:
+                    code = self.write_refusal(key, item.Value)
+                    if code is not None:
+                        refusals[i] = code
+            if not refusals:
+                return await write(params, *args, **kwargs)
+            rest = [item for i, item in enumerate(params.NodesToWrite) if i not in refusals]
+            done = iter(await write(ua.WriteParameters(NodesToWrite=rest), *args, **kwargs) if rest else [])
+            return [ua.StatusCode(refusals[i]) if i in refusals else next(done)
+                    for i in range(len(params.NodesToWrite))]
+
+        service.write = guarded

@@ -1,0 +1,45 @@
+"""Real-time pacing of ``fishfmu serve --realtime FACTOR``: how late each step starts against the wall clock.
+
+Step k is due at ``start + k dt / FACTOR`` on the monotonic clock; the lateness of each step's start against its
+due time is measured, and a step starting more than one communication step (of wall time) late counts as an
+overrun.  When the median lateness of the last 100 steps exceeds a step, the line cannot keep up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+BEHIND_AFTER_STEPS = 100
+"""The steps over which the median lateness says whether the line keeps up."""
+
+
+@dataclass
+class Pacing:
+    """Lateness of each step's start against its due time (real time), s."""
+
+    factor: float
+    comm_step_s: float
+    lateness_s: list[float] = field(default_factory=list)
+
+    @property
+    def step_wall_s(self) -> float:
+        """Wall time per communication step."""
+        return self.comm_step_s / self.factor
+
+    def recent_median_s(self) -> float | None:
+        """The median lateness of the last BEHIND_AFTER_STEPS steps, once there are that many."""
+        if len(self.lateness_s) < BEHIND_AFTER_STEPS:
+            return None
+        return float(np.median(self.lateness_s[-BEHIND_AFTER_STEPS:]))
+
+    def summary(self) -> dict[str, Any]:
+        late = np.asarray(self.lateness_s) if self.lateness_s else np.zeros(1)
+        return {"factor": self.factor, "steps": len(self.lateness_s),
+                "lateness_p50_s": round(float(np.percentile(late, 50)), 6),
+                "lateness_p99_s": round(float(np.percentile(late, 99)), 6),
+                "lateness_max_s": round(float(late.max()), 6),
+                "overruns": int((late > self.comm_step_s / self.factor).sum()),
+                "overrun_rule": "a step that starts more than one communication step (of wall time) after it was due"}
