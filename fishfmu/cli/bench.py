@@ -1,10 +1,15 @@
-"""``fishfmu bench ...``: every benchmark, its results written to a file (JSON), never asserted in tests."""
+"""``fishfmu bench ...``: every benchmark, its results written to a file (JSON), never asserted in tests.
+
+Each benchmark imports what it measures inside its function, saying so: ``fishfmu bench --help`` answers without
+numpy, pandas and Exudyn.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import typer
+from rich.table import Table
 
 from plant.errors import InputError
 
@@ -25,8 +30,7 @@ def bench_pile(
     plot_file: Path | None = typer.Option(None, "--plot", help="Write a PNG of cost against fish count here."),
 ) -> None:
     """Fish dumped in a pile: real-time factor of plant and co-simulation per fish count, stages, peak memory."""
-    from rich.table import Table
-
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
     try:
@@ -70,6 +74,7 @@ def bench_fmu_worker(
     json_file: Path = typer.Option(Path("bench-results/fmu_worker_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """What running each FMU in a worker process costs per communication step."""
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.fmu_worker import bench, summary
     commands.check_targets(json_file)
@@ -85,6 +90,7 @@ def bench_serve(
     json_file: Path = typer.Option(Path("bench-results/serve_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """Real-time serving: each step's lateness against the wall clock, paper test and (optionally) continuous line."""
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.serve import bench, summary
     commands.check_targets(json_file)
@@ -101,6 +107,7 @@ def bench_sweep(
     json_file: Path = typer.Option(Path("bench-results/sweep_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers."""
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.sweep import bench, summary
     from fishfmu.scenario.schema import parse_assignments
@@ -123,13 +130,13 @@ def bench_diagnose(
     split: str | None = typer.Option(None, "--split", help="With --recipe: diagnose only this split's datasets."),
 ) -> None:
     """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.bench.diagnose import bench, bench_labelled, summary
+    from fishfmu.bench.diagnose import bench, bench_labelled, read_splits, summary
     commands.check_targets(json_file)
     if labelled is not None:
         if not labelled.is_dir():
             raise InputError(f"{labelled}: not a folder of labelled datasets")
-        from fishfmu.bench.diagnose import read_splits
         splits = read_splits(recipe)
         if split is not None and split not in set(splits.values()):
             raise InputError(f"--split {split}: no dataset of the recipe has that split "
@@ -156,6 +163,7 @@ def bench_scenario(
     json_file: Path = typer.Option(Path("bench-results/scenario_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """Whole scenarios: simulated s per CPU s of the whole process, stages, fish in play, peak memory."""
+    # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.scenario import bench, summary
     from fishfmu.scenario.schema import load_scenario, parse_assignments

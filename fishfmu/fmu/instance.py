@@ -29,10 +29,14 @@ import os
 import re
 from collections import deque
 from collections.abc import Iterable, Mapping
+from ctypes import byref, c_void_p
 from pathlib import Path
 from typing import Any
 
-from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi2 import (FMU2Slave, calloc, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, free)
+from fmpy.fmi3 import FMU3Slave
+from fmpy.logging import addLoggerProxy
 
 from plant.errors import InputError, SimulationError
 from plant.validation import suggest
@@ -193,7 +197,6 @@ class InProcessFmu:
         cwd = os.getcwd()
         try:
             if self._fmi3:  # fmpy joins the same path (binaries/<platform tuple>/<modelIdentifier>.so) itself
-                from fmpy.fmi3 import FMU3Slave
                 self._slave = FMU3Slave(guid=md.instantiationToken, unzipDirectory=str(fmu.unzip_dir),
                                         modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
             else:
@@ -235,11 +238,6 @@ class InProcessFmu:
 
     def _logging_callbacks(self) -> Any:
         """fmpy's callback functions whose logger keeps this instance's messages in ``self.log``."""
-        from ctypes import c_void_p
-
-        from fmpy.fmi2 import (fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE, fmi2CallbackFunctions,
-                               fmi2CallbackLoggerTYPE)
-        from fmpy.fmi2 import calloc, free
         global _LOGGER
         if _LOGGER is None:
             _LOGGER = fmi2CallbackLoggerTYPE(_dispatch_log_message)
@@ -251,9 +249,6 @@ class InProcessFmu:
         callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         callbacks.componentEnvironment = c_void_p(self._log_key)
         try:  # fmpy's native proxy formats the FMU's printf-style message before it reaches Python
-            from ctypes import byref
-
-            from fmpy.logging import addLoggerProxy
             addLoggerProxy(byref(callbacks))
         except Exception:  # no proxy: messages with format arguments arrive unformatted
             pass
