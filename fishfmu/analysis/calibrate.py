@@ -38,6 +38,7 @@ import numpy as np
 
 from plant.errors import SimulationError
 from plant.contract.measured import Dataset, Run
+from plant.fish.population import DEFAULT_HOURS_POST_MORTEM
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
@@ -381,7 +382,8 @@ def _level_responses(dataset: Dataset, fit_runs: list[Run], base: PlantParams, b
                      levels: tuple[Level, ...], pool, say: Callable[[str], None]) -> Responses:
     """The fit runs simulated at each level's grid, then up to twice beyond an end for the runs whose own best
     level lies there (:func:`fishfmu.analysis.levels.responses`)."""
-    hours = {r.id: (r.hours_post_mortem if r.hours_post_mortem is not None else 24.0) for r in fit_runs}
+    hours = {r.id: (r.hours_post_mortem if r.hours_post_mortem is not None else DEFAULT_HOURS_POST_MORTEM)
+             for r in fit_runs}
     simulated: dict[tuple[str, float], dict[str, RunResiduals]] = {}
     pending = [(lv, v, fit_runs) for lv in levels for v in lv.grid]
     resp = responses(base_res, simulated, hours)

@@ -358,11 +358,6 @@ class SweepResult:
     stop_signal: int | None = None
     """the signal that stopped it (SIGINT, SIGTERM) when ``interrupted``"""
 
-    @property
-    def exit_code_interrupted(self) -> int:
-        """128 + the signal number: 130 for Ctrl-C, 143 for SIGTERM."""
-        return 128 + int(self.stop_signal or signal.SIGINT)
-
 
 def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None, workers: int | None = None,
               threads_per_worker: int = 1, progress: bool = False, max_runs: int | None = None,

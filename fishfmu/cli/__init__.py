@@ -26,7 +26,7 @@ from rich.table import Table
 from plant.errors import InputError, SimulationError
 
 from fishfmu.cli.bench import bench_app
-from fishfmu.cli.exit_codes import EXIT_INTERNAL_ERROR, for_error, for_run, for_seeds
+from fishfmu.cli.exit_codes import EXIT_INTERNAL_ERROR, for_error, for_run, for_seeds, for_signal
 from fishfmu.session import Interrupted, session
 from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
 
@@ -258,7 +258,7 @@ def _print_seeds(result, scenario: Path, out_dir: Path) -> None:  # noqa: ANN001
     for e in result.expect:
         console.print(outcome(e.ok, "mean " + e.message))
     if result.sweep.interrupted:
-        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.exit_code_interrupted - 128).name}; the "
+        console.print(labelled("stopped:", f"by {signal.Signals(result.sweep.stop_signal).name}; the "
                                "statistics cover the runs that finished (run_info.json: partial)", "yellow"))
     console.print(f"outputs: {out_dir}")
 
@@ -310,9 +310,9 @@ def sweep(
                   f"{int((result.runs['status'] != 'ok').sum()) if done else 0} failed, {result.wall_s:.0f} s; "
                   f"tables and plots in {result.out}")
     if result.interrupted:
-        console.print(labelled("stopped:", f"by {signal.Signals(result.exit_code_interrupted - 128).name}; run the "
+        console.print(labelled("stopped:", f"by {signal.Signals(result.stop_signal).name}; run the "
                                "same command again to resume", "yellow"))
-        raise typer.Exit(result.exit_code_interrupted)
+        raise typer.Exit(for_signal(result.stop_signal))
 
 
 # ---------------------------------------------------------------- replay

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 
 from plant.errors import InputError, SimulationError, SystemDependencyError
 
+from fishfmu.cosim.stop import exit_status
 from fishfmu.output.manifest import os_error
 
 if TYPE_CHECKING:  # types only: the results are passed in, never made here
@@ -39,10 +40,16 @@ def for_seeds(result: SeedsResult) -> int:
     """``run --seeds``: the signal's code if one stopped it (partial results), 3 if a run failed, else 1 if a
     bound on the means did not hold, else 0."""
     if result.sweep.interrupted:
-        return result.sweep.exit_code_interrupted  # 130 / 143: partial results
+        return for_signal(result.sweep.stop_signal)  # 130 / 143: partial results
     if result.n_failed:
         return EXIT_SIMULATION_FAILED
     return EXIT_OK if all(e.ok for e in result.expect) else EXIT_EXPECT_FAILED
+
+
+def for_signal(signum: int) -> int:
+    """A command a signal stopped (``sweep``, ``run --seeds``: what finished is written): 130 for SIGINT, 143 for
+    SIGTERM (:func:`fishfmu.cosim.stop.exit_status`)."""
+    return exit_status(signum)
 
 
 def for_run(result: RunResult, stop_exit_code: int | None) -> int:

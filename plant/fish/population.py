@@ -26,6 +26,10 @@ from pydantic import Field, model_validator
 from plant.fish.fish_data import length_regressions
 from plant.validation import Strict
 
+DEFAULT_HOURS_POST_MORTEM = 24.0
+"""Hours since slaughter when a batch or a measured run does not say (unit: h): the paper's physical test used
+fish dead for more than a day.  The one default: scenarios, re-simulated runs and calibration take it from here."""
+
 
 @dataclass(frozen=True)
 class FishSpec:
@@ -58,7 +62,7 @@ class PopulationSpec(Strict):
     length_min_m: float = Field(0.42, gt=0.1, le=1.5, description="shortest fish of Table I")
     length_max_m: float = Field(0.75, gt=0.1, le=1.5, description=(
         "a little above the longest of Table I (0.68 m); every conveyor must be at least this long"))
-    hours_post_mortem: float = Field(24.0, ge=0.0, le=240.0, description=(
+    hours_post_mortem: float = Field(DEFAULT_HOURS_POST_MORTEM, ge=0.0, le=240.0, description=(
         "time since slaughter (unit: h); the paper's physical test used fish dead for more than a day"))
     drop: Literal["bulk", "sparse"] = Field("bulk", description=(
         "bulk: the batch dumped onto the infeed in quick succession; sparse: one at a time at the infeed end"))
