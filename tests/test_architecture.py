@@ -4,6 +4,7 @@ no cycle, and the plant imports nothing from fishfmu (it is the physics, usable 
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -275,7 +276,7 @@ def test_the_stop_check_sees_one(tmp_path):
 
 MAX_LINES = 450
 LONG_WITH_NO_REASON_YET = {"fishfmu/batch/sweep.py", "fishfmu/fmu/build.py", "fishfmu/output/manifest.py",
-                           "fishfmu/scenario/schema.py", "fishfmu/scenario/wiring.py"}
+                           "fishfmu/scenario/schema.py"}
 """Modules over MAX_LINES that do not yet say why (issue 30): each is to be split or to state its reason; the set
 only shrinks (a test fails when one of them no longer needs to be here)."""
 
@@ -330,10 +331,9 @@ LAZY_IMPORTS_NOT_YET_EXPLAINED = {
     "fishfmu/analysis/drive_response.py", "fishfmu/analysis/observations.py", "fishfmu/analysis/residuals.py",
     "fishfmu/analysis/resim.py", "fishfmu/analysis/synthetic.py", "fishfmu/batch/engine.py", "fishfmu/batch/sweep.py",
     "fishfmu/batch/sweep_report.py", "fishfmu/bench/diagnose.py", "fishfmu/bench/fmu_worker.py",
-    "fishfmu/bench/pile.py", "fishfmu/bench/scenario.py", "fishfmu/bench/serve.py", "fishfmu/cosim/build.py",
-    "fishfmu/cosim/plant_fmu.py", "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
+    "fishfmu/bench/pile.py", "fishfmu/bench/scenario.py", "fishfmu/bench/serve.py", "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
     "fishfmu/output/replay.py", "fishfmu/output/report.py", "fishfmu/scenario/reference.py",
-    "fishfmu/scenario/schema.py", "fishfmu/scenario/ssp.py", "plant/fish/extensions.py"}
+    "fishfmu/scenario/schema.py", "fishfmu/scenario/ssp.py"}
 """Modules with imports inside functions that do not say why yet (issue 30): each such import is to move to the
 top of its module, or to say why it is where it is (slow and optional: which library, for what); the set only
 shrinks."""
@@ -447,3 +447,119 @@ def test_the_exit_code_check_sees_one(tmp_path):
     finally:
         globals()["ROOT"] = saved
     assert [x.split(": ", 1)[1] for x in found] == ["EXIT_X =", "sys.exit(...)"], found
+
+
+# ---- the plant as a component: one output, ports declared once ---------------------------------------------
+PLANT_OUTPUT = {"state", "step"}
+"""All that code outside the plant uses of a Plant: its step (which returns the sensor readings) and the state it
+publishes after it (plant/sim/plant.py)."""
+
+
+def plant_public_attributes() -> set[str]:
+    """Public methods, properties and ``self.x`` fields of :class:`plant.sim.plant.Plant`."""
+    tree = ast.parse((ROOT / "plant" / "sim" / "plant.py").read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == "Plant")
+    names = {n.name for n in cls.body if isinstance(n, ast.FunctionDef)}
+    names |= {n.attr for n in ast.walk(cls) if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store)
+              and isinstance(n.value, ast.Name) and n.value.id == "self"}
+    return {n for n in names if not n.startswith("_")}
+
+
+def plant_attribute_reads() -> list[str]:
+    """Reads of a Plant's attributes other than :data:`PLANT_OUTPUT` in fishfmu/: on a name ``plant``, on any
+    ``x.plant``, on a name bound to ``Plant(...)`` or annotated ``Plant``."""
+    attrs = plant_public_attributes() - PLANT_OUTPUT
+    found = []
+    for m, path in _modules().items():
+        if m.split(".")[0] != "fishfmu":
+            continue
+        tree = ast.parse(path.read_text(), str(path))
+        plants = {"plant"}
+        for node in ast.walk(tree):
+            if (isinstance(node, ast.Assign) and isinstance(node.value, ast.Call)
+                    and ast.unparse(node.value.func) == "Plant"):
+                plants |= {t.id for t in node.targets if isinstance(t, ast.Name)}
+            elif (isinstance(node, ast.arg) and node.annotation is not None
+                  and "Plant" in ast.unparse(node.annotation).split(" ")):
+                plants.add(node.arg)
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.Attribute) or node.attr not in attrs:
+                continue
+            v = node.value
+            if (isinstance(v, ast.Name) and v.id in plants) or (isinstance(v, ast.Attribute) and v.attr == "plant"):
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}")
+    return found
+
+
+def test_nothing_outside_the_plant_reads_a_plant_but_its_step_and_state():
+    assert {"status", "t_s", "model"} <= plant_public_attributes()  # what the check looks for, for tests only
+    found = plant_attribute_reads()
+    assert not found, "read a Plant's fields, not its published state: " + "; ".join(found)
+
+
+def test_the_plant_read_check_sees_one(tmp_path):
+    pkg = tmp_path / "fishfmu"
+    pkg.mkdir()
+    (tmp_path / "plant" / "sim").mkdir(parents=True)
+    (tmp_path / "plant" / "sim" / "plant.py").write_text((ROOT / "plant" / "sim" / "plant.py").read_text())
+    (pkg / "a.py").write_text("def f(cosim, sc, plant: Plant):\n    p = Plant(sc.line, [])\n    return (cosim.plant.status, "
+                              "plant.t_s, p.model, cosim.plant.state, sc.plant.numerics)\n")
+    globals()["ROOT"], saved = tmp_path, ROOT
+    try:
+        found = plant_attribute_reads()
+    finally:
+        globals()["ROOT"] = saved
+    assert [f.split(": ", 1)[1] for f in found] == ["cosim.plant.status", "plant.t_s", "p.model"], found
+
+
+PLANT_SIGNALS = ("speed", "load_force", "load_mass", "blocked")
+
+
+def _names_a_signal(node: ast.AST) -> bool:
+    """A string that is a plant signal or a port name ``<id>.<signal>`` (also as an f-string such as
+    ``f"{c}.speed"``; not a connection ``"a.x -> plant.c1.speed"``)."""
+    if isinstance(node, ast.JoinedStr) and node.values:
+        parts = [v.value for v in node.values if isinstance(v, ast.Constant)]
+        if not all(re.fullmatch(r"[\w.]*", str(s)) for s in parts):
+            return False
+        node = node.values[-1]
+    return (isinstance(node, ast.Constant) and isinstance(node.value, str)
+            and any(node.value == s or node.value.endswith(f".{s}") for s in PLANT_SIGNALS))
+
+
+def port_lists() -> list[str]:
+    """Tuples, lists, sets and dicts that enumerate two or more of the plant's signals or ports, outside the
+    declaration (plant/sim/ports.py)."""
+    found = []
+    for m, path in _modules().items():
+        if m == "plant.sim.ports":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            items = (node.keys if isinstance(node, ast.Dict) else node.elts
+                     if isinstance(node, (ast.Tuple, ast.List, ast.Set)) else [])
+            if sum(_names_a_signal(x) for x in items if x is not None) >= 2:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)[:80]}")
+    return found
+
+
+def test_the_plants_ports_are_declared_once():
+    """Wiring, the master, the plant FMU, serve and the plant's outputs take the ports from plant.sim.ports; none
+    lists them again (checked: no enumeration of two or more of its signals elsewhere)."""
+    declared = ast.parse((ROOT / "plant" / "sim" / "ports.py").read_text())
+    assert any(_names_a_signal(n) for n in ast.walk(declared))
+    found = port_lists()
+    assert not found, "the plant's ports listed outside plant/sim/ports.py: " + "; ".join(found)
+
+
+def test_the_port_list_check_sees_one(tmp_path):
+    (tmp_path / "fishfmu").mkdir()
+    (tmp_path / "fishfmu" / "a.py").write_text(
+        'UNITS = {"speed": "m/s", "load_force": "N"}\nX = [f"{c}.blocked" for c in "ab"]\n'
+        'def f(c):\n    return [f"{c}.load_mass", f"{c}.speed"], ("load_force_n", "load_mass_kg"), {"blocked": 1}\n'
+        'C = [f"a.y -> plant.{c}.speed", f"plant.{c}.load_force -> b.u"]\n')
+    globals()["ROOT"], saved = tmp_path, ROOT
+    try:
+        found = port_lists()
+    finally:
+        globals()["ROOT"] = saved
+    assert [f.split(":")[1] for f in found] == ["1", "4"], found

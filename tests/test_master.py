@@ -11,11 +11,13 @@ from types import SimpleNamespace
 import pytest
 
 from plant.errors import InputError, SimulationError
-from plant.sim.plant import PlantOutputs
+from plant.sim.ports import PlantPorts
+from plant.sim.state import PlantOutputs
 
 from fishfmu.cosim.master import CoSimulation
 from fishfmu.scenario.schema import Event
-from fishfmu.scenario.wiring import PLANT, Connection, Port, Wiring, _topological, direct_feedthrough
+from fishfmu.scenario.order import direct_feedthrough, stepping_order as _topological
+from fishfmu.scenario.wiring import PLANT, Connection, Port, Wiring
 
 DT = 0.25
 
@@ -119,7 +121,8 @@ def cosim(fmus: list[FakeFmu], conns: list[Connection], plant: FakePlant, log: l
           order: list[str] | None = None, constants: dict | None = None, **kw) -> CoSimulation:
     names = [f.name for f in fmus]
     wiring = Wiring(conns, order if order is not None else _topological(names, conns, None), constants or {})
-    sim = CoSimulation(plant=plant, fmus={f.name: f for f in fmus}, step_multiples=kw.pop("step_multiples", {}),
+    sim = CoSimulation(plant=plant, ports=PlantPorts(tuple(plant.conveyor_ids), tuple(plant.photoeye_ids)),
+                       fmus={f.name: f for f in fmus}, step_multiples=kw.pop("step_multiples", {}),
                        wiring=wiring, events=kw.pop("events", []), comm_step_s=DT, **kw)
     sim.energy_watch = WatchStub(log)
     return sim

@@ -68,7 +68,7 @@ def _loads_or_input_error(path: Path, overrides: dict[str, Any] | None = None) -
 def builtin_variables(builtin_fmus: dict[str, Path]):
     """Variables and direct-feedthrough outputs of each built-in FMU (opened once)."""
     from fishfmu.fmu.archive import open_fmu
-    from fishfmu.scenario.wiring import direct_feedthrough
+    from fishfmu.scenario.order import direct_feedthrough
     out = {}
     for name, path in builtin_fmus.items():
         with open_fmu(path) as fmu:

@@ -98,8 +98,8 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
 
     def log_loads(plant) -> None:
         out = plant.state.outputs
-        for cid in plant.conveyor_ids:
-            loads.append((plant.t_s, cid, out.belt_load_force_n[cid], out.belt_load_mass_kg[cid]))
+        for cid, force_n in out.belt_load_force_n.items():
+            loads.append((out.t_s, cid, force_n, out.belt_load_mass_kg[cid]))
 
     sim = simulate_plant(line, fish, speed_fn, duration_s, params=params,
                          stop_when_clear=True, on_step=log_loads, record_poses=record_poses)

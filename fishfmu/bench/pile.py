@@ -105,12 +105,12 @@ def run_case(n_fish: int, duration_s: float, comm_step_s: float, threads: int) -
         for _ in range(n_warm):
             cosim.step()
         clock.reset()
-        exu0 = cosim.plant.timings_s["exudyn"]
+        exu0 = cosim.plant.state.timings_s["exudyn"]
         t0 = time.perf_counter()
         for _ in range(n_meas):
             cosim.step()
         wall_cosim = time.perf_counter() - t0
-        exudyn = cosim.plant.timings_s["exudyn"] - exu0
+        exudyn = cosim.plant.state.timings_s["exudyn"] - exu0
     stages = clock.totals_s
     peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     return BenchRecord(

@@ -27,12 +27,16 @@ import numpy as np
 
 from plant.errors import InputError, SimulationError
 from plant.sim.plant import Plant
+from plant.sim.ports import PlantPorts
 from plant.fish.population import FishSpec, sample_fish
 from plant.sim.recorder import RunRecorder
 
 from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock
 from fishfmu.cosim.preflight import describe, preflight
 from fishfmu.fmu.archive import OpenedFmu, open_fmu
+from fishfmu.fmu.build import builtin_fmu
+from fishfmu.fmu.instance import InProcessFmu
+from fishfmu.fmu.worker import WorkerFmu
 from fishfmu.scenario.schema import FmuInstance as FmuEntry, Scenario
 from fishfmu.scenario.wiring import Wiring
 
@@ -47,7 +51,6 @@ def scenario_fish(scenario: Scenario) -> list[FishSpec]:
 def fmu_path(fmu: FmuEntry) -> Path:
     """The FMU file a scenario's ``[[fmu]]`` names: a built-in one (built or taken from the cache) or a path."""
     if fmu.builtin is not None:
-        from fishfmu.fmu.build import builtin_fmu
         return builtin_fmu(fmu.builtin)
     return Path(fmu.path)
 
@@ -111,12 +114,10 @@ class BuildFailed(SimulationError):
 def instantiate(scenario: Scenario, opened: dict[str, OpenedFmu], stack: contextlib.ExitStack) -> dict[str, Any]:
     """One instance per ``[[fmu]]``, in-process or in a worker process as ``run.fmu_process`` says;
     each is terminated when ``stack`` closes, also when a later one fails to start."""
-    from fishfmu.fmu.instance import InProcessFmu
     fmus = {}
     for f in scenario.fmu:
         try:
             if scenario.run.fmu_process == "worker":
-                from fishfmu.fmu.worker import WorkerFmu
                 fmus[f.name] = WorkerFmu(f.name, opened[f.name], f.parameters, scenario.run.fmu_step_timeout_s)
             else:
                 fmus[f.name] = InProcessFmu(f.name, opened[f.name], f.parameters)
@@ -133,13 +134,14 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
     instances (terminated when the ``with`` ends).  ``clock`` times the stages of each step (benchmarks)."""
     sc = checked_scenario.scenario
     plant = Plant(sc.line, fish, sc.plant, sc.run.comm_step_s)
-    recorder = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids, sc.run.comm_step_s,
-                           record_poses=record_poses)
+    ports = PlantPorts.of(sc.line)
+    recorder = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids),
+                           sc.run.comm_step_s, record_poses=record_poses)
     wiring = checked_scenario.wiring
     with contextlib.ExitStack() as stack:
         try:
             fmus = instantiate(sc, checked_scenario.opened, stack)
-            cosim = CoSimulation(plant, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event,
+            cosim = CoSimulation(plant, ports, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event,
                                  sc.run.comm_step_s, jacobi=sc.run.coupling == "jacobi", recorder=recorder,
                                  clock=clock)
         except SimulationError as exc:

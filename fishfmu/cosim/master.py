@@ -32,8 +32,9 @@ import pandas as pd
 from plant.errors import SimulationError
 from plant.sim.health import EnergyWatch
 from plant.sim.plant import Plant
-from plant.sim.state import PlantOutputs
+from plant.sim.ports import PlantPorts
 from plant.sim.recorder import RunRecorder
+from plant.sim.state import PlantOutputs
 
 from fishfmu.scenario.schema import Event
 from fishfmu.scenario.wiring import PLANT, Connection, Wiring, signal_names
@@ -86,9 +87,11 @@ class FmuLike(Protocol):
 
 @dataclass
 class CoSimulation:
-    """State of a running co-simulation; step it with :meth:`step`."""
+    """State of a running co-simulation; step it with :meth:`step`.  The plant is stepped through its
+    ``ports`` (:mod:`plant.sim.ports`) and read through the state it publishes (``plant.state``), nothing else."""
 
     plant: Plant
+    ports: PlantPorts
     fmus: dict[str, FmuLike]
     step_multiples: dict[str, int]
     wiring: Wiring
@@ -129,7 +132,7 @@ class CoSimulation:
             self.values[f"{PLANT}.{port}"] = v
 
     def _plant_outputs_at_rest(self) -> dict[str, Any]:
-        return PlantOutputs.at_rest(self.plant.conveyor_ids, self.plant.photoeye_ids).port_values()
+        return PlantOutputs.at_rest(self.ports).port_values()
 
     @property
     def t_s(self) -> float:
@@ -148,7 +151,7 @@ class CoSimulation:
             if self.steps % m == 0:
                 self._step_fmu(name, held, t, m * dt)
         lap("fmus")
-        speeds = {c: float(self._input_value(f"{PLANT}.{c}.speed", held)) for c in self.plant.conveyor_ids}
+        speeds = {c: float(self._input_value(f"{PLANT}.{c}.speed", held)) for c in self.ports.conveyor_ids}
         lap("belt_speeds")
         out = self.plant.step(speeds)
         lap("plant")
@@ -223,8 +226,8 @@ class CoSimulation:
         self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
         if self.recorder is not None:
             setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
-            self.recorder.record(self.t_s, self.plant.fish_state, out.photoeyes, setpoints, speeds,
-                                 self.plant.body_poses)
+            state = self.plant.state
+            self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses)
 
     def signal_frame(self) -> pd.DataFrame:
         """Every recorded signal per step (see the module's docstring for the types)."""

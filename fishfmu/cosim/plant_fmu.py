@@ -7,11 +7,12 @@ fishfmu's Exudyn plant. **Runtime requirement**: the host must load the FMU into
 with fishfmu (and so Exudyn) installed, as pythonfmu FMUs need the host's Python; the FMU does not carry Python or
 Exudyn.
 
-Variables (named as the plant's ports in a scenario's wiring):
+Variables (the plant's ports as declared in :mod:`plant.sim.ports`, named as in a scenario's wiring):
 
 * inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.contract.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
-* outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg),
-  and counts so far: ``fish_dropped``, ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
+* outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg)
+  (every output port but the belt speed, which is the input), and counts so far: ``fish_dropped``,
+  ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
   ``outfeed_count`` (fish heads seen at the scenario's outfeed photo-eye: its blocked edges);
 * parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
   the batch is sampled from them as ``fishfmu run`` samples it).
@@ -34,15 +35,18 @@ from __future__ import annotations
 
 import functools
 import math
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 from pydantic import BaseModel
 
 from plant.errors import InputError, SimulationError, one_line
 from plant.sim.plant import LEFT, ON_LINE, WAITING, Plant
+from plant.sim.ports import PlantPorts, signal_of
 from plant.contract.plausibility import MAX_BELT_SPEED_MPS
 from plant.fish.population import PopulationSpec
 
@@ -122,17 +126,19 @@ class PlantInFmu:
         self.scenario: Scenario = load_scenario(scenario_file)
         self.comm_step_s = self.scenario.run.comm_step_s
         self.outfeed = self.scenario.kpi.outfeed_photoeye
-        self.conveyor_ids = [c.id for c in self.scenario.line.conveyors]
-        self.photoeye_ids = [p.id for p in self.scenario.line.photoeyes]
-        self.output_names = ([f"{p}.blocked" for p in self.photoeye_ids]
-                             + [f"{c}.{s}" for c in self.conveyor_ids for s in ("load_force", "load_mass")]
-                             + list(self.counts))
+        ports = PlantPorts.of(self.scenario.line)
+        self.conveyor_ids = list(ports.conveyor_ids)
+        self.input_names = ports.inputs()
+        outputs = [n for n in ports.outputs() if n not in self.input_names]  # a belt's speed is its input
+        plant_outputs = ([n for n in outputs if signal_of(n).of == "photoeye"]  # the photo-eyes first
+                         + [n for n in outputs if signal_of(n).of == "conveyor"])
+        self.plant_outputs = set(plant_outputs)
+        self.output_names = plant_outputs + list(self.counts)
         self.values: dict[str, Any] = {"seed": self.scenario.run.seed, "fish_count": self.scenario.fish.count}
-        self.values.update({f"{c}.speed": 0.0 for c in self.conveyor_ids})
-        self.values.update({n: (False if n.endswith(".blocked") else 0 if n in self.counts else 0.0)
-                            for n in self.output_names})
-        self.units = {n: "N" if n.endswith(".load_force") else "kg" for n in self.output_names
-                      if n.endswith((".load_force", ".load_mass"))}
+        self.values.update(dict.fromkeys(self.input_names, 0.0))
+        self.values.update({n: (False if signal_of(n).type == "Boolean" else 0.0) for n in plant_outputs})
+        self.values.update(dict.fromkeys(self.counts, 0))
+        self.units = {n: signal_of(n).unit for n in self.input_names + plant_outputs if signal_of(n).unit}
         self.refused: dict[str, str] = {}
         """Variable -> why its last set was refused; each doStep is refused while one stands."""
         self.initialised = False
@@ -227,13 +233,13 @@ class PlantInFmu:
         for _ in range(n_steps):
             out = self.plant.step(speeds)
             for port, v in out.port_values().items():
-                if port in self.values and not port.endswith(".speed"):
+                if port in self.plant_outputs:
                     self.values[port] = v
             blocked = out.photoeyes[self.outfeed]
             if blocked and not self._was_blocked:
                 self.values["outfeed_count"] += 1
             self._was_blocked = blocked
-        status = self.plant.status
+        status = self.plant.state.status
         self.values["fish_dropped"] = int(np.count_nonzero(status != WAITING))
         self.values["fish_on_line"] = int(np.count_nonzero(status == ON_LINE))
         self.values["fish_left"] = int(np.count_nonzero(status == LEFT))
@@ -242,10 +248,7 @@ class PlantInFmu:
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
     """Build the plant FMU of ``scenario`` with pythonfmu into ``folder`` (a temporary one: the caller moves it);
     the scenario inside keeps what the plant needs (run, line, fish, plant, kpi), not the FMUs and wiring."""
-    import tomllib
-
-    import tomli_w
-    try:
+    try:  # pythonfmu: only to export, and optional (a test extra, not one of fishfmu's dependencies)
         from pythonfmu.builder import FmuBuilder
     except ImportError:
         raise InputError("export-fmu needs pythonfmu (pip install pythonfmu)") from None

@@ -29,10 +29,10 @@ class FishfmuPlant(Fmi2Slave):
             self.register_variable(with_bounds(Integer(
                 name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                 getter=p.getter(name), setter=p.parameter_setter(name)), bounds))
-        for c in p.conveyor_ids:
+        for name in p.input_names:
             self.register_variable(with_bounds(Real(
-                f"{c}.speed", causality=Fmi2Causality.input, start=0.0, description="m/s",
-                getter=p.getter(f"{c}.speed"), setter=p.speed_setter(f"{c}.speed")), SPEED_BOUNDS_MPS))
+                name, causality=Fmi2Causality.input, start=0.0, description=p.units[name],
+                getter=p.getter(name), setter=p.speed_setter(name)), SPEED_BOUNDS_MPS))
         # outputs start as the line at rest (initial = exact): no photo-eye blocked, no load, no fish yet
         for name in p.output_names:
             start = p.values[name]

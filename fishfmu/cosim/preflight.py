@@ -23,7 +23,8 @@ from plant.errors import InputError
 from fishfmu.fmu.archive import FmuVariable, variables_of
 from fishfmu.fmu.instance import check_parameters
 from fishfmu.scenario.schema import Scenario
-from fishfmu.scenario.wiring import Wiring, direct_feedthrough, resolve_wiring
+from fishfmu.scenario.order import direct_feedthrough
+from fishfmu.scenario.wiring import Wiring, resolve_wiring
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ class FmuDescription:
     ranges: dict[str, tuple[Any, Any]]
     """Declared (min, max) per variable; None where the modelDescription gives none."""
     feedthrough: set[str]
-    """Outputs declared to depend directly on an input (see :func:`fishfmu.scenario.wiring.direct_feedthrough`)."""
+    """Outputs declared to depend directly on an input (see :func:`fishfmu.scenario.order.direct_feedthrough`)."""
 
 
 def describe(path: str | Path, model_description: Any, variables: dict[str, FmuVariable]) -> FmuDescription:

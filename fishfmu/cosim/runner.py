@@ -23,6 +23,7 @@ from plant.errors import SimulationError
 from plant.contract.kpis import compute_kpis
 from plant.contract.measured import Run
 from plant.sim.plant import Plant
+from plant.sim.state import PlantState
 from plant.contract.measured import fish_to_frame
 from plant.fish.population import FishSpec
 from plant.sim.recorder import RunRecorder, pose_record
@@ -79,8 +80,9 @@ def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: Ru
     """The result of a run from what it recorded: the run in the measured-data format, KPIs,
     ``[expect]`` outcomes, signals, energy check.  ``cosim`` is None when the FMUs never started
     (``signal_columns`` then names the columns of the empty signal table)."""
+    state = plant.state
     if cosim is None or cosim.steps == 0:
-        _record_start(recorder, plant, cosim)
+        _record_start(recorder, state, cosim)
     tables = recorder.tables()
     run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
               notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
@@ -95,18 +97,18 @@ def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: Ru
     for k, b in scenario.expect.items():
         if "." in k:
             expect += signal_expectations(k, b, signals)
-    timings_s = {**timings_s, **{f"plant_{k}": v for k, v in plant.timings_s.items()}}
+    timings_s = {**timings_s, **{f"plant_{k}": v for k, v in state.timings_s.items()}}
     return RunResult(scenario, fish, run, kpis, signals, expect, status, error, t_end, wall_s,
-                     timings_s, list(plant.drop_adjustments), pose_record(recorder, plant),
+                     timings_s, list(state.drop_adjustments), pose_record(recorder, state),
                      {"worst_excess_j": worst[0], "worst_fraction_of_reserve": worst[1]})
 
 
-def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | None) -> None:
+def _record_start(recorder: RunRecorder, state: PlantState, cosim: CoSimulation | None) -> None:
     """Record the line as it was at t = 0 for a run that failed before completing a step (an FMU
     failing while initialised or in its first step): belts at rest, each setpoint as the FMUs gave
     it after initialisation (the belt speed where there is none), fish where they are, no beam
     blocked.  The run then is a valid measured-data run of one sample, as any partial run."""
-    speeds = {c: 0.0 for c in plant.conveyor_ids}
+    speeds = {c: 0.0 for c in recorder.conveyor_ids}
     values = cosim.values if cosim is not None else {}
     sources = cosim.setpoint_sources if cosim is not None else {}
     constants = cosim.wiring.constants if cosim is not None else {}
@@ -114,8 +116,8 @@ def _record_start(recorder: RunRecorder, plant: Plant, cosim: CoSimulation | Non
     for c, v in speeds.items():
         sp = setpoint_value(sources.get(c), constants, values, v)
         setpoints[c] = float(sp) if isinstance(sp, (int, float)) and np.isfinite(sp) else v
-    recorder.record(0.0, plant.fish_state, {p: False for p in plant.photoeye_ids}, setpoints, speeds,
-                    plant.body_poses)
+    recorder.record(0.0, state.fish_poses, {p: False for p in recorder.photoeye_ids}, setpoints, speeds,
+                    state.body_poses)
 
 
 def signal_expectations(key: str, bound: Bound, signals: pd.DataFrame) -> list[ExpectResult]:
@@ -153,6 +155,6 @@ def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float,
             raise _Stopped(f"interrupted by {stop.signal_name} at t = {cosim.t_s:.3f} s, before the end "
                            f"({scenario.run.duration_s:g} s)")
 
-    run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.status, scenario.run.duration_s,
+    run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.state.status, scenario.run.duration_s,
              scenario.run.comm_step_s, stop_when_clear=scenario.run.stop_when_clear, clear_margin_s=CLEAR_MARGIN_S,
              before_step=check_stop, on_progress=on_progress)

@@ -1,11 +1,8 @@
 """Connections between FMU variables and the plant's ports: checked, typed and put in stepping order.
 
-Ports of the plant (component ``plant``), per conveyor ``c`` and photo-eye ``p``:
-
-- inputs: ``plant.<c>.speed`` (Real, m/s): the belt surface speed for the coming step;
-- outputs: ``plant.<c>.speed`` (Real, the speed it ran at), ``plant.<c>.load_force`` (Real, N, the
-  fish's force on the belt against its motion), ``plant.<c>.load_mass`` (Real, kg, mass resting on
-  it), ``plant.<p>.blocked`` (Boolean).
+The plant is the component ``plant``; its ports (``plant.<conveyor>.speed`` in, ``.speed``, ``.load_force``,
+``.load_mass`` and ``plant.<photo-eye>.blocked`` out, with their types and units) are those its declaration
+gives (:mod:`plant.sim.ports`).
 
 A connection ``A.x -> B.y`` (or a ``[[wiring.connection]]`` table) must go from an output to an input; an
 input takes at most one connection; every plant input is connected or has a constant in ``[inputs]``.
@@ -17,7 +14,7 @@ transformation, ``gain`` x value + ``offset`` (SSP's LinearTransformation), on n
 or bias numbers and override Booleans, not Strings.
 
 **Units** are checked on every connection, from each end's variable or its declared type (plant ports:
-:data:`PLANT_UNITS`): two different units are refused, naming both, unless the connection gives a gain
+:data:`plant.sim.ports.SIGNALS`): two different units are refused, naming both, unless the connection gives a gain
 (which states the conversion); a unitless end connects to anything.  Two names are the same unit when
 they are equal or both defined with the same SI base units, factor and offset.
 
@@ -41,18 +38,14 @@ from typing import Any
 from plant.errors import InputError
 from plant.validation import suggest
 from plant.contract.line import Line
+from plant.sim.ports import SIGNALS, PlantPorts
 
 from fishfmu.fmu.archive import FmuVariable
+from fishfmu.scenario.order import stepping_order
 from fishfmu.scenario.schema import Scenario
 
 PLANT = "plant"
-
-
-PLANT_UNITS = {"speed": "m/s", "load_force": "N", "load_mass": "kg", "blocked": None}
-"""Units of the plant's ports by signal."""
-_SI = {"m/s": (0, 1, -1, 0, 0, 0, 0, 0, 1.0, 0.0), "N": (1, 1, -2, 0, 0, 0, 0, 0, 1.0, 0.0),
-       "kg": (1, 0, 0, 0, 0, 0, 0, 0, 1.0, 0.0)}
-"""The plant's units in SI base units (kg, m, s, A, K, mol, cd, rad, factor, offset), as an FMU defines them."""
+"""The plant's component name in connections, events and signals (``plant.c1.speed``)."""
 
 WIDENING = {("Integer", "Real"), ("Boolean", "Real"), ("Boolean", "Integer")}
 """(source type, target type) pairs converted without loss (Enumeration is read as Integer)."""
@@ -164,18 +157,14 @@ class Wiring:
 
 
 def plant_ports(line: Line) -> dict[str, list[Port]]:
-    """The plant's ports by variable name (``c1.speed`` is both an input and an output)."""
+    """The plant's ports by variable name, from its declaration (``c1.speed`` is both an input and an output)."""
+    declared = PlantPorts.of(line)
+    inputs = set(declared.inputs())
     ports: dict[str, list[Port]] = {}
-    def port(name: str, signal: str, causality: str, type_: str) -> Port:
-        unit = PLANT_UNITS[signal]
-        return Port(PLANT, f"{name}.{signal}", causality, type_, unit, _SI.get(unit) if unit else None)
-
-    for c in line.conveyors:
-        ports[f"{c.id}.speed"] = [port(c.id, "speed", "input", "Real"), port(c.id, "speed", "output", "Real")]
-        ports[f"{c.id}.load_force"] = [port(c.id, "load_force", "output", "Real")]
-        ports[f"{c.id}.load_mass"] = [port(c.id, "load_mass", "output", "Real")]
-    for p in line.photoeyes:
-        ports[f"{p.id}.blocked"] = [port(p.id, "blocked", "output", "Boolean")]
+    for name in declared.outputs():
+        s = SIGNALS[name.rpartition(".")[2]]
+        ports[name] = [Port(PLANT, name, causality, s.type, s.unit, s.unit_base)
+                       for causality in (("input", "output") if name in inputs else ("output",))]
     return ports
 
 
@@ -265,8 +254,8 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
             constants[port.key] = zero
         external.append(port.key)
 
-    missing = [f"plant.{c.id}.speed" for c in scenario.line.conveyors
-               if f"plant.{c.id}.speed" not in taken and f"plant.{c.id}.speed" not in constants]
+    missing = [key for key in (f"{PLANT}.{name}" for name in PlantPorts.of(scenario.line).inputs())
+               if key not in taken and key not in constants]
     if missing:
         raise InputError(f"belt speed not connected and no constant given for: {', '.join(missing)}",
                          file=scenario_file, where="wiring.connections")
@@ -295,7 +284,7 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
     if scenario.run.coupling == "jacobi":
         order = names
     else:
-        order = _topological(names, connections, scenario_file, feedthrough)
+        order = stepping_order(names, connections, scenario_file, feedthrough)
     wiring = Wiring(connections, order, constants, jacobi=scenario.run.coupling == "jacobi", external=external)
     wiring.recorded = _recorded(scenario, wiring, fmu_variables, plant, scenario_file)
     signals = _signal_types(wiring, fmu_variables, plant)
@@ -449,62 +438,3 @@ def connection_problem(c: Connection) -> str | None:
         return (f"'{src.key}' is in {src.unit} but '{dst.key}' in {dst.unit}: give the conversion as a gain "
                 "(and offset) in a [[wiring.connection]] table")
     return None
-
-
-def direct_feedthrough(model_description) -> set[str]:
-    """Outputs whose value after a step depends directly on an input at that time, as declared in
-    the modelDescription's ModelStructure (an output without a ``dependencies`` list is read as
-    depending on its FMU's state: in co-simulation, outputs come out of doStep)."""
-    inputs = {v.name for v in model_description.modelVariables if v.causality == "input"}
-    out = set()
-    for u in model_description.outputs:
-        if u.dependencies and any(d.name in inputs for d in u.dependencies):
-            out.add(u.variable.name)
-    return out
-
-
-def _topological(names: list[str], connections: list[Connection], scenario_file: str | None,
-                 feedthrough: dict[str, set[str]] | None = None) -> list[str]:
-    """FMUs ordered so that each comes after the FMUs it reads from.
-
-    Where FMUs feed each other in a cycle, the one listed first in the scenario steps first and
-    sees the others' values from the previous step (as a PLC reads its inputs one scan late).  A
-    cycle made only of outputs declared as direct feedthrough is an algebraic loop: an error.
-    """
-    feedthrough = feedthrough or {}
-    edges = {(c.source.component, c.target.component) for c in connections
-             if c.source.component in names and c.target.component in names and c.source.component != c.target.component}
-    direct = {(c.source.component, c.target.component) for c in connections
-              if (c.source.component, c.target.component) in edges
-              and c.source.variable in feedthrough.get(c.source.component, set())}
-    _reject_loops(names, direct, scenario_file)
-    remaining = list(names)
-    incoming = {n: {a for a, b in edges if b == n} for n in names}
-    order: list[str] = []
-    while remaining:
-        ready = [n for n in remaining if not (incoming[n] & set(remaining))]
-        pick = ready[0] if ready else remaining[0]  # a cycle: the first listed goes first
-        order.append(pick)
-        remaining.remove(pick)
-    return order
-
-
-def _reject_loops(names: list[str], direct: set[tuple[str, str]], scenario_file: str | None) -> None:
-    state: dict[str, int] = {}
-
-    def visit(n: str, path: list[str]) -> None:
-        if state.get(n) == 2:
-            return
-        if state.get(n) == 1:
-            cycle = path[path.index(n):] + [n]
-            raise InputError(f"algebraic loop: {' -> '.join(cycle)} (every output in it is declared to depend "
-                             "directly on an input); such a cycle cannot be ordered: break it or use "
-                             "run.coupling = \"jacobi\"", file=scenario_file, where="wiring.connections")
-        state[n] = 1
-        for a, b in sorted(direct):
-            if a == n:
-                visit(b, path + [n])
-        state[n] = 2
-
-    for n in names:
-        visit(n, [])

@@ -18,10 +18,11 @@ import numpy as np
 from asyncua import ua
 
 from plant.sim.plant import LEFT, ON_LINE, WAITING
+from plant.sim.ports import PlantPorts, signal_of
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
-from fishfmu.scenario.wiring import PLANT, PLANT_UNITS
+from fishfmu.scenario.wiring import PLANT
 
 NAMESPACE = "urn:fishfmu"
 FOLDER = "fishfmu"
@@ -62,8 +63,7 @@ def _signal_info(checked: CheckedScenario, keys: list[str]
     for key in keys:
         comp, _, var = key.partition(".")
         if comp == PLANT:
-            signal = var.rpartition(".")[2]
-            out[key] = ("Boolean" if signal == "blocked" else "Real", PLANT_UNITS.get(signal), None)
+            out[key] = (signal_of(var).type, signal_of(var).unit, None)
             continue
         v = checked.opened[comp].variables[var]
         md_var = next((m for m in checked.opened[comp].model_description.modelVariables if m.name == var), None)
@@ -76,10 +76,7 @@ def _signal_info(checked: CheckedScenario, keys: list[str]
 def served_signals(checked: CheckedScenario, names: list[str]) -> list[str]:
     """Every signal in the address space: the run's signals ``names``, then the plant's outputs it does not record
     (a PLC always needs its sensors)."""
-    sc = checked.scenario
-    plant_outputs = [*(f"{PLANT}.{c.id}.{s}" for c in sc.line.conveyors for s in ("speed", "load_force",
-                                                                                      "load_mass")),
-                     *(f"{PLANT}.{p.id}.blocked" for p in sc.line.photoeyes)]
+    plant_outputs = [f"{PLANT}.{port}" for port in PlantPorts.of(checked.scenario.line).outputs()]
     return [*names, *(k for k in plant_outputs if k not in names)]
 
 
@@ -92,7 +89,7 @@ def shown_values(c: CoSimulation | None, state: str, names: list[str], served: l
         row = c.signals[-1][1:] if c.signals else [c.values.get(k, c.constants.get(k)) for k in names]
         values.update(zip(names, row))
         values.update((k, c.values.get(k)) for k in served[len(names):])
-        status = c.plant.status
+        status = c.plant.state.status
         values.update((k, int(np.count_nonzero(status == s))) for k, s in _FISH_COUNTS.items())
     return values
 

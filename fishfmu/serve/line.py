@@ -159,7 +159,7 @@ class LineServer:
             return False
         # the run ends where `fishfmu run` ends it: its duration, or (stop_when_clear) once every fish has left
         if self._steps_left() == 0 or (self.scenario.run.stop_when_clear and
-                                       self._clear.done(self.cosim.t_s, self.cosim.plant.status)):
+                                       self._clear.done(self.cosim.t_s, self.cosim.plant.state.status)):
             self.state = "finished"
         return True
 
@@ -298,7 +298,7 @@ class LineServer:
             late_s = self.pacing.recent_median_s()
             if not warned and late_s is not None and late_s > dt_wall:
                 warned = True
-                n_fish = int(np.sum(self.cosim.plant.status == ON_LINE))
+                n_fish = int(np.sum(self.cosim.plant.state.status == ON_LINE))
                 self.behind = (f"cannot keep up with real time x{self.realtime:g}: at t = {self.cosim.t_s:.2f} s the "
                                f"median lateness of the last 100 steps is {1e3 * late_s:.1f} ms "
                                f"({n_fish} fish in play)")

@@ -162,7 +162,7 @@ def adhesion_forces(centres: np.ndarray, radii: np.ndarray, body_of_sphere: np.n
     """The attraction on each body (n_bodies, 3) [N]: ``adhesion.force_n`` per pair of spheres of
     different fish whose surfaces are within ``adhesion.range_m``, along the line between their
     centres, equal and opposite on the two bodies."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # slow to import (0.3 s), and needed only with the adhesion extension on
     force = np.zeros((n_bodies, 3))
     if len(centres) < 2:
         return force

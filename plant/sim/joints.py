@@ -32,6 +32,7 @@ import numpy as np
 from plant.fish import fish_data
 from plant.fish.fish_body import FishGeometry
 from plant.sim.params import JointParams, NumericsParams
+from plant.sim.rotations import matrix_to_rotvec
 
 AXES = ("twist", "lateral", "dorsoventral")
 
@@ -97,6 +98,36 @@ def linearize(law: JointLaws, theta_now: np.ndarray, theta_next: np.ndarray) -> 
     k = np.maximum(tangent(law, theta_now), tangent(law, theta_next))
     offset = theta_now - torque(law, theta_now) / k
     return k, offset
+
+
+def relinearized(laws: JointLaws, rot_a: np.ndarray, rot_b: np.ndarray, omega_a: np.ndarray, omega_b: np.ndarray,
+                 active: np.ndarray, dt_s: float, k_now: np.ndarray, offset_now: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The joints' linear springs for the coming step of ``dt_s``: (changed (J,) bool, stiffness (J, 3),
+    offset (J, 3)); only the ``changed`` joints need new values in Exudyn.
+
+    Joint j joins bodies a and b (rotations ``rot_a``/``rot_b`` (J, 3, 3), body-frame angular velocities
+    ``omega_a``/``omega_b`` (J, 3)); ``active`` (J,) False for the joints of fish not on the line (parked).
+    A joint well inside its limits (most of them) keeps the soft spring: the law is evaluated only for those
+    near a limit now or by the end of the step; a spring is changed when its stiffness moves by more than
+    2 % or its offset by more than 0.005 rad."""
+    rel = np.einsum("nji,njk->nik", rot_a, rot_b)
+    theta = matrix_to_rotvec(rel)
+    # relative angular velocity in the frame of body a (node velocities are body-frame)
+    w_b_in_a = np.einsum("nij,nj->ni", rel, omega_b)
+    theta_next = theta + (w_b_in_a - omega_a) * dt_s
+    soft_until = laws.limit_rad * (1.0 - laws.transition)
+    near = np.any((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until), axis=1)
+    near &= active
+    k_new = laws.k_soft.copy()
+    off_new = np.zeros_like(offset_now)
+    if np.any(near):
+        sub = JointLaws(laws.limit_rad[near], laws.k_soft[near], laws.k_limit[near], laws.transition,
+                        laws.damping[near])
+        k_new[near], off_new[near] = linearize(sub, theta[near], theta_next[near])
+    changed = (np.any(np.abs(k_new - k_now) > 0.02 * k_now, axis=1)
+               | np.any(np.abs(off_new - offset_now) > 0.005, axis=1))
+    return changed, k_new, off_new
 
 
 def joint_laws(geometry: FishGeometry, joints: JointParams, numerics: NumericsParams, gravity_mps2: float,

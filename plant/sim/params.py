@@ -95,9 +95,6 @@ class NumericsParams(Strict):
         "raise the rotational inertia of thin bodies (the tail fin) to what their contact spheres need for "
         "a stable step; adds inertia, never mass"))
     threads: int = Field(1, ge=1, le=64, description="Exudyn worker threads")
-    sleep: bool = Field(False, description=(
-        "carry a fish that rides with its belt, alone, kinematically outside Exudyn until anything could "
-        "change its motion (plant.sleep; off until validated over the shipped scenarios)"))
 
 
 class PlantParams(Strict):

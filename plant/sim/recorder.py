@@ -18,9 +18,8 @@ import numpy as np
 import pandas as pd
 
 from plant.contract.measured import BELTS, PHOTOEYES, TRACKS
-from plant.sim.plant import FishState, Plant
 from plant.sim.rotations import matrix_to_quaternion
-from plant.sim.state import FishStatus
+from plant.sim.state import FishState, FishStatus, PlantState
 
 TRACK_PERIOD_S = 0.04
 BELT_PERIOD_S = 0.01
@@ -103,9 +102,10 @@ class RunRecorder:
         }
 
 
-def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | None:
+def pose_record(recorder: RunRecorder, state: PlantState) -> dict[str, np.ndarray] | None:
     """The recorder's body poses plus what is needed to draw the bodies (the arrays of a run folder's
-    poses.npz, see fishfmu.output.replay); None unless the recorder keeps poses.
+    poses.npz, see fishfmu.output.replay), from the plant's published ``state``; None unless the recorder
+    keeps poses.
 
     ``body_fish`` (B,) fish index of each body, ``fish_id`` (N,), ``section_body``/``section_x``/
     ``section_half_height``/``section_half_width`` (S,): each body's outline as cross-sections along
@@ -116,16 +116,16 @@ def pose_record(recorder: RunRecorder, plant: Plant) -> dict[str, np.ndarray] | 
     if poses is None:
         return None
     body, x, half_h, half_w = [], [], [], []
-    for k, prep in enumerate(plant.prepared):
-        for i, b in enumerate(prep.geometry.bodies):
+    for k, geometry in enumerate(state.geometry):
+        for i, b in enumerate(geometry.bodies):
             for (sx, hh, hw) in b.outline:
                 body.append(5 * k + i)
                 x.append(sx)
                 half_h.append(hh)
                 half_w.append(hw)
     poses.update({
-        "fish_id": np.array([f.fish_id for f in plant.fish_specs]),
-        "body_fish": np.repeat(np.arange(len(plant.fish_specs)), 5).astype(np.int32),
+        "fish_id": np.array(list(state.fish_ids)),
+        "body_fish": np.repeat(np.arange(len(state.fish_ids)), 5).astype(np.int32),
         "section_body": np.array(body, dtype=np.int32),
         "section_x": np.array(x, dtype=np.float32),
         "section_half_height": np.array(half_h, dtype=np.float32),

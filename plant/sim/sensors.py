@@ -5,14 +5,20 @@
   the coarser contact spheres, whose valleys would let a beam through a fish;
 - belt load: the force the fish put on a belt along x and down, from the belt body's momentum
   change over the step (nothing else acts on it);
-- fish poses in the measured-data frame: the mid-length point of the spine and the heading.
+- where on each fish's spine its tracked points are (:func:`spine_point_local`; the poses themselves:
+  :meth:`plant.sim.state.PlantState.fish_poses`).
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from plant.fish.fish_body import FishGeometry
+
+if TYPE_CHECKING:  # the system's outline cross-sections are read, the system is not built here
+    from plant.sim.model import PlantModel
 
 
 def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.ndarray,
@@ -44,6 +50,23 @@ def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, hal
     return hit.any(axis=1)
 
 
+def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: np.ndarray, beams_xz: np.ndarray,
+                  half_width_m: float) -> np.ndarray:
+    """(n_beams,) True where a beam cuts the outline of a body of a fish on the line (``body_on``), from the
+    bodies' positions and rotations; only bodies within 0.5 m of a beam along x are looked at."""
+    if len(beams_xz) == 0 or len(model.section_body) == 0:
+        return np.zeros(len(beams_xz), dtype=bool)
+    near = body_on & (np.min(np.abs(pos[:, 0][:, None] - beams_xz[None, :, 0]), axis=1) < 0.5)
+    sel = near[model.section_body]
+    if not np.any(sel):
+        return np.zeros(len(beams_xz), dtype=bool)
+    b = model.section_body[sel]
+    r = rot[b]
+    centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
+    return photoeyes_blocked(centres, r[:, :, 1], model.section_half_len[sel], model.section_radius[sel], beams_xz,
+                             half_width_m)
+
+
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
                gravity_mps2: float) -> tuple[np.ndarray, np.ndarray]:
     """(load force along x opposing the belt [N], mass resting on the belt [kg]) per belt.
@@ -65,19 +88,3 @@ def spine_point_local(geometry: FishGeometry, s: float) -> tuple[int, np.ndarray
         if b.s_start <= s <= b.s_end or i == len(geometry.bodies) - 1:
             return i, np.array([b.com_from_snout_m - d, 0.0, 0.0])
     raise AssertionError("unreachable")
-
-
-def fish_pose(body_pos: np.ndarray, body_rot: np.ndarray, mid: tuple[int, np.ndarray],
-              front: tuple[int, np.ndarray], back: tuple[int, np.ndarray]) -> tuple[np.ndarray, float]:
-    """(mid-length point, heading) of one fish from its bodies' positions and rotations.
-
-    The heading is that of the chord from a point at 80 % of the length to one at 20 %: what an
-    overhead camera sees as the fish's direction, robust to a wagging head or tail.
-    """
-    def point(ref: tuple[int, np.ndarray]) -> np.ndarray:
-        i, local = ref
-        return body_pos[i] + body_rot[i] @ local
-
-    p_mid = point(mid)
-    chord = point(front) - point(back)
-    return p_mid, float(np.arctan2(chord[1], chord[0]))

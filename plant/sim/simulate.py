@@ -17,11 +17,12 @@ import pandas as pd
 from plant.contract.line import Line
 from plant.sim.params import PlantParams
 from plant.sim.health import EnergyWatch
-from plant.sim.plant import DropAdjustment, Plant
+from plant.sim.plant import Plant
 from plant.contract.measured import fish_to_frame
 from plant.fish.population import FishSpec
 from plant.sim.recorder import RunRecorder, pose_record
-from plant.sim.state import FishStatus
+from plant.sim.ports import PlantPorts
+from plant.sim.state import DropAdjustment, FishStatus
 
 BeltSpeeds = dict[str, float] | Callable[[float], dict[str, float]]
 
@@ -105,24 +106,27 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory)."""
     plant = Plant(line, fish, params, comm_step_s, joint_factors)
     energy = EnergyWatch()
-    rec = RunRecorder([f.fish_id for f in fish], plant.conveyor_ids, plant.photoeye_ids, comm_step_s,
+    ports = PlantPorts.of(line)
+    rec = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids), comm_step_s,
                       record_poses=record_poses)
-    body_poses = plant.body_poses if record_poses else None
     speed_fn = belt_speeds if callable(belt_speeds) else (lambda t, s=dict(belt_speeds): s)
 
     def step() -> None:
-        speeds = speed_fn(plant.t_s)
+        speeds = speed_fn(plant.state.t_s)
         out = plant.step(speeds)
-        energy.check(plant.state, comm_step_s)  # a blow-up stops here, as in a co-simulation
-        rec.record(plant.t_s, plant.fish_state, out.photoeyes, speeds, out.belt_speed_mps, body_poses)
+        state = plant.state
+        energy.check(state, comm_step_s)  # a blow-up stops here, as in a co-simulation
+        rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
+                   state.body_poses if record_poses else None)
         if on_step is not None:
             on_step(plant)
 
     t0 = time.perf_counter()
-    run_loop(step, lambda: plant.t_s, lambda: plant.status, duration_s, comm_step_s,
+    run_loop(step, lambda: plant.state.t_s, lambda: plant.state.status, duration_s, comm_step_s,
              stop_when_clear=stop_when_clear, clear_margin_s=clear_margin_s)
     wall = time.perf_counter() - t0
     tables = rec.tables()
+    state = plant.state
     return SimulatedRun(fish_to_frame(fish), tables["tracks"], tables["photoeyes"], tables["belts"],
-                        plant.t_s, wall, list(plant.drop_adjustments), plant.status.copy(),
-                        pose_record(rec, plant))
+                        state.t_s, wall, list(state.drop_adjustments), state.status.copy(),
+                        pose_record(rec, state))

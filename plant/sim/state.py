@@ -1,8 +1,10 @@
 """What the plant publishes after each communication step: a read-only snapshot of its state.
 
 :class:`Plant <plant.sim.plant.Plant>` builds a :class:`PlantState` at the end of every step (and one at
-rest when it is made) and exposes it as ``plant.state``.  Readers outside the plant (the energy
-watch, the health checks, re-simulation) read this snapshot, never the plant's private fields.
+rest when it is made) and exposes it as ``plant.state``; its step returns the state's sensor readings
+(:class:`PlantOutputs`).  That is all readers outside the plant read (the co-simulation, the energy watch,
+the recorder, the plant FMU, ``fishfmu serve``, re-simulation): the fish's status and poses
+(:meth:`PlantState.fish_poses`, :meth:`PlantState.body_poses`), the drops the plant raised, its timings.
 
 Building it is cheap: the arrays are the plant's own arrays of that step, shared, not copied
 (the plant makes new ones every step and never writes one in place after publishing it); the
@@ -25,9 +27,12 @@ ValueError: assignment destination is read-only
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
+
+from plant.fish.fish_body import FishGeometry
+from plant.sim.ports import SIGNALS, PlantPorts
 
 
 class FishStatus(enum.IntEnum):
@@ -52,21 +57,47 @@ class PlantOutputs:
     photoeyes: dict[str, bool]
 
     def port_values(self) -> dict[str, float | bool]:
-        """Every output as ``"<id>.<signal>"`` (the names connections use)."""
+        """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
+        :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`."""
         out: dict[str, float | bool] = {}
-        for cid in self.belt_speed_mps:
-            out[f"{cid}.speed"] = self.belt_speed_mps[cid]
-            out[f"{cid}.load_force"] = self.belt_load_force_n[cid]
-            out[f"{cid}.load_mass"] = self.belt_load_mass_kg[cid]
-        for pid, blocked in self.photoeyes.items():
-            out[f"{pid}.blocked"] = blocked
+        for of, ids in _IDS_OF:
+            signals = [(s.name, getattr(self, s.field)) for s in SIGNALS.values() if s.of == of]
+            for i in getattr(self, ids):
+                for name, values in signals:
+                    out[f"{i}.{name}"] = values[i]
         return out
 
     @classmethod
-    def at_rest(cls, conveyor_ids: list[str], photoeye_ids: list[str], t_s: float = 0.0) -> PlantOutputs:
+    def at_rest(cls, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
         """Belts stopped and unloaded, every beam clear (the outputs before the first step)."""
-        return cls(t_s, dict.fromkeys(conveyor_ids, 0.0), dict.fromkeys(conveyor_ids, 0.0),
-                   dict.fromkeys(conveyor_ids, 0.0), dict.fromkeys(photoeye_ids, False))
+        conveyors = ports.conveyor_ids
+        return cls(t_s, dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0),
+                   dict.fromkeys(ports.photoeye_ids, False))
+
+
+_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"))
+"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes."""
+
+
+@dataclass
+class FishState:
+    """Poses of all fish at the end of a step (measured-data frame): NaN for fish not on the line."""
+
+    t_s: float
+    x_m: np.ndarray
+    y_m: np.ndarray
+    z_m: np.ndarray
+    yaw_rad: np.ndarray
+    status: np.ndarray
+    """:class:`FishStatus` (int8) of every fish."""
+
+
+@dataclass(frozen=True)
+class DropAdjustment:
+    """A fish dropped higher than asked, to clear the fish already on the line below it."""
+
+    fish_id: str
+    raised_by_m: float
 
 
 @dataclass(frozen=True)
@@ -104,9 +135,16 @@ class PlantState:
     extension is off (or before its first step)."""
     outputs: PlantOutputs | None = None
     """The sensor readings of the step (at rest before the first step)."""
-    asleep: np.ndarray | None = None
-    """(n_fish,) True for fish on the line carried with their belt outside the system (plant.sim.sleep);
-    their bodies are not among the bodies above."""
+    pose_bodies: np.ndarray | None = None
+    """(n_slots, 3) the bodies holding each fish's spine points at 50, 20 and 80 % of its length."""
+    pose_local: np.ndarray | None = None
+    """(n_slots, 3, 3) those points in their bodies' frames."""
+    geometry: tuple[FishGeometry, ...] = ()
+    """(n_fish,) every fish's bodies (to draw them: their outlines)."""
+    drop_adjustments: tuple[DropAdjustment, ...] = ()
+    """Every drop so far that the plant raised to clear the fish below."""
+    timings_s: dict[str, float] = field(default_factory=dict)
+    """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``)."""
 
     def __post_init__(self) -> None:
         for name in _ARRAY_FIELDS:
@@ -119,6 +157,35 @@ class PlantState:
     def on_line_bodies(self) -> np.ndarray:
         """(n_bodies,) True for the bodies of fish on the line."""
         return self.status[self.fish_of_body] == FishStatus.ON_LINE
+
+    def fish_poses(self) -> FishState:
+        """Mid-length point and heading of every fish on the line (NaN for the others).
+
+        The heading is that of the chord from the spine point at 80 % of the length to the one at
+        20 %: what an overhead camera sees as the fish's direction, robust to a wagging head or tail.
+        """
+        n = len(self.fish_ids)
+        x, y, z, yaw = (np.full(n, np.nan) for _ in range(4))
+        slots = np.flatnonzero(self.status[self.member] == FishStatus.ON_LINE)
+        if len(slots):
+            b = self.pose_bodies[slots]  # (m, 3): bodies holding the 50 %, 20 %, 80 % points
+            pts = self.pos[b] + np.einsum("mkij,mkj->mki", self.rot[b], self.pose_local[slots])
+            chord = pts[:, 1] - pts[:, 2]
+            k = self.member[slots]
+            x[k], y[k], z[k] = pts[:, 0, 0], pts[:, 0, 1], pts[:, 0, 2]
+            yaw[k] = np.arctan2(chord[:, 1], chord[:, 0])
+        return FishState(self.t_s, x, y, z, yaw, self.status.copy())
+
+    def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (5 n_fish, 3), rotation matrices (5 n_fish, 3, 3)) of every fish's bodies, in the
+        run's fish order; NaN for fish not in the system (waiting or gone)."""
+        n = 5 * len(self.fish_ids)
+        pos = np.full((n, 3), np.nan)
+        rot = np.full((n, 3, 3), np.nan)
+        body_index = (5 * self.fish_of_body + np.tile(np.arange(5), len(self.member))) if len(self.member) else []
+        pos[body_index] = self.pos
+        rot[body_index] = self.rot
+        return pos, rot
 
 
 _ARRAY_FIELDS = tuple(f.name for f in fields(PlantState) if "ndarray" in str(f.type))

@@ -1,0 +1,91 @@
+"""The plant's ports, declared once: what goes in (belt speeds) and what comes out (sensor readings).
+
+Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<signal>``:
+
+- ``c.speed`` (Real, m/s): in, the belt surface speed for the coming step; out, the speed it ran at;
+- ``c.load_force`` (Real, N): out, the fish's force on the belt against its motion;
+- ``c.load_mass`` (Real, kg): out, the mass resting on the belt;
+- ``p.blocked`` (Boolean): out, whether a fish cuts the beam.
+
+Everything that names the plant's ports derives them from :data:`SIGNALS` and :class:`PlantPorts`: the
+plant's outputs (:meth:`plant.sim.state.PlantOutputs.port_values`), a scenario's wiring
+(``fishfmu.scenario.wiring``), the co-simulation master, the plant FMU and ``fishfmu serve``.
+
+>>> from plant.contract.line import Line
+>>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+...     {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0}],
+...     "photoeyes": [{"id": "pe1", "x_m": 1.5, "z_m": 0.015}]})
+>>> ports = PlantPorts.of(line)
+>>> ports.inputs(), ports.outputs()
+(['c1.speed'], ['c1.speed', 'c1.load_force', 'c1.load_mass', 'pe1.blocked'])
+>>> SIGNALS["load_force"].unit, signal_of("pe1.blocked").type
+('N', 'Boolean')
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from plant.contract.line import Line
+
+
+@dataclass(frozen=True)
+class Signal:
+    """One kind of port, had by every conveyor or every photo-eye."""
+
+    name: str
+    of: str
+    """``conveyor`` or ``photoeye``: whose port it is."""
+    type: str
+    """FMI-style type name of its values: ``Real`` (float) or ``Boolean`` (bool)."""
+    unit: str | None
+    unit_base: tuple[float, ...] | None
+    """The unit in SI base units (kg, m, s, A, K, mol, cd, rad, factor, offset), as an FMU defines one."""
+    is_input: bool
+    field: str
+    """The :class:`~plant.sim.state.PlantOutputs` field holding its output values, by id."""
+    description: str
+
+
+SIGNALS: dict[str, Signal] = {s.name: s for s in (
+    Signal("speed", "conveyor", "Real", "m/s", (0, 1, -1, 0, 0, 0, 0, 0, 1.0, 0.0), True, "belt_speed_mps",
+           "belt surface speed: in, for the coming step; out, the speed it ran at"),
+    Signal("load_force", "conveyor", "Real", "N", (1, 1, -2, 0, 0, 0, 0, 0, 1.0, 0.0), False, "belt_load_force_n",
+           "the fish's force on the belt against its motion"),
+    Signal("load_mass", "conveyor", "Real", "kg", (1, 0, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "belt_load_mass_kg",
+           "mass resting on the belt"),
+    Signal("blocked", "photoeye", "Boolean", None, None, False, "photoeyes", "a fish cuts the beam"),
+)}
+"""Every signal of the plant's ports, conveyors' first; each conveyor's and each photo-eye's ports come in this
+order."""
+
+
+def signal_of(port: str) -> Signal:
+    """The signal of a port name ``<id>.<signal>`` (KeyError if the plant has no such signal)."""
+    return SIGNALS[port.rpartition(".")[2]]
+
+
+@dataclass(frozen=True)
+class PlantPorts:
+    """The ports of one line's plant: per conveyor and per photo-eye, in the line's order."""
+
+    conveyor_ids: tuple[str, ...]
+    photoeye_ids: tuple[str, ...]
+
+    @classmethod
+    def of(cls, line: Line) -> PlantPorts:
+        return cls(tuple(c.id for c in line.conveyors), tuple(p.id for p in line.photoeyes))
+
+    def _names(self, signals: Iterable[Signal]) -> list[str]:
+        signals = list(signals)
+        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids}
+        return [f"{i}.{s.name}" for of in ids for i in ids[of] for s in signals if s.of == of]
+
+    def inputs(self) -> list[str]:
+        """Input port names (every conveyor's ``speed``)."""
+        return self._names(s for s in SIGNALS.values() if s.is_input)
+
+    def outputs(self, signals: Iterable[str] | None = None) -> list[str]:
+        """Output port names: every conveyor's, then every photo-eye's, or only those of the named ``signals``."""
+        return self._names(SIGNALS[n] for n in (SIGNALS if signals is None else signals))
