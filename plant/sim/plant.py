@@ -65,8 +65,7 @@ class Plant:
         self._line = line
         self._params = params or PlantParams()
         self._fish_specs = list(fish)
-        self._fish_ids = [f.fish_id for f in self._fish_specs]
-        self._fish_id_tuple = tuple(self._fish_ids)
+        self._fish_ids = tuple(f.fish_id for f in self._fish_specs)
         self._drop_t_s = np.array([f.drop_t_s for f in self._fish_specs], dtype=float)  # one comparison per step
         n_sub = comm_step_s / self._params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
@@ -391,7 +390,7 @@ class Plant:
         are shared, not copied: every one of them is made anew when it changes (by :meth:`_read_state`,
         :meth:`_set_model`, :meth:`_apply_adhesion`), except the status, which is copied."""
         self._state = PlantState(
-            t_s=self.t_s, fish_ids=self._fish_id_tuple, status=self.status.copy(), member=self._member,
+            t_s=self.t_s, fish_ids=self._fish_ids, status=self.status.copy(), member=self._member,
             fish_of_body=self._fish_of_body, pos=self._pos, rot=self._rot, vel=self._vel,
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
