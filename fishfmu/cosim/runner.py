@@ -27,7 +27,7 @@ from plant.sim.state import PlantState
 from plant.contract.measured import fish_to_frame
 from plant.fish.population import FishSpec
 from plant.sim.recorder import RunRecorder, pose_record
-from plant.sim.simulate import run_loop
+from plant.sim.simulate import RunEnd, run_loop
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, checked, scenario_fish
 from fishfmu.cosim.stop import StopRequest
@@ -144,6 +144,12 @@ CLEAR_MARGIN_S = 1.0
 """With ``run.stop_when_clear``, a run ends this long after the last fish has left the line."""
 
 
+def run_end(scenario: Scenario) -> RunEnd:
+    """Where a run of ``scenario`` ends by itself: its duration, or (``stop_when_clear``) CLEAR_MARGIN_S after the last
+    fish has left; ``fishfmu run``'s end and ``fishfmu serve``'s."""
+    return RunEnd(scenario.run.duration_s, scenario.run.comm_step_s, scenario.run.stop_when_clear, CLEAR_MARGIN_S)
+
+
 class _Stopped(Exception):
     """The run was asked to stop (a signal)."""
 
@@ -155,6 +161,5 @@ def _loop(cosim: CoSimulation, scenario: Scenario, on_progress: Callable[[float,
             raise _Stopped(f"interrupted by {stop.signal_name} at t = {cosim.t_s:.3f} s, before the end "
                            f"({scenario.run.duration_s:g} s)")
 
-    run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.state.status, scenario.run.duration_s,
-             scenario.run.comm_step_s, stop_when_clear=scenario.run.stop_when_clear, clear_margin_s=CLEAR_MARGIN_S,
+    run_loop(cosim.step, lambda: cosim.t_s, lambda: cosim.plant.state.status, run_end(scenario),
              before_step=check_stop, on_progress=on_progress)

@@ -29,12 +29,11 @@ import numpy as np
 
 from plant.errors import InputError, SimulationError
 from plant.sim.plant import ON_LINE
-from plant.sim.simulate import ClearWatch
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, scenario_fish
 from fishfmu.cosim.master import CoSimulation
 from fishfmu.cosim.results import RunResult
-from fishfmu.cosim.runner import CLEAR_MARGIN_S, collect
+from fishfmu.cosim.runner import collect, run_end
 from fishfmu.cosim.stop import StopRequest
 from fishfmu.scenario.wiring import signal_names
 from fishfmu.serve.address_space import NAMESPACE, AddressSpace, served_signals, shown_values
@@ -132,17 +131,13 @@ class LineServer:
             self.state, self.error = f"failed: {exc}", str(exc)
             return
         self.state, self.error = "running", None
-        self._clear = ClearWatch(CLEAR_MARGIN_S)
+        self._end = run_end(self.scenario)
 
     def close(self) -> None:
         """Terminate the FMUs and free the plant (in the worker thread, after whatever it still does)."""
         with contextlib.suppress(RuntimeError):  # already shut down
             self._worker.submit(self._stack.close).result()
         self._worker.shutdown(wait=True)
-
-    def _steps_left(self) -> int:
-        dt = self.scenario.run.comm_step_s
-        return max(0, int(round(self.scenario.run.duration_s / dt)) - self.cosim.steps)
 
     def _take_writes(self) -> None:
         """Client writes to the external inputs, applied before the next step."""
@@ -157,9 +152,8 @@ class LineServer:
         except SimulationError as exc:
             self.state, self.error = f"failed: {exc}", str(exc)
             return False
-        # the run ends where `fishfmu run` ends it: its duration, or (stop_when_clear) once every fish has left
-        if self._steps_left() == 0 or (self.scenario.run.stop_when_clear and
-                                       self._clear.done(self.cosim.t_s, self.cosim.plant.state.status)):
+        # the run ends where `fishfmu run` ends it (one rule: its duration, or once every fish has left)
+        if self._end.reached(self.cosim.steps, self.cosim.t_s, lambda: self.cosim.plant.state.status):
             self.state = "finished"
         return True
 

@@ -68,29 +68,43 @@ class ClearWatch:
         return False
 
 
-def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callable[[], np.ndarray],
-             duration_s: float, dt_s: float, stop_when_clear: bool = True, clear_margin_s: float = 1.0,
+class RunEnd:
+    """Where a run ends by itself: after ``round(duration_s / dt_s)`` steps, or with ``stop_when_clear`` (and any
+    fish) ``clear_margin_s`` after every fish has left the line (:class:`ClearWatch`).  The one rule of every loop
+    that steps a run: :func:`run_loop` (the plant alone, ``fishfmu run``) and ``fishfmu serve``, whose steps a client
+    or the wall clock calls one by one."""
+
+    def __init__(self, duration_s: float, dt_s: float, stop_when_clear: bool = True,
+                 clear_margin_s: float = 1.0) -> None:
+        self.duration_s = duration_s
+        self.n_steps = int(round(duration_s / dt_s))
+        self.stop_when_clear = stop_when_clear
+        self.clear = ClearWatch(clear_margin_s)
+
+    def reached(self, steps: int, t: float, status: Callable[[], np.ndarray]) -> bool:
+        """After ``steps`` steps, the last one ending at ``t``: is the run over?  ``status()`` gives the fish's
+        (asked only with ``stop_when_clear``)."""
+        return (self.stop_when_clear and self.clear.done(t, status())) or steps >= self.n_steps
+
+
+def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callable[[], np.ndarray], end: RunEnd,
              before_step: Callable[[], None] | None = None,
              on_progress: Callable[[float, float], None] | None = None) -> int:
     """The run loop of both the plant alone (:func:`simulate_plant`) and the co-simulation
-    (fishfmu.cosim.runner): ``step()`` up to ``round(duration_s / dt_s)`` times; with ``stop_when_clear``
-    (and any fish) stop ``clear_margin_s`` after every fish has left the line (``status()`` all
-    LEFT; the wait starts over while a fish is still WAITING to be dropped).  ``t_s()`` is the time
-    after the last step.  ``before_step()`` is called before each step and stops the run by raising
-    (a stop request); ``on_progress(t, duration_s)`` after every 50th step from the first, and
+    (fishfmu.cosim.runner): ``step()`` until the run's ``end`` (:class:`RunEnd`; ``status()`` gives the fish's).
+    ``t_s()`` is the time after the last step.  ``before_step()`` is called before each step and stops the run by
+    raising (a stop request); ``on_progress(t, duration_s)`` after every 50th step from the first, and
     ``on_progress(t, t)`` at the end.  Returns the number of steps taken."""
-    n_steps = int(round(duration_s / dt_s))
-    clear = ClearWatch(clear_margin_s)
     steps = 0
-    for k in range(n_steps):
+    for k in range(end.n_steps):
         if before_step is not None:
             before_step()
         step()
         steps += 1
         t = t_s()
         if on_progress is not None and k % 50 == 0:
-            on_progress(t, duration_s)
-        if stop_when_clear and clear.done(t, status()):
+            on_progress(t, end.duration_s)
+        if end.reached(steps, t, status):
             break
     if on_progress is not None:
         on_progress(t_s(), t_s())
@@ -122,8 +136,8 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
             on_step(plant)
 
     t0 = time.perf_counter()
-    run_loop(step, lambda: plant.state.t_s, lambda: plant.state.status, duration_s, comm_step_s,
-             stop_when_clear=stop_when_clear, clear_margin_s=clear_margin_s)
+    run_loop(step, lambda: plant.state.t_s, lambda: plant.state.status,
+             RunEnd(duration_s, comm_step_s, stop_when_clear, clear_margin_s))
     wall = time.perf_counter() - t0
     tables = rec.tables()
     state = plant.state
