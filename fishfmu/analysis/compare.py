@@ -23,12 +23,14 @@ import numpy as np
 import pandas as pd
 
 from plant.contract.kpis import KPI_KEYS as ALL_KPI_KEYS, arrival_times, compute_kpis
-from plant.contract.measured import Dataset, Run
+from plant.contract.measured import Dataset, Run, write_dataset
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.residuals import concat_typed, drive_residuals, track_errors, typed_frame
-from fishfmu.session import Interrupted
 from fishfmu.analysis.resim import Resim, drive_check, not_resimulated, resimulate_many
+from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic
+from fishfmu.output.replay import write_compare_replay
+from fishfmu.session import Interrupted
 
 KPI_KEYS = tuple(k for k in ALL_KPI_KEYS if k not in ("fish_in", "gap_min_m", "gap_p10_m"))
 """The KPIs compared between a measured run and its re-simulation (fish_in is the same by construction)."""
@@ -140,7 +142,6 @@ def write_replays(c: Comparison, folder: Path) -> dict[str, Path]:
     """One replay page per re-simulated run (run id -> page): the simulated fish and the measured ones
     over them (:func:`fishfmu.output.replay.write_compare_replay`).  Runs whose re-simulation failed, or
     that recorded no poses, get none."""
-    from fishfmu.output.replay import write_compare_replay
     pages = {}
     for run, r in zip(c.dataset.runs, c.resims):
         if r.error or r.sim.poses is None or len(r.sim.poses["t_s"]) == 0:
@@ -153,10 +154,8 @@ def write_replays(c: Comparison, folder: Path) -> dict[str, Path]:
 def write_comparison(c: Comparison, out: Path) -> dict[str, Path]:
     """Tables (CSV), plots (PNG), a report (HTML), the simulated runs (measured-data format) and a
     3D replay page per run (``replay/``)."""
-    from plant.contract.measured import write_dataset
-
+    # slow and only for the report: matplotlib
     from fishfmu.analysis.compare_report import write_compare_report
-    from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic
     paths = {}
     for name, df in (("kpis", c.kpis), ("arrivals", c.arrivals), ("error_measures", c.measures),
                      ("error_summary", c.summary())):

@@ -13,9 +13,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from fishfmu.output.atomic import write_figure_atomic, write_text_atomic  # noqa: E402
+
 
 def _save(fig, path: Path) -> str:
-    from fishfmu.output.atomic import write_figure_atomic
     try:
         data = write_figure_atomic(path, fig, dpi=100, bbox_inches="tight")
     finally:
@@ -118,7 +119,6 @@ def _run_figure(run_id: str, blob: str, page: Path | None, out: Path) -> str:
 
 def write_compare_report(c, out: Path, replays: dict[str, Path] | None = None) -> Path:
     """The report page; ``replays``: run id -> that run's 3D replay page, linked from the report."""
-    from fishfmu.output.atomic import write_text_atomic
     figs = {"arrivals.png": arrivals_figure(c), "track_error.png": track_error_figure(c), "kpis.png": kpi_figure(c),
             "belt_speed_error.png": belt_figure(c)}
     blobs = {name: _save(f, out / name) for name, f in figs.items()}

@@ -17,6 +17,7 @@ from fishfmu.analysis.calibrate_report import calibration_document  # noqa: E402
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, CandidateFit, Diagnosis  # noqa: E402
 from fishfmu.analysis.signatures import ALPHA, SUGGESTIVE, CovariateTest, significant  # noqa: E402
+from fishfmu.output.atomic import json_safe, write_figure_atomic, write_json_atomic, write_text_atomic  # noqa: E402
 
 
 def fit_text(f: CandidateFit) -> str:
@@ -94,7 +95,6 @@ def diagnosis_document(d: Diagnosis) -> dict:
 
 
 def _img(fig, path: Path) -> str:
-    from fishfmu.output.atomic import write_figure_atomic
     try:
         data = write_figure_atomic(path, fig, dpi=100, bbox_inches="tight")
     finally:
@@ -160,7 +160,6 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
 
 
 def write_diagnosis(d: Diagnosis, out: Path) -> dict[str, Path]:
-    from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
     doc = diagnosis_document(d)
     paths = {"json": out / "diagnosis.json", "fragment": out / "fragment.toml", "tests": out / "tests.csv",
              "report": out / "report.html"}

@@ -22,6 +22,9 @@ import numpy as np
 from plant.contract.measured import Dataset, Run
 
 from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
+from fishfmu.analysis.resim import simulate_drive
+from fishfmu.fmu.archive import open_fmu
+from fishfmu.fmu.build import builtin_fmu
 
 RAMP_FACTORS = np.sqrt(2.0) ** np.arange(-7, 8)
 """Ramps tried, as factors of the model's, sqrt(2) apart: 1/11 to 11 times (the built-in drive's 2 m/s^2: 0.18 to
@@ -81,9 +84,6 @@ def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Ge
     """Each drive's ramp from the start-ups of ``fit_runs`` (the others held out); see the module docstring.  The
     model's ramp is the built-in drive's (``model_mps2`` None: its declared start value, 2 m/s^2), not one a
     scenario may set: the gains say what the fitted ramp gains over that."""
-    from fishfmu.analysis.resim import simulate_drive
-    from fishfmu.fmu.archive import open_fmu
-    from fishfmu.fmu.build import builtin_fmu
     out = []
     with open_fmu(builtin_fmu("conveyor_drive")) as fmu:
         model_mps2 = float(fmu.variables["ramp_acceleration"].start) if model_mps2 is None else model_mps2

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from plant.fish.fish_data import length_regressions
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 
@@ -177,7 +178,6 @@ def pair_rows(dataset: Dataset) -> pd.DataFrame:
     leading one's mid-point crosses a transfer: how much of the belts' speed difference their separation gained
     over :data:`PAIR_AFTER_S` (``growth``: 1 when each rode its own belt throughout), and whether they touched.
     Without a force between fish in contact, touching pairs part as pairs with a gap do; adhesion holds them."""
-    from plant.fish.fish_data import length_regressions
     rows = []
     conveyors = dataset.line.conveyors
     for run in dataset.runs:

@@ -34,6 +34,7 @@ import pandas as pd
 
 from dataclasses import dataclass, field
 
+from plant.fish.fish_data import length_regressions
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 
@@ -152,7 +153,6 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
     """Pairs of fish touching (side by side within their heights, overlapping along the line) when the
     leading one's mid-point crosses a transfer: separation along the line ``after_s`` later, simulated
     minus measured."""
-    from plant.fish.fish_data import length_regressions
     rows = []
     tracks = run.tracks
     fish = run.fish.set_index("fish_id")

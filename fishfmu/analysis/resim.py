@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import multiprocessing
 import os
+import signal
 from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
@@ -24,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from plant.errors import InputError
+from plant.errors import InputError, SimulationError
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 from plant.sim.params import PlantParams
@@ -33,6 +35,10 @@ from plant.contract.measured import fish_from_frame
 from plant.sim.simulate import SimulatedRun, simulate_plant
 
 from fishfmu.analysis.residuals import residuals_of
+from fishfmu.fmu.archive import open_fmu
+from fishfmu.fmu.build import builtin_fmu
+from fishfmu.fmu.instance import InProcessFmu
+from fishfmu.session import STOPS, deferred_signals
 
 
 @dataclass
@@ -114,7 +120,6 @@ def not_resimulated(run: Run, error: str) -> Resim:
 
 def _task(args: tuple) -> Resim:
     line, run, params, seed, record_poses, residuals = args
-    from plant.errors import SimulationError
     try:
         done = resimulate(line, run, params, seed, record_poses=record_poses)
     except SimulationError as exc:
@@ -126,7 +131,6 @@ def _task(args: tuple) -> Resim:
 
 def _ignore_sigint() -> None:
     """Pool workers leave Ctrl-C (sent to the whole process group) to the parent, which stops them."""
-    import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -137,7 +141,6 @@ def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
     workers = max(1, workers or os.cpu_count() or 1)
     if workers == 1:
         return None
-    import multiprocessing
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_ignore_sigint)
 
@@ -188,7 +191,6 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
     ``record_poses``: see :func:`resimulate` (the poses are numpy arrays: they come back pickled);
     ``residuals``: each worker also computes its run's residuals (:attr:`Resim.residuals`)."""
     tasks = [(line, r, p, seed, record_poses, residuals) for r, p in zip(runs, params_per_run)]
-    from fishfmu.session import STOPS, deferred_signals
     done: list[Resim | None] = [None] * len(tasks)
     if pool is None:
         workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
@@ -231,8 +233,6 @@ def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameter
 
     Returns t_s, setpoint_mps, measured_mps, model_mps, load_force_n, load_mass_kg at the drive-log times.
     """
-    from fishfmu.fmu.build import builtin_fmu
-    from fishfmu.fmu.archive import open_fmu
     b = run.belts[run.belts["conveyor_id"] == conveyor_id].sort_values("t_s")
     if len(b) < 2:
         return pd.DataFrame({c: pd.Series(dtype=float)
@@ -254,7 +254,6 @@ def simulate_drive(fmu, name: str, t: np.ndarray, setpoint_mps: np.ndarray, load
                    initial_mps: float, drive_parameters: dict | None = None) -> np.ndarray:
     """Belt speed of the conveyor-drive FMU ``fmu`` (an open archive) at the times ``t``, fed each sample's
     setpoint and load force over the step that follows it, starting at ``initial_mps``."""
-    from fishfmu.fmu.instance import InProcessFmu
     params = {"initial_belt_speed": float(np.clip(initial_mps, -2.0, 2.0)), **(drive_parameters or {})}
     model = np.empty_like(t)
     drive = InProcessFmu(name, fmu, params, start_time_s=float(t[0]))

@@ -12,6 +12,9 @@ speeds carry whatever the drives did under load, as on a real line.
 from __future__ import annotations
 
 import math
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -23,6 +26,8 @@ from plant.sim.params import PlantParams
 from plant.fish.population import FishSpec, fish_size
 
 from fishfmu.analysis.candidates import CANDIDATES
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import Scenario
 
 EFFECTS = ("none", *(c.name for c in CANDIDATES.values() if c.synthetic is not None))
 """What a synthetic dataset can hide: the candidates that say how to switch themselves on, or nothing."""
@@ -113,8 +118,6 @@ def run_fish(n_fish: int, hours: float, pattern: str, rng: np.random.Generator, 
 def simulate_run(run_id: str, line: Line, kpi: KpiSettings, fish: list[FishSpec], speeds: list[float],
                  params: PlantParams, drive: dict[str, float], duration_s: float) -> Run:
     """Co-simulate one run (drive FMUs on a fixed speed profile) and return it in the measured format."""
-    from fishfmu.cosim.runner import run_scenario
-    from fishfmu.scenario.schema import Scenario
     n = len(line.conveyors)
     fmus = [{"name": "controller", "builtin": "singulation_controller",
              "parameters": {"n_belts": n, "mode": 0, "startup_delay": 0.0, "jam_stop": False,
@@ -170,8 +173,6 @@ def make_dataset(path: str | Path, effect: str, line: Line, kpi: KpiSettings, ru
 
     Runs are simulated in ``workers`` processes (default: all cores); each run draws its fish and its
     noise from its own stream of ``seed``, so the dataset does not depend on the number of workers."""
-    import os
-    from concurrent.futures import ProcessPoolExecutor
     params, drive = hidden_effect(effect, strength, base)
     streams = [np.random.default_rng([seed, i]) for i in range(len(runs))]
     tasks = [(f"r{i + 1:02d}", line, kpi, run_fish(n_fish, hours, pattern, rng, line), speeds, params, drive,
@@ -180,7 +181,6 @@ def make_dataset(path: str | Path, effect: str, line: Line, kpi: KpiSettings, ru
     if workers == 1:
         simulated = [_simulate_task(t) for t in tasks]
     else:
-        import multiprocessing
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
             simulated = list(pool.map(_simulate_task, tasks))
     out = [replace(degrade(run, noise, rng), hours_post_mortem=hours, notes=f"{pattern}, {n_fish} fish")
