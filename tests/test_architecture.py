@@ -327,8 +327,7 @@ def imports_without_a_reason(path: Path) -> list[int]:
 
 
 LAZY_IMPORTS_NOT_YET_EXPLAINED = {
-    "fishfmu/batch/engine.py", "fishfmu/batch/sweep.py",
-    "fishfmu/batch/sweep_report.py", "fishfmu/bench/diagnose.py", "fishfmu/bench/fmu_worker.py",
+    "fishfmu/bench/diagnose.py", "fishfmu/bench/fmu_worker.py",
     "fishfmu/bench/pile.py", "fishfmu/bench/scenario.py", "fishfmu/bench/serve.py", "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
     "fishfmu/output/replay.py", "fishfmu/output/report.py", "fishfmu/scenario/reference.py",
     "fishfmu/scenario/schema.py", "fishfmu/scenario/ssp.py"}

@@ -19,6 +19,7 @@ import contextlib
 import hashlib
 import logging
 import os
+import signal
 import socket
 import tempfile
 import time
@@ -27,9 +28,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
 from plant.errors import InputError, SimulationError
 
+from fishfmu.fmu.build import builtin_fmu, cache_dir, install_cached_fmu, source_digest
+from fishfmu.output.atomic import json_safe
 from fishfmu.scenario.schema import Scenario
+from fishfmu.session import deferred_signals
+from fishfmu.terminal import console as literal_console
 
 Row = dict[str, Any]
 FINAL_ERROR_KINDS = ("input", "simulation")
@@ -57,7 +64,6 @@ class FmuBundle:
 
 def fmu_bundle(scenarios: Iterable[Scenario]) -> FmuBundle:
     """Build (or take from the cache) every built-in FMU the scenarios use and read their user FMUs."""
-    from fishfmu.fmu.build import builtin_fmu, source_digest
     builtin: dict[str, tuple[str, bytes]] = {}
     files: dict[str, tuple[str, bytes]] = {}
     for sc in scenarios:
@@ -75,7 +81,6 @@ _installed: dict[tuple[str, str], str] = {}  # per worker process: (client path,
 
 def install_bundle(bundle: FmuBundle) -> dict[str, str]:
     """On a worker: make every FMU of the bundle available; returns client path -> local path."""
-    from fishfmu.fmu.build import cache_dir, install_cached_fmu
     for name, (digest, data) in bundle.builtin.items():
         install_cached_fmu(name, digest, data)
     local: dict[str, str] = {}
@@ -100,13 +105,12 @@ def install_bundle(bundle: FmuBundle) -> dict[str, str]:
 def scalar_kpis(kpis: dict[str, Any]) -> dict[str, Any]:
     """The KPIs that fit a table cell (numbers, text, flags), JSON-safe (:func:`fishfmu.output.run_folder.json_safe`:
     NaN/inf -> None, numpy -> Python)."""
-    from fishfmu.output.atomic import json_safe
     return {k: v for k, v in json_safe(kpis).items() if v is None or isinstance(v, (bool, int, float, str))}
 
 
 def _worker_name() -> str:
     try:
-        from distributed import get_worker
+        from distributed import get_worker  # slow and optional: Dask, only when this runs on a Dask worker
         return get_worker().address
     except (ImportError, ValueError):
         return f"{socket.gethostname()}:{os.getpid()}"
@@ -128,6 +132,7 @@ def run_task(task: RunTask, bundle: FmuBundle) -> Row:
             for f in sc.fmu:
                 if f.path is not None:
                     f.path = local.get(f.path, f.path)
+        # slow: Exudyn (the plant), which only a worker runs; the client that builds the tasks does not load it
         from fishfmu.cosim.runner import run_scenario
         result = run_scenario(sc, task.scenario_file)
         row: Row = {"run_id": task.run_id, "status": result.status,
@@ -148,7 +153,7 @@ def run_task(task: RunTask, bundle: FmuBundle) -> Row:
 def dask_client(scheduler: str | None, workers: int | None, threads_per_worker: int, n_tasks: int,
                 cluster_kwargs: dict[str, Any] | None = None) -> Iterator[Any]:
     """A client of the cluster at ``scheduler``, or of a local cluster of worker processes started here."""
-    from distributed import Client, LocalCluster
+    from distributed import Client, LocalCluster  # slow and optional: Dask, only when runs are executed
     if scheduler:
         try:
             client = Client(scheduler, timeout="20s")
@@ -157,7 +162,6 @@ def dask_client(scheduler: str | None, workers: int | None, threads_per_worker: 
         with client:
             yield client
         return
-    from fishfmu.session import deferred_signals
     n = max(1, min(workers or os.cpu_count() or 1, n_tasks))
     with contextlib.ExitStack() as stack:
         # Dask's scratch space (dask-scratch-space) in a folder of ours, removed when the cluster is down
@@ -176,7 +180,6 @@ def dask_client(scheduler: str | None, workers: int | None, threads_per_worker: 
 def dask_setup(worker: Any) -> None:
     """Preload of the local workers: Ctrl-C reaches the whole process group, but it is for the client,
     which cancels the runs and shuts the workers down in order (no tracebacks from every worker)."""
-    import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -186,8 +189,6 @@ def progress_bar(total: int, enabled: bool, description: str = "runs") -> Iterat
     if not enabled:
         yield lambda row: None
         return
-    from fishfmu.terminal import console as literal_console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[failed]} failed"), TimeElapsedColumn(), TimeRemainingColumn(),
                   console=literal_console(stderr=True), transient=False) as bar:
@@ -214,7 +215,7 @@ def execute(tasks: list[RunTask], bundle: FmuBundle, on_row: Callable[[Row], Non
     """
     if not tasks:
         return
-    from distributed import as_completed
+    from distributed import as_completed  # slow and optional: Dask, only when runs are executed
     with dask_client(scheduler, workers, threads_per_worker, len(tasks), cluster_kwargs) as client, \
             progress_bar(len(tasks), progress) as advance:
         shared = client.scatter(bundle, broadcast=True, hash=False)  # once per worker, not once per task

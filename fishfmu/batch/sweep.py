@@ -40,6 +40,10 @@ from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 
 from fishfmu.batch.engine import FINAL_ERROR_KINDS, RunTask, Row, execute, failed_row, fmu_bundle, progress_bar
+from fishfmu.batch.sweep_report import write_plots
+from fishfmu.output.atomic import json_safe, write_file_atomic, write_json_atomic, write_text_atomic
+from fishfmu.output.manifest import is_internal, note_dir
+from fishfmu.output.ownership import open_resumable
 from fishfmu.output.run_folder import RunFolder
 from fishfmu.session import STOPS
 from fishfmu.cosim.preflight import FmuDescription, check_start_values, describe_file, preflight, preflight_changes
@@ -237,6 +241,7 @@ class PointPreparer:
 
     def _descriptions(self, scenario: Scenario) -> dict[str, FmuDescription]:
         """Each FMU's description, read once per file (a built-in FMU's file found once per name)."""
+        # slow: fishfmu.cosim.build loads Exudyn (the plant), which a sweep's client does not run
         from fishfmu.cosim.build import as_the_user_names_it, fmu_path
         fmus = {}
         for f in scenario.fmu:
@@ -306,9 +311,6 @@ def point_overrides(spec: SweepSpec, params: dict[str, Any], data: dict[str, Any
 
 def open_folder(out: Path, spec: SweepSpec) -> Path:
     """Create the sweep folder, or accept one holding this very sweep; refuse anything else."""
-    from fishfmu.output.atomic import write_json_atomic
-    from fishfmu.output.manifest import is_internal, note_dir
-    from fishfmu.output.ownership import open_resumable
     definition = spec.definition()
     out = open_resumable(Path(out), [spec.scenario])  # refuses a folder holding anything fishfmu did not write
     if (out / DEFINITION).is_file():
@@ -335,7 +337,6 @@ def finished_rows(out: Path) -> dict[str, Row]:
 
 
 def store_row(out: Path, row: Row) -> None:
-    from fishfmu.output.atomic import json_safe, write_json_atomic
     write_json_atomic(out / "points" / f"{row['run_id']}.json", json_safe(row))
 
 
@@ -423,7 +424,6 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
     runs, summary = tables(spec, rows)
     paths = write_tables(out, runs, summary)
     if plots and not interrupted:
-        from fishfmu.batch.sweep_report import write_plots
         paths["plots"] = write_plots(summary, list(spec.parameters), out / "plots")
     n_runs = len(points) * len(spec.seeds)
     folder.finish("partial" if interrupted or len(rows) < n_runs else "ok", n_runs=n_runs, n_done=len(rows),
@@ -436,7 +436,7 @@ def run_sweep(spec: SweepSpec, out: str | Path, *, scheduler: str | None = None,
 
 def tables(spec: SweepSpec, rows: list[Row]) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(runs, summary): one row per run in sweep order, one row per point with KPI statistics."""
-    from fishfmu.batch.stats import summarise
+    from fishfmu.batch.stats import summarise  # slow: scipy (1 s), and fishfmu.commands imports this module
     order = {run_id(p, s): i for i, (p, s) in enumerate(itertools.product(spec.points(), spec.seeds))}
     rows = sorted(rows, key=lambda r: order.get(r["run_id"], len(order)))
     extra = sorted({k for r in rows for k in r.get("kpis", {}) if k not in KPI_KEYS})
@@ -469,7 +469,6 @@ def _table_safe(df: pd.DataFrame) -> pd.DataFrame:
 
 def write_tables(out: Path, runs: pd.DataFrame, summary: pd.DataFrame) -> dict[str, Path]:
     """runs/summary as parquet and CSV, each written to a temporary name and renamed into place."""
-    from fishfmu.output.atomic import write_file_atomic, write_text_atomic
     paths = {}
     for name, df in (("runs", runs), ("summary", summary)):
         paths[f"{name}_parquet"] = out / f"{name}.parquet"

@@ -14,6 +14,8 @@ from rich.table import Table
 
 from plant.contract.kpis import kpi_keys
 
+from fishfmu.output.atomic import write_figure_atomic
+from fishfmu.output.manifest import note_dir
 from fishfmu.terminal import labelled
 
 PLOT_KPIS = kpi_keys("singulation_rate", "throughput_time_s", "fpm_in", "fpm_out", "singulated", "lost",
@@ -41,9 +43,8 @@ def write_plots(summary: pd.DataFrame, parameters: list[str], folder: Path) -> P
     """One PNG per KPI and swept parameter: the mean over seeds with its 95 % band (Student t), one
     line per combination of the other parameters.  Parameters with a single value get no plot; the
     singulation rate's band is drawn clipped to [0, 1] (the tables keep the unclipped interval)."""
-    from matplotlib.figure import Figure  # no pyplot: no global state, Agg canvas
-    from fishfmu.output.atomic import write_figure_atomic
-    from fishfmu.output.manifest import note_dir
+    # slow and optional: matplotlib, only when plots are asked for (Figure, no pyplot: no global state, Agg canvas)
+    from matplotlib.figure import Figure
     folder.mkdir(parents=True, exist_ok=True)
     note_dir(folder)
     for x_key in parameters:
