@@ -327,8 +327,7 @@ def imports_without_a_reason(path: Path) -> list[int]:
 
 
 LAZY_IMPORTS_NOT_YET_EXPLAINED = {
-    "fishfmu/bench/diagnose.py", "fishfmu/bench/fmu_worker.py",
-    "fishfmu/bench/pile.py", "fishfmu/bench/scenario.py", "fishfmu/bench/serve.py", "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
+    "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
     "fishfmu/output/replay.py", "fishfmu/output/report.py", "fishfmu/scenario/reference.py",
     "fishfmu/scenario/schema.py", "fishfmu/scenario/ssp.py"}
 """Modules with imports inside functions that do not say why yet (issue 30): each such import is to move to the

@@ -14,6 +14,7 @@ the named cause recorded; the result is a confusion table and the accuracy per e
 
 from __future__ import annotations
 
+import json
 import tempfile
 import time
 from collections.abc import Callable
@@ -23,6 +24,7 @@ from typing import Any
 import pandas as pd
 
 from plant.contract.measured import read_dataset
+from plant.validation import read_toml
 
 from fishfmu.analysis.diagnose import diagnose
 from fishfmu.analysis.synthetic import (EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset,
@@ -66,7 +68,6 @@ def read_splits(recipe: Path | None) -> dict[str, str]:
     """Dataset name -> its split (``dev``, ``heldout``) from a benchmark recipe (``docs/diagnose-bench/recipe.toml``)."""
     if recipe is None:
         return {}
-    from plant.validation import read_toml
     doc = read_toml(recipe)
     return {str(d["name"]): str(d.get("split", "dev")) for d in doc.get("dataset", [])}
 
@@ -77,7 +78,6 @@ def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None
     """Diagnose every labelled dataset in ``folder`` as a user would (calibrating first); the confusion table,
     accuracy, false-positive rate and times, overall and per split (``splits``: name -> split; ``only``: that
     split alone). ``on_done(doc)`` after each dataset: the results so far (a long benchmark keeps what it did)."""
-    import json
     splits = splits or {}
     rows = []
     for truth_file in sorted(folder.glob("*.truth.json")):

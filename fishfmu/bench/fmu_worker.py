@@ -21,14 +21,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+from fishfmu.cosim.master import StageClock
+from fishfmu.cosim.runner import run_scenario
+from fishfmu.scenario.schema import load_scenario
+
 NO_FISH = {"fish.count": 1, "fish.first_drop_s": 3600.0, "run.stop_when_clear": False, "expect": {}}
 
 
 def measure(scenario: str | Path, process: str, overrides: dict[str, Any]) -> dict[str, float]:
     """One run: wall time per step, time in the master's FMU stage per step, set-up time."""
-    from fishfmu.cosim.master import StageClock
-    from fishfmu.cosim.runner import run_scenario
-    from fishfmu.scenario.schema import load_scenario
     sc = load_scenario(scenario, {**overrides, "run.fmu_process": process})
     clock = StageClock()
     t0 = time.perf_counter()

@@ -22,6 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
+from plant.errors import SimulationError
+from plant.sim.plant import Plant
+
+from fishfmu.cosim.build import build, checked, scenario_fish
+from fishfmu.cosim.master import StageClock
+from fishfmu.output.atomic import write_figure_atomic
+from fishfmu.scenario.schema import load_scenario
+
 PAPER = Path(__file__).parents[2] / "scenarios" / "paper_dump.toml"
 
 
@@ -58,7 +66,6 @@ class BenchRecord:
 def bench_scenario(n_fish: int, comm_step_s: float, threads: int):
     """The paper scenario scaled to n fish: an infeed long enough to hold them (the belts after it as in
     the paper's line, shifted), fish dumped onto it once it runs."""
-    from fishfmu.scenario.schema import load_scenario
     sc = load_scenario(PAPER)
     infeed = max(2.0, 0.12 * n_fish)
     shift = infeed - sc.line.conveyors[0].length_m
@@ -78,11 +85,6 @@ def bench_scenario(n_fish: int, comm_step_s: float, threads: int):
 
 def run_case(n_fish: int, duration_s: float, comm_step_s: float, threads: int) -> BenchRecord:
     """Measure one fish count in this process (see the module docstring)."""
-    from plant.sim.plant import Plant
-
-    from fishfmu.cosim.build import build, checked, scenario_fish
-    from fishfmu.cosim.master import StageClock
-
     sc = bench_scenario(n_fish, comm_step_s, threads)
     fish = scenario_fish(sc) if n_fish else []  # 0 fish: the cost of the line alone
     t_start = (max(f.drop_t_s for f in fish) if fish else 0.0) + 1.0
@@ -129,7 +131,6 @@ def run_bench(fish_counts: list[int], duration_s: float = 5.0, comm_step_s: floa
         proc = subprocess.run([sys.executable, "-m", "fishfmu.bench.pile", str(n), str(duration_s), str(comm_step_s),
                                str(threads)], capture_output=True, text=True)
         if proc.returncode != 0:
-            from plant.errors import SimulationError
             raise SimulationError(f"benchmark case with {n} fish failed:\n{proc.stderr[-2000:]}")
         rec = BenchRecord(**json.loads(proc.stdout.strip().splitlines()[-1]))
         out.append(rec)
@@ -149,9 +150,10 @@ def per_fish_cost(records: list[BenchRecord]) -> tuple[float, float]:
 
 
 def plot(records: list[BenchRecord], path: Path) -> None:
+    # slow and optional: matplotlib, only for --plot
     import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # slow and optional: matplotlib, after choosing its file-only backend
     fig, ax = plt.subplots(figsize=(6, 3.5))
     n = [r.fish for r in records]
     ax.plot(n, [r.step_cost_ms for r in records], "o-", label="plant alone")
@@ -161,7 +163,6 @@ def plot(records: list[BenchRecord], path: Path) -> None:
     ax.axhline(1e3 * records[0].comm_step_s, color="k", lw=0.8, ls=":", label="real time")
     ax.legend()
     ax.grid(alpha=0.3)
-    from fishfmu.output.atomic import write_figure_atomic
     try:
         write_figure_atomic(path, fig, dpi=110, bbox_inches="tight")
     finally:

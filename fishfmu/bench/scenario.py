@@ -26,11 +26,12 @@ from typing import Any
 
 from plant.errors import SimulationError
 
+from fishfmu import commands
+from fishfmu.cosim.master import StageClock
+
 
 def run_case(scenario: str | Path, overrides: dict[str, Any]) -> dict[str, Any]:
     """One run of ``scenario`` in this process (call it in a fresh one, see :func:`bench`)."""
-    from fishfmu import commands
-    from fishfmu.cosim.master import StageClock
     clock = StageClock()
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="fishfmu-bench-") as tmp:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import platform
 import socket
@@ -37,9 +38,7 @@ def _free_port() -> int:
 async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0, scan_s: float = 0.01) -> int:
     """A PLC stand-in: every ``scan_s`` of wall time read the time and the photo-eyes, and (``speeds``) write the
     controller's fixed profile as setpoints, until the run ends; returns the scans made."""
-    import logging
-
-    from asyncua import Client, ua
+    from asyncua import Client, ua  # slow and optional: the OPC UA client, only while a case runs
     logging.getLogger("asyncua").setLevel(logging.ERROR)  # session-timeout notices on every connect
     deadline = time.monotonic() + 120.0
     while True:
