@@ -326,25 +326,13 @@ def imports_without_a_reason(path: Path) -> list[int]:
     return sorted(set(found))
 
 
-LAZY_IMPORTS_NOT_YET_EXPLAINED = {
-    "fishfmu/cosim/preflight.py", "fishfmu/fmu/build.py", "fishfmu/fmu/worker.py",
-    "fishfmu/output/replay.py", "fishfmu/output/report.py", "fishfmu/scenario/reference.py",
-    "fishfmu/scenario/schema.py", "fishfmu/scenario/ssp.py"}
-"""Modules with imports inside functions that do not say why yet (issue 30): each such import is to move to the
-top of its module, or to say why it is where it is (slow and optional: which library, for what); the set only
-shrinks."""
-
-
 def test_an_import_inside_a_function_says_why():
     """Imports are at module level, where a reader sees what a module depends on; one inside a function carries a
     comment saying why (slow and needed only there, say which: asyncua for serve, matplotlib for a report)."""
     found = {str(p.relative_to(ROOT)): lines for pkg in PACKAGES for p in sorted((ROOT / pkg).rglob("*.py"))
              if (lines := imports_without_a_reason(p))}
-    new = {m: v for m, v in found.items() if m not in LAZY_IMPORTS_NOT_YET_EXPLAINED}
-    assert not new, "imports inside a function without a comment saying why: " + "; ".join(
-        f"{m}: lines {', '.join(map(str, v))}" for m, v in sorted(new.items()))
-    done = LAZY_IMPORTS_NOT_YET_EXPLAINED - set(found)
-    assert not done, "every import explained: take it out of LAZY_IMPORTS_NOT_YET_EXPLAINED: " + ", ".join(sorted(done))
+    assert not found, "imports inside a function without a comment saying why: " + "; ".join(
+        f"{m}: lines {', '.join(map(str, v))}" for m, v in sorted(found.items()))
 
 
 def test_the_lazy_import_check_sees_one(tmp_path):

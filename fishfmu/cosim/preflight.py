@@ -13,16 +13,20 @@ without unpacking every FMU once per point).
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fmpy import read_model_description
+
 from plant.errors import InputError
 
-from fishfmu.fmu.archive import FmuVariable, variables_of
+from fishfmu.fmu.archive import (MAX_MEMBERS, MAX_UNPACKED_BYTES, FmuVariable, check_members, open_regular_file,
+                                 variables_of)
 from fishfmu.fmu.instance import check_parameters
-from fishfmu.scenario.schema import Scenario
+from fishfmu.scenario.schema import Scenario, dotted_parts
 from fishfmu.scenario.order import direct_feedthrough
 from fishfmu.scenario.wiring import Wiring, resolve_wiring
 
@@ -50,9 +54,6 @@ def describe_file(path: str | Path) -> FmuDescription:
 
     The file is checked as :func:`~fishfmu.fmu.archive.open_fmu` checks it before a byte is read (a regular
     file, not a FIFO or device) and the archive's directory before its modelDescription is read."""
-    import zipfile
-    from fmpy import read_model_description
-    from fishfmu.fmu.archive import MAX_MEMBERS, MAX_UNPACKED_BYTES, check_members, open_regular_file
     with open_regular_file(Path(path)) as fh:
         try:
             with zipfile.ZipFile(fh) as zf:
@@ -83,7 +84,6 @@ def preflight_changes(keys: Iterable[str]) -> set[int] | None:
     >>> preflight_changes(["run.coupling"]) is None, preflight_changes(["wiring.inputs"]) is None
     (True, True)
     """
-    from fishfmu.scenario.schema import dotted_parts
     start_values: set[int] = set()
     for key in keys:
         parts = dotted_parts(key)

@@ -14,6 +14,7 @@ in ``fishfmu/fmu/sources/common/``.  The binary is built with fmpy's CMake proje
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import os
@@ -419,7 +420,6 @@ def _zip_tree(root: Path, zip_path: Path) -> None:
 
 def with_defaults(spec: FmuSpec, defaults: dict[str, float | int | bool]) -> FmuSpec:
     """The spec with changed start values of parameters (baked into the FMU as its defaults)."""
-    import dataclasses
     names = {v.name: v for v in spec.variables}
     for key, value in defaults.items():
         v = names.get(key)

@@ -41,7 +41,7 @@ from typing import Any
 from plant.errors import InputError, SimulationError
 
 from fishfmu.fmu.archive import OpenedFmu
-from fishfmu.fmu.instance import check_parameters
+from fishfmu.fmu.instance import InProcessFmu, check_parameters, one_line
 
 SETUP_TIMEOUT_S = 60.0
 """Longest wait for a worker to start and instantiate its FMU (a cold interpreter on a busy machine)."""
@@ -203,7 +203,6 @@ class WorkerFmu:
 
 def serve(conn: Connection) -> None:
     """The worker's loop: one InProcessFmu, one answer per message, until terminate or end of input."""
-    from fishfmu.fmu.instance import InProcessFmu, one_line
     instance: InProcessFmu | None = None
     name = "?"
     failed = False

@@ -26,6 +26,7 @@ import base64
 import json
 import math
 import re
+import zipfile
 import zlib
 from dataclasses import dataclass
 from importlib import resources
@@ -40,6 +41,8 @@ from plant.fish.fish_data import length_regressions
 from plant.contract.line import Line
 from plant.contract.measured import Run, read_dataset
 from plant.sim.state import FishStatus
+
+from fishfmu.output.atomic import write_text_atomic
 
 POS_UNIT_M = 0.001
 """Position quantum: 1 mm, below what a screen shows of a 6 m line (and the tracking noise)."""
@@ -233,9 +236,6 @@ def read_poses(path: Path) -> dict[str, np.ndarray]:
     """poses.npz, checked: a readable archive (no pickled objects) with every array, shapes and indices
     that agree, finite times and outlines (poses are NaN while a fish is off the line); anything else is
     bad input naming the file."""
-    import zipfile
-    import zlib
-
     def bad(what: str) -> InputError:
         return InputError(f"{what}; record it again with `fishfmu run --replay`", file=path)
 
@@ -350,7 +350,6 @@ def render_html(header: dict[str, Any], blob: str) -> str:
 def write_page(header: dict[str, Any], blob: str, out: Path) -> Path:
     """The page, written atomically (a reader never sees half a page)."""
     html = render_html(header, blob)
-    from fishfmu.output.atomic import write_text_atomic
     write_text_atomic(out, html)  # recorded in the folder's manifest (fishfmu.output.manifest)
     return out
 

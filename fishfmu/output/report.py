@@ -20,6 +20,7 @@ from plant.contract.kpis import singulation_table  # noqa: E402
 from plant.contract.passages import belt_speed_fn, passages  # noqa: E402
 
 from fishfmu.cosim.results import RunResult  # noqa: E402
+from fishfmu.output.atomic import write_bytes_atomic, write_text_atomic  # noqa: E402
 
 
 def _png(fig) -> bytes:
@@ -79,7 +80,6 @@ def gap_figure(result: RunResult):
 
 
 def write_report(result: RunResult, out: Path) -> Path:
-    from fishfmu.output.atomic import write_bytes_atomic, write_text_atomic
     figures = {"belts.png": belt_figure(result), "fish_x.png": fish_figure(result), "outfeed_gaps.png": gap_figure(result)}
     blobs = {}
     for name, fig in figures.items():

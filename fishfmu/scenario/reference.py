@@ -27,6 +27,8 @@ import annotated_types
 import pydantic
 from pydantic.fields import FieldInfo
 
+from fishfmu.scenario.schema import Scenario
+
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "scenario-reference.md"
 COMMAND = "python -m fishfmu.scenario.reference --write"
 
@@ -259,8 +261,6 @@ def _walk(model: type[pydantic.BaseModel], prefix: str, heading: str, descriptio
 
 
 def sections() -> list[_Section]:
-    from fishfmu.scenario.schema import Scenario
-
     out: list[_Section] = []
     _walk(Scenario, "", "Tables", _summary(Scenario), out)
     return out

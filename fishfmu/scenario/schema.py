@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import copy
 import re
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -492,7 +493,6 @@ def get_dotted(data: dict[str, Any], key: str, overrides: dict[str, Any] | None 
 
 def parse_value(text: str) -> Any:
     """A command-line value as TOML would read it (numbers, booleans, strings, arrays)."""
-    import tomllib
     try:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:

@@ -44,7 +44,13 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 from urllib.parse import unquote, urlparse
 
+from fmpy.ssp.ssd import validate_tree
+from lxml import etree
+
 from plant.errors import InputError
+
+from fishfmu.fmu.archive import MAX_MEMBERS, MAX_UNPACKED_BYTES, check_members, open_regular_file
+from fishfmu.fmu.build import cache_dir
 
 NS = {
     "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",
@@ -126,7 +132,6 @@ class _Source:
         if folder not in resolved.parents:
             raise InputError(f"{what} '{uri}' leads out of the SSD's folder (to {resolved}); only relative paths "
                              "inside it are supported", file=self.path)
-        from fishfmu.fmu.archive import open_regular_file
         try:  # a FIFO or device is refused by its file type (os.stat), never opened for reading
             with open_regular_file(resolved, kind, ext):
                 pass
@@ -150,7 +155,6 @@ class _Source:
     def read(self, uri: str, what: str, limit: int = MAX_XML_BYTES) -> bytes:
         """A whole SSD or SSV (at most ``limit`` bytes, checked before it is read)."""
         if self.archive is None:
-            from fishfmu.fmu.archive import open_regular_file
             target = self._local(uri, what, "SSV", ".ssv")
             with open_regular_file(target, "SSV", ".ssv") as fh:
                 data = fh.read(limit + 1)
@@ -168,8 +172,6 @@ class _Source:
     def fmu(self, uri: str, component: str) -> Path:
         """The FMU of a component as a file: inside the SSD's folder as it is, or streamed out of the archive into
         the cache (hashed while it is copied: never held in memory whole)."""
-        from fishfmu.fmu.archive import MAX_UNPACKED_BYTES
-        from fishfmu.fmu.build import cache_dir
         what = f"component '{component}': source"
         if self.archive is None:
             return self._local(uri, what, "FMU", ".fmu")
@@ -201,8 +203,6 @@ class _Source:
 
 
 def _parse(data: bytes, schema: str, path: Path, what: str) -> Any:
-    from lxml import etree
-    from fmpy.ssp.ssd import validate_tree
     parser = etree.XMLParser(resolve_entities=False, no_network=True)
     try:
         root = etree.fromstring(data, parser)
@@ -276,7 +276,6 @@ def _parameter_set(root: Any, path: Path, where: str) -> tuple[dict[str, Any], d
 def read_parameter_file(file: Path, scenario_file: Path, where: str) -> tuple[dict[str, Any], dict[str, str]]:
     """Start values from an ``.ssv`` (SSP parameter values, validated) or a ``.toml`` table of
     ``variable = value``; and the units an SSV states, by variable."""
-    from fishfmu.fmu.archive import open_regular_file
     suffix = file.suffix.lower()
     if suffix not in (".ssv", ".toml"):
         raise InputError(f"{where}: '{file.name}' is neither an SSP parameter-value file (.ssv) nor TOML (.toml)",
@@ -340,7 +339,6 @@ def read_ssp(path: Path, max_components: int | None = None, max_connections: int
 
     ``max_components``, ``max_connections``: the room the scenario has left (its limits less its own entries),
     checked before any FMU is copied out of the archive."""
-    from fishfmu.fmu.archive import MAX_MEMBERS, MAX_UNPACKED_BYTES, check_members, open_regular_file
     suffix = path.suffix.lower()
     if suffix not in (".ssp", ".ssd"):
         raise InputError("[system] ssp names neither an SSP archive (.ssp) nor a system description (.ssd)",
