@@ -33,12 +33,14 @@ from fishfmu.analysis.calibrate_report import write_calibration
 from fishfmu.analysis.compare import compare_dataset, write_comparison
 from fishfmu.analysis.diagnose import diagnose as diagnose_dataset
 from fishfmu.batch.seeds import run_over_seeds, write_junit_means
-from fishfmu.batch.sweep import check_size, make_spec, run_sweep
+from fishfmu.batch.sweep import run_sweep
+from fishfmu.batch.sweep_spec import check_size, make_spec
 from fishfmu.cosim.build import check_scenario, checked
 from fishfmu.cosim.plant_fmu import export_plant_fmu
 from fishfmu.cosim.results import RunResult
 from fishfmu.cosim.runner import run_scenario
-from fishfmu.fmu.build import BUILTIN_FMUS, FmuBuildError, build_fmu
+from fishfmu.fmu.build import BUILTIN_FMUS, build_fmu
+from fishfmu.fmu.compile import FmuBuildError
 from fishfmu.output.atomic import json_safe, write_bytes_atomic, write_text_atomic
 from fishfmu.output.junit import junit_args_of_run, write_junit
 from fishfmu.output.ownership import check_single_file_target
@@ -226,7 +228,7 @@ def sweep(scenario_file: str | Path, params: dict[str, list[Any]], seeds: int, o
           fixed: dict[str, Any] | None = None, scales: dict[str, list[str]] | None = None, **options: Any):
     """Sweep parameters x seeds on Dask into ``out`` (resumable; the sweep opens its folder as a
     :class:`~fishfmu.output.run_folder.RunFolder` of its own); ``scales``: named factors on several keys
-    (:class:`fishfmu.batch.sweep.SweepSpec`); ``options`` as :func:`fishfmu.batch.sweep.run_sweep` takes them
+    (:class:`fishfmu.batch.sweep_spec.SweepSpec`); ``options`` as :func:`fishfmu.batch.sweep.run_sweep` takes them
     (scheduler, workers, max_runs, retry_failed, ...)."""
     refuse_served(schema.load_scenario(scenario_file, fixed or {}), Path(scenario_file))
     spec = make_spec(Path(scenario_file), params, seeds, fixed or {}, scales)

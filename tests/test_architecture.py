@@ -275,10 +275,6 @@ def test_the_stop_check_sees_one(tmp_path):
 
 
 MAX_LINES = 450
-LONG_WITH_NO_REASON_YET = {"fishfmu/batch/sweep.py", "fishfmu/fmu/build.py", "fishfmu/output/manifest.py",
-                           "fishfmu/scenario/schema.py"}
-"""Modules over MAX_LINES that do not yet say why (issue 30): each is to be split or to state its reason; the set
-only shrinks (a test fails when one of them no longer needs to be here)."""
 
 
 def long_modules() -> dict[str, bool]:
@@ -292,13 +288,10 @@ def long_modules() -> dict[str, bool]:
 
 
 def test_no_module_over_450_lines_without_a_reason_at_its_top():
-    unexplained = {m for m, reason in long_modules().items() if not reason}
-    assert not unexplained - LONG_WITH_NO_REASON_YET, (
+    unexplained = sorted(m for m, reason in long_modules().items() if not reason)
+    assert not unexplained, (
         f"over {MAX_LINES} lines with no reason in the module docstring ('Over {MAX_LINES} lines: why'): "
-        + ", ".join(sorted(unexplained - LONG_WITH_NO_REASON_YET)))
-    assert not LONG_WITH_NO_REASON_YET - unexplained, (
-        "short now, or with its reason: take it out of LONG_WITH_NO_REASON_YET: "
-        + ", ".join(sorted(LONG_WITH_NO_REASON_YET - unexplained)))
+        + ", ".join(unexplained))
 
 
 def imports_without_a_reason(path: Path) -> list[int]:

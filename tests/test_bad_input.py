@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import tomli_w
 
-from fishfmu.scenario.schema import set_dotted
+from fishfmu.scenario.keys import set_dotted
 from tests.test_measured import BAD_INPUTS as BAD_DATASETS
 from tests.test_measured import _edit_toml, small_dataset  # noqa: F401 (a fixture, used by name)
 

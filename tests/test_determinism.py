@@ -16,7 +16,8 @@ import pytest
 
 from fishfmu.output.run_folder import prepare_out_dir, write_outputs
 from fishfmu.cosim.runner import run_scenario
-from fishfmu.scenario.schema import load_scenario, parse_value
+from fishfmu.scenario.keys import parse_value
+from fishfmu.scenario.schema import load_scenario
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "scenarios" / "paper_dump.toml"

@@ -102,7 +102,7 @@ def write_scenario(path: Path, overrides: dict) -> Path:
 
     import tomli_w
 
-    from fishfmu.scenario.schema import set_dotted
+    from fishfmu.scenario.keys import set_dotted
     data = tomllib.loads(PAPER.read_text())
     for key, value in overrides.items():
         set_dotted(data, key, value)

@@ -14,7 +14,7 @@ from plant.errors import InputError
 from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, file_size_checked, read_toml
 
 from fishfmu.scenario.schema import load_scenario
-from fishfmu.batch.sweep import MAX_RUNS, check_size, make_spec, parse_param
+from fishfmu.batch.sweep_spec import MAX_RUNS, check_size, make_spec, parse_param
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENARIO = ROOT / "scenarios" / "paper_dump.toml"

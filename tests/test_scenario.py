@@ -8,7 +8,8 @@ import pytest
 
 from plant.errors import InputError
 
-from fishfmu.scenario.schema import load_scenario, parse_value, resolved_toml
+from fishfmu.scenario.keys import parse_value
+from fishfmu.scenario.schema import load_scenario, resolved_toml
 
 SCENARIOS = Path(__file__).parents[1] / "scenarios"
 PAPER = SCENARIOS / "paper_dump.toml"

@@ -19,7 +19,8 @@ from plant.errors import InputError
 from fishfmu.batch.engine import scalar_kpis
 from fishfmu.scenario.schema import KPI_KEYS
 from fishfmu.batch.stats import mean_ci, summarise, wilson_interval
-from fishfmu.batch.sweep import make_spec, run_sweep
+from fishfmu.batch.sweep import run_sweep
+from fishfmu.batch.sweep_spec import make_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "scenarios" / "paper_dump.toml"
@@ -177,7 +178,7 @@ def test_run_with_seeds_reports_means_and_checks_expect_on_them(tmp_path: Path) 
 def test_a_scale_multiplies_the_scenarios_values_of_its_keys() -> None:
     """--scale speed=KEYS with --param speed=F: each key gets F times its value in paper_dump.toml
     (0.25/0.50/0.80/1.25 m/s), the same at every point and for every seed; other keys untouched."""
-    from fishfmu.batch.sweep import PointPreparer, point_overrides
+    from fishfmu.batch.sweep_spec import PointPreparer, point_overrides
     keys = [f"fmu[0].parameters.speed_{i}" for i in range(1, 5)]
     spec = make_spec(PAPER, {"speed": [0.5, 1.2], "fish.first_drop_s": [2.0]}, 1, {"fish.count": 3},
                      scales={"speed": keys})

@@ -106,7 +106,7 @@ def _tools(folder: Path, *names: str) -> Path:
 
 def test_a_c_compiler_alone_is_not_enough(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Ubuntu's gcc package without g++: fmpy's CMake project asks for a C++ compiler too."""
-    from fishfmu.fmu.build import missing_build_tools, require_build_tools
+    from fishfmu.fmu.compile import missing_build_tools, require_build_tools
     for variable in ("CC", "CXX", "CMAKE_GENERATOR"):
         monkeypatch.delenv(variable, raising=False)
     monkeypatch.setenv("PATH", str(_tools(tmp_path / "bin", "gcc", "make")))
@@ -118,7 +118,7 @@ def test_a_c_compiler_alone_is_not_enough(tmp_path: Path, monkeypatch: pytest.Mo
 
 
 def test_cmake_comes_from_pip_when_the_venv_is_not_activated(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    from fishfmu.fmu.build import cmake_program
+    from fishfmu.fmu.compile import cmake_program
     monkeypatch.setenv("PATH", str(_tools(tmp_path / "bin", "cc")))
     cmake = Path(cmake_program())
     assert cmake.name == "cmake" and os.access(cmake, os.X_OK)
@@ -144,7 +144,8 @@ def test_a_compiler_that_fails_is_one_line_with_its_first_error(tmp_path: Path) 
 
 
 def test_our_sources_failing_to_compile_name_the_file_line_and_error(tmp_path: Path) -> None:
-    from fishfmu.fmu.build import FMUS_DIR, FmuBuildError, build_fmu, missing_build_tools
+    from fishfmu.fmu.build import FMUS_DIR, build_fmu
+    from fishfmu.fmu.compile import FmuBuildError, missing_build_tools
     if missing_build_tools():
         pytest.skip("no C build tools on this machine")
     sources = tmp_path / "conveyor_drive"

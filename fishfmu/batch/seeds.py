@@ -23,7 +23,8 @@ import pandas as pd
 from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 
-from fishfmu.batch.sweep import SweepResult, SweepSpec, run_sweep
+from fishfmu.batch.sweep import SweepResult, run_sweep
+from fishfmu.batch.sweep_spec import SweepSpec
 from fishfmu.cosim.results import ExpectResult
 from fishfmu.output.junit import write_junit
 from fishfmu.output.run_folder import RunFolder

@@ -16,7 +16,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from fishfmu.batch.sweep import make_spec, run_sweep
+from fishfmu.batch.sweep import run_sweep
+from fishfmu.batch.sweep_spec import make_spec
 
 
 def bench(scenario: str | Path = "scenarios/paper_dump.toml", n_runs: int = 8, workers: tuple[int, ...] = (1, 2),

@@ -27,6 +27,7 @@ from plant.errors import InputError, SimulationError
 
 from fishfmu.cli.bench import bench_app
 from fishfmu.cli.exit_codes import EXIT_INTERNAL_ERROR, for_error, for_run, for_seeds, for_signal
+from fishfmu.scenario.keys import parse_assignments
 from fishfmu.session import Interrupted, session
 from fishfmu.terminal import console as literal_console, labelled, outcome, print_error
 
@@ -60,7 +61,6 @@ def build_fmus(
     """Build the built-in FMUs as standalone .fmu files (Linux binary and C sources inside)."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.scenario.schema import parse_assignments
     for path in commands.build_fmus(names or [], out, parse_assignments(param, "--param")):  # a failure: exit 3
         print(path)
 
@@ -101,7 +101,6 @@ def run(
     """Run a scenario: KPIs as a table; exit 0 ok, 1 an [expect] bound failed, 2 bad input, 3 run failed."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.scenario.schema import parse_assignments
     overrides = parse_assignments(set_)
     if seed is not None:
         overrides["run.seed"] = seed
@@ -168,7 +167,6 @@ def serve_cmd(
     real time, a client's stop(), Ctrl-C/SIGTERM) the run is written like any run."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.scenario.schema import parse_assignments
     from fishfmu.serve import Certificates
     if lockstep and realtime is not None:
         raise InputError("--lockstep and --realtime exclude each other: give one")
@@ -205,7 +203,6 @@ def export_fmu_cmd(
     with fishfmu installed on the host (made with pythonfmu)."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.scenario.schema import parse_assignments
     path = commands.export_fmu(scenario, out, parse_assignments(set_))
     literal_console().print(f"written: {path}")
 
@@ -220,7 +217,6 @@ def check_cmd(
     setpoints and recorded variables; exit 2 and what is wrong."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.scenario.schema import parse_assignments
     doc = commands.check(scenario, parse_assignments(set_))
     if as_json:
         print(json.dumps(doc, indent=2))
@@ -285,9 +281,8 @@ def sweep(
     """Sweep parameters x seeds on Dask: runs/summary tables (parquet, CSV) and plots with 95 % CI bands."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.batch.sweep import parse_param
+    from fishfmu.batch.sweep_spec import parse_param
     from fishfmu.batch.sweep_report import print_summary
-    from fishfmu.scenario.schema import parse_assignments
     fixed = parse_assignments(set_)
     params = dict(parse_param(p) for p in param)
     if len(params) != len(param):

@@ -13,6 +13,7 @@ from rich.table import Table
 
 from plant.errors import InputError
 
+from fishfmu.scenario.keys import parse_assignments
 from fishfmu.terminal import console as literal_console
 
 bench_app = typer.Typer(no_args_is_help=True, rich_markup_mode=None,
@@ -110,7 +111,6 @@ def bench_sweep(
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.sweep import bench, summary
-    from fishfmu.scenario.schema import parse_assignments
     commands.check_targets(json_file)
     doc = bench(scenario, runs, tuple(workers), parse_assignments(set_))
     _bench_done(summary(doc), commands.write_json(json_file, doc))
@@ -166,7 +166,7 @@ def bench_scenario(
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.scenario import bench, summary
-    from fishfmu.scenario.schema import load_scenario, parse_assignments
+    from fishfmu.scenario.schema import load_scenario
     overrides = parse_assignments(set_)
     for s in scenarios:  # bad input before measuring
         load_scenario(s, overrides)

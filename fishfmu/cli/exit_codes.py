@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from plant.errors import InputError, SimulationError, SystemDependencyError
 
 from fishfmu.cosim.stop import exit_status
-from fishfmu.output.manifest import os_error
+from fishfmu.output.manifest_state import os_error
 
 if TYPE_CHECKING:  # types only: the results are passed in, never made here
     from fishfmu.batch.seeds import SeedsResult
@@ -75,8 +75,8 @@ def for_error(exc: Exception) -> tuple[str, str, int] | None:
         return "error", str(os_error(exc, exc.filename or "output", "cannot write" if exc.filename else "I/O error")), \
             EXIT_BAD_INPUT
     if isinstance(exc, RuntimeError):
-        # slow (fmpy and the build tools, about 0.2 s) and needed only when a RuntimeError comes this far
-        from fishfmu.fmu.build import FmuBuildError
+        # slow (fmpy and its CMake project, about 0.2 s) and needed only when a RuntimeError comes this far
+        from fishfmu.fmu.compile import FmuBuildError
         if isinstance(exc, FmuBuildError):  # the compiler failed on a built-in FMU's sources (first use, any command)
             return "build failed", str(exc), EXIT_SIMULATION_FAILED
         if str(exc).startswith("Symlink loop from "):  # Path.resolve() on a link loop (Python < 3.13): bad input

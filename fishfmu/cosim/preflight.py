@@ -26,7 +26,8 @@ from plant.errors import InputError
 from fishfmu.fmu.archive import (MAX_MEMBERS, MAX_UNPACKED_BYTES, FmuVariable, check_members, open_regular_file,
                                  variables_of)
 from fishfmu.fmu.instance import check_parameters
-from fishfmu.scenario.schema import Scenario, dotted_parts
+from fishfmu.scenario.keys import dotted_parts
+from fishfmu.scenario.schema import Scenario
 from fishfmu.scenario.order import direct_feedthrough
 from fishfmu.scenario.wiring import Wiring, resolve_wiring
 

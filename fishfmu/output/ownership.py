@@ -35,9 +35,9 @@ from typing import Iterable
 
 from plant.errors import InputError
 
-from fishfmu.output.manifest import (OutputError, State, abs_path, forget, inside_folder_being_written, is_internal,
-                                     is_temporary_name, load_state, note_dir, open_session, os_error, sha256_file,
+from fishfmu.output.manifest import (abs_path, forget, inside_folder_being_written, note_dir, open_session, sha256_file,
                                      start_session)
+from fishfmu.output.manifest_state import OutputError, State, is_internal, is_temporary_name, load_state, os_error
 
 
 # ---------------------------------------------------------------- ownership of a folder

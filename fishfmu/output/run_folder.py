@@ -51,6 +51,7 @@ from fishfmu.cosim.results import RunResult
 from fishfmu.cosim.stop import StopRequest
 from fishfmu.output import manifest, ownership
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
+from fishfmu.output.manifest_state import OutputError, is_internal, os_error
 from fishfmu.scenario.schema import resolved_toml
 
 MARKER = "run_info.json"
@@ -178,7 +179,7 @@ class RunFolder:
         """Remove the folder again if it holds nothing but the ``running`` marker (bad input found late); True if
         it was removed."""
         try:
-            if [p.name for p in self.path.iterdir() if not manifest.is_internal(p.name)] == [MARKER]:
+            if [p.name for p in self.path.iterdir() if not is_internal(p.name)] == [MARKER]:
                 manifest.forget(self.path)
                 for p in self.path.iterdir():
                     p.unlink()
@@ -197,18 +198,18 @@ class RunFolder:
         """Write every output of a single run (``partial``: whatever its status, it was cut short), then
         ``run_info.json``; returns the paths written.
 
-        A write that fails (disk full, read-only) raises an :class:`~fishfmu.output.manifest.OutputError` saying so;
-        ``run_info.json`` is then set to ``failed`` with that message when it still can be."""
+        A write that fails (disk full, read-only) raises an :class:`~fishfmu.output.manifest_state.OutputError`
+        saying so; ``run_info.json`` is then set to ``failed`` with that message when it still can be."""
         try:
             return self._write_run(result, report, partial or result.status == "partial")
-        except (manifest.OutputError, OSError) as exc:
-            err = exc if isinstance(exc, manifest.OutputError) else manifest.os_error(exc, exc.filename or self.path)
+        except (OutputError, OSError) as exc:
+            err = exc if isinstance(exc, OutputError) else os_error(exc, exc.filename or self.path)
             try:
                 self.finish("failed", error=f"writing the outputs failed: {err}", t_end_s=round(result.t_end_s, 6))
                 note = f"{MARKER} says failed"
             except OSError:
                 note = f"{MARKER} could not be updated and still says running"
-            raise manifest.OutputError(f"{err.message}; the outputs are incomplete ({note})", file=err.file) from None
+            raise OutputError(f"{err.message}; the outputs are incomplete ({note})", file=err.file) from None
 
     def _write_run(self, result: RunResult, report: bool, partial: bool) -> dict[str, Path]:
         out = self.path

@@ -1,4 +1,5 @@
-"""Scenario files: the schema, loading with clear errors, overrides, and the resolved form.
+"""Scenario files: the schema, loading with clear errors and overrides (dotted keys: :mod:`fishfmu.scenario.keys`),
+and the resolved form.
 
 A scenario is one TOML file (see ``scenarios/``).  Its tables:
 
@@ -25,13 +26,16 @@ type is refused, not converted (``gain = "2"`` or ``gain = true`` where a number
 taken where a float belongs).  A bad file raises :class:`plant.errors.InputError` naming the file, the
 dotted key and what is wrong.  FMU variables and plant ports are checked separately when the FMUs are
 opened (:mod:`fishfmu.scenario.wiring`).
+
+Over 450 lines: one concept, the scenario file format: a model per table above and the loader that validates
+them together (overrides, parameter files, an SSP's additions), the source the scenario reference is generated
+from (:mod:`fishfmu.scenario.reference`).
 """
 
 from __future__ import annotations
 
 import copy
 import re
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +52,7 @@ from plant.sim.params import PlantParams
 from plant.fish.population import PopulationSpec
 from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
 
+from fishfmu.scenario.keys import set_dotted
 from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
@@ -437,81 +442,6 @@ def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path,
             raise InputError(f"{text}: {exc.errors()[0]['msg']}", file=ssp) from None
         table._origin = f"{where}: {text}"
         scenario.wiring.connection.append(table)
-
-
-def dotted_parts(key: str) -> list[str | int]:
-    """The tables, keys and indices of a dotted key.
-
-    >>> dotted_parts("fmu[0].parameters.speed_1")
-    ['fmu', 0, 'parameters', 'speed_1']
-    """
-    return [int(p[1:-1]) if p.startswith("[") else p for p in re.findall(r"[^.\[\]]+|\[\d+\]", key)]
-
-
-def set_dotted(data: dict[str, Any], key: str, value: Any, file: str | Path | None = None) -> None:
-    """Set ``data['a']['b'][2]['c'] = value`` for ``key = 'a.b[2].c'``, creating tables as needed."""
-    parts = dotted_parts(key)
-    if not parts:
-        raise InputError(f"empty key in override '{key}'", file=file)
-    node: Any = data
-    for i, part in enumerate(parts):
-        last = i == len(parts) - 1
-        if isinstance(part, int):
-            idx = part
-            if not isinstance(node, list) or idx >= len(node):
-                raise InputError(f"override '{key}': no element {idx} there", file=file)
-            if last:
-                node[idx] = value
-            else:
-                node = node[idx]
-        else:
-            if not isinstance(node, dict):
-                raise InputError(f"override '{key}': '{part}' is not inside a table", file=file)
-            if last:
-                node[part] = value
-            else:
-                node = node.setdefault(part, {})
-
-
-def get_dotted(data: dict[str, Any], key: str, overrides: dict[str, Any] | None = None) -> Any:
-    """The value of ``key`` (``a.b[2].c``) in a scenario's TOML, or in ``overrides`` if given there."""
-    if overrides and key in overrides:
-        return overrides[key]
-    node: Any = data
-    for part in dotted_parts(key):
-        if isinstance(part, int):
-            idx = part
-            if not isinstance(node, list) or idx >= len(node):
-                raise InputError(f"'{key}': no element {idx} there")
-            node = node[idx]
-        elif isinstance(node, dict) and part in node:
-            node = node[part]
-        else:
-            raise InputError(f"'{key}' is not set in the scenario")
-    return node
-
-
-def parse_value(text: str) -> Any:
-    """A command-line value as TOML would read it (numbers, booleans, strings, arrays)."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
-def parse_assignments(items: list[str], option: str = "--set") -> dict[str, Any]:
-    """``KEY=VALUE`` items of a command-line option as a dict, values read as TOML would read them.
-
-    >>> parse_assignments(["fish.count=30", "run.name = a b"])
-    {'fish.count': 30, 'run.name': 'a b'}
-    """
-    out: dict[str, Any] = {}
-    for item in items:
-        key, eq, value = item.partition("=")
-        if not eq or not key.strip():
-            raise InputError(f"{option} '{item}': expected KEY=VALUE")
-        out[key.strip()] = parse_value(value.strip())
-    return out
 
 
 def resolved_toml(scenario: Scenario) -> str:
