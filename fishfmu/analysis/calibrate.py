@@ -43,7 +43,7 @@ from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidates import plant_tables, plant_value
 from fishfmu.analysis.drive_response import DriveResponseFit, fit_drive_responses
-from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
+from fishfmu.analysis.fitting import gain_with_ci
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, alone,
                                         belt_residuals, residuals_of, track_errors, typed_frame)
@@ -180,11 +180,6 @@ class Calibration:
             f"# m/s2, model {d.model_mps2:g}\n" for d in kept)
 
 
-def _squares(res: dict[str, RunResiduals], runs: list[str], group: str | None) -> tuple[np.ndarray, np.ndarray]:
-    sq = [res[r].squares(group) for r in runs]
-    return np.array([a for a, _ in sq]), np.array([n for _, n in sq], dtype=float)
-
-
 def _rms(res: list[RunResiduals], runs: set[str]) -> float:
     """RMS of the lag across transfers of every fish alone on a belt in ``runs`` (not on the infeed, where the
     lag is the drop's): what the knobs are fitted on.
@@ -223,35 +218,6 @@ def choose_fit_runs(baseline: list[RunResiduals]) -> tuple[list[str], list[str]]
         n_fit = min(n_fit, len(order) - 1)
     fit = sorted(order[:n_fit])
     return fit, sorted(set(order) - set(fit))
-
-
-def fit_knob(knob: Knob, runs: list[str], table: dict[float, dict[str, RunResiduals]],
-             rng: np.random.Generator) -> KnobFit:
-    """The change with the least error of the knob's residuals on ``runs`` (``table``: residuals per
-    simulated change, ``knob.off`` the model's), its bootstrap interval and its held-out gain over folds of runs."""
-    values = np.array(sorted(table))
-    ss, nn = zip(*(_squares(table[v], runs, knob.group) for v in values))
-    ss, nn = np.array(ss), np.array(nn)
-    fit = KnobFit(knob.name, knob.off)
-    if nn.sum() == 0:
-        return fit
-    err = ss.sum(axis=1) / np.maximum(nn.sum(axis=1), 1)
-    fit.errors = {float(v): float(e) for v, e in zip(values, err)}
-    fit.value = fit.fitted = vertex(values, err)
-    boot = []
-    for _ in range(300):
-        i = rng.integers(0, len(runs), len(runs))
-        boot.append(vertex(values, ss[:, i].sum(axis=1) / np.maximum(nn[:, i].sum(axis=1), 1)))
-    fit.ci95 = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
-    one = int(np.flatnonzero(values == knob.off)[0])
-    u, e0 = np.zeros(len(runs)), ss[one].copy()
-    for fold in folds(runs):
-        test = np.array([r in fold for r in runs])
-        best = int(np.argmin(ss[:, ~test].sum(axis=1) / np.maximum(nn[:, ~test].sum(axis=1), 1)))
-        u[test] = ss[one, test] - ss[best, test]
-    fit.heldout_gain, fit.heldout_gain_ci95 = gain_with_ci(u, e0, rng)
-    fit.kept = bool(fit.heldout_gain_ci95[0] > 0.0)
-    return fit
 
 
 def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
