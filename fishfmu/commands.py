@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from plant.contract.measured import read_dataset
-from plant.errors import InputError, SimulationError
+from plant.errors import InputError
 from plant.sim.params import PlantParams
 from plant.validation import read_toml, validate
 
