@@ -8,6 +8,9 @@ so what is printed is exactly the text given.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 from rich.console import Console
 from rich.text import Text
 
@@ -39,3 +42,19 @@ def print_error(label: str, message: object) -> None:
 def outcome(ok: bool, message: object) -> Text:
     """``ok`` (green) or ``FAIL`` (red) before an [expect] bound's message."""
     return Text.assemble(("ok  " if ok else "FAIL", "green" if ok else "red"), " ", one_line(message))
+
+
+def generated_page(text: str, path: Path, command: str, argv: list[str]) -> int:
+    """The ``main`` of a reference page generated from the code (the scenario keys, the command line): with
+    ``--write`` the page is written to ``path`` (in the repository's docs/), without arguments printed; the exit
+    status."""
+    if argv == ["--write"]:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+        print(f"wrote {path}")
+        return 0
+    if argv:
+        print(f"usage: {command} (or without --write: to standard output)", file=sys.stderr)
+        return 2
+    sys.stdout.write(text)
+    return 0

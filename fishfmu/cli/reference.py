@@ -20,6 +20,7 @@ import typer
 from typer.testing import CliRunner
 
 from fishfmu.cli import app
+from fishfmu.terminal import generated_page
 
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "cli-reference.md"
 COMMAND = "python -m fishfmu.cli.reference --write"
@@ -89,18 +90,7 @@ def cli_reference() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    text = cli_reference()
-    if argv == ["--write"]:
-        DOC_PATH.parent.mkdir(parents=True, exist_ok=True)
-        DOC_PATH.write_text(text, encoding="utf-8")
-        print(f"wrote {DOC_PATH}")
-        return 0
-    if argv:
-        print(f"usage: {COMMAND} (or without --write: to standard output)", file=sys.stderr)
-        return 2
-    sys.stdout.write(text)
-    return 0
+    return generated_page(cli_reference(), DOC_PATH, COMMAND, sys.argv[1:] if argv is None else argv)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ import pydantic
 from pydantic.fields import FieldInfo
 
 from fishfmu.scenario.schema import Scenario
+from fishfmu.terminal import generated_page
 
 DOC_PATH = Path(__file__).resolve().parents[2] / "docs" / "scenario-reference.md"
 COMMAND = "python -m fishfmu.scenario.reference --write"
@@ -299,18 +300,7 @@ def scenario_reference() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    text = scenario_reference()
-    if argv == ["--write"]:
-        DOC_PATH.parent.mkdir(parents=True, exist_ok=True)
-        DOC_PATH.write_text(text, encoding="utf-8")
-        print(f"wrote {DOC_PATH}")
-        return 0
-    if argv:
-        print(f"usage: {COMMAND} (or without --write: to standard output)", file=sys.stderr)
-        return 2
-    sys.stdout.write(text)
-    return 0
+    return generated_page(scenario_reference(), DOC_PATH, COMMAND, sys.argv[1:] if argv is None else argv)
 
 
 if __name__ == "__main__":
