@@ -16,11 +16,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from plant.fish.fish_data import length_regressions
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 
-from fishfmu.analysis.residuals import EDGE_M, crowding, photoeye_passages
+from fishfmu.analysis.residuals import EDGE_M, crowding, photoeye_passages, side_by_side_at
 
 G_MPS2 = 9.81
 DROP_READ_S = (0.8, 3.0)
@@ -181,41 +180,24 @@ def pair_rows(dataset: Dataset) -> pd.DataFrame:
     rows = []
     conveyors = dataset.line.conveyors
     for run in dataset.runs:
-        tracks = run.tracks
-        fish = run.fish.set_index("fish_id")
-        height = fish["height_m"] if "height_m" in fish.columns else pd.Series(np.nan, index=fish.index)
-        height = height.astype(float).fillna(pd.Series(length_regressions().height_m(fish["length_m"].to_numpy()),
-                                                       index=fish.index))
         speed = {c.id: float(run.belts.loc[run.belts["conveyor_id"] == c.id, "speed_mps"].median())
                  for c in conveyors}
-        by_fish = {fid: (m["t_s"].to_numpy(float), m["x_m"].to_numpy(float)) for fid, m in tracks.groupby("fish_id")}
+        by_fish = {fid: (m["t_s"].to_numpy(float), m["x_m"].to_numpy(float))
+                   for fid, m in run.tracks.groupby("fish_id")}
         for k, c in enumerate(conveyors[1:], start=1):
             dv = speed[c.id] - speed[conveyors[k - 1].id]
             if not np.isfinite(dv) or dv < 0.05:
                 continue
-            for fid, (t, x) in by_fish.items():
-                cross = np.flatnonzero((x[:-1] < c.x_start_m) & (x[1:] >= c.x_start_m))
-                if not len(cross):
+            for p in side_by_side_at(run.tracks, run.fish, c.x_start_m, sort=True):
+                gap = p.dy_m - p.half_heights_m
+                if gap >= PAIR_SIDE_GAP_M[1] or 0.0 <= gap < PAIR_SIDE_GAP_M[0]:
                     continue
-                tc = float(t[cross[0] + 1])
-                at = tracks[np.abs(tracks["t_s"] - tc) <= 0.03]
-                me = at[at["fish_id"] == fid]
-                if me.empty:
+                (t, x), (to, xo) = by_fish[p.leader], by_fish[p.follower]
+                t1 = p.t_s + PAIR_AFTER_S
+                if t1 > t[-1] or t1 > to[-1]:
                     continue
-                for o in at[at["fish_id"] != fid].drop_duplicates("fish_id").itertuples(index=False):
-                    dx = float(me["x_m"].iloc[0] - o.x_m)
-                    la, lb = float(fish.loc[fid, "length_m"]), float(fish.loc[o.fish_id, "length_m"])
-                    gap = abs(float(me["y_m"].iloc[0] - o.y_m)) - 0.5 * float(height[fid] + height[o.fish_id])
-                    if not (0.0 < dx < 0.5 * (la + lb) - 0.25 * min(la, lb)) or gap >= PAIR_SIDE_GAP_M[1]:
-                        continue
-                    if 0.0 <= gap < PAIR_SIDE_GAP_M[0]:
-                        continue
-                    to, xo = by_fish[o.fish_id]
-                    t1 = tc + PAIR_AFTER_S
-                    if t1 > t[-1] or t1 > to[-1]:
-                        continue
-                    sep = float(np.interp(t1, t, x) - np.interp(t1, to, xo))
-                    rows.append({"run_id": run.id, "conveyor_id": c.id, "leader": fid, "follower": o.fish_id,
-                                 "touching": float(gap < 0.0), "growth": (sep - dx) / (dv * PAIR_AFTER_S)})
+                sep = float(np.interp(t1, t, x) - np.interp(t1, to, xo))
+                rows.append({"run_id": run.id, "conveyor_id": c.id, "leader": p.leader, "follower": p.follower,
+                             "touching": float(gap < 0.0), "growth": (sep - p.dx_m) / (dv * PAIR_AFTER_S)})
     cols = ["run_id", "conveyor_id", "leader", "follower", "touching", "growth"]
     return pd.DataFrame(rows, columns=cols)

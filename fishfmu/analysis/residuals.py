@@ -149,39 +149,71 @@ def belt_residuals(run: Run, errors: pd.DataFrame, line: Line) -> pd.DataFrame:
     return typed_frame(rows, BELT_RESIDUAL_DTYPES)
 
 
+@dataclass(frozen=True)
+class SideBySide:
+    """Two fish side by side when the leading one's mid-point first crosses a point of the line (a transfer)."""
+
+    leader: str
+    follower: str
+    t_s: float
+    """The first tracked time the leader is past the point."""
+    dx_m: float
+    """The leader's mid-point ahead of the follower's (> 0), less than they overlap by a quarter of the shorter."""
+    dy_m: float
+    """Their mid-points apart across the line."""
+    half_heights_m: float
+    """Half the sum of their heights (a fish lies on its side: its height is its width on the belt)."""
+
+
+def fish_heights(fish: pd.DataFrame) -> pd.Series:
+    """Each fish's height (by fish id), the length regression's where fish.csv leaves it out."""
+    fish = fish.set_index("fish_id")
+    height = fish["height_m"] if "height_m" in fish.columns else pd.Series(np.nan, index=fish.index)
+    return height.astype(float).fillna(pd.Series(length_regressions().height_m(fish["length_m"].to_numpy()),
+                                                 index=fish.index))
+
+
+def side_by_side_at(tracks: pd.DataFrame, fish: pd.DataFrame, x_m: float,
+                    sort: bool = False) -> list[SideBySide]:
+    """Every pair of fish overlapping along the line by at least a quarter of the shorter (tracked within 30 ms)
+    when the leading one's mid-point first crosses ``x_m``; leaders in the tracks' order (``sort``: by fish id)."""
+    length = fish.set_index("fish_id")["length_m"]
+    height = fish_heights(fish)
+    out = []
+    for fid, m in tracks.groupby("fish_id", sort=sort):
+        x, t = m["x_m"].to_numpy(), m["t_s"].to_numpy()
+        cross = np.flatnonzero((x[:-1] < x_m) & (x[1:] >= x_m))
+        if not len(cross):
+            continue
+        tc = float(t[cross[0] + 1])
+        at = tracks[np.abs(tracks["t_s"] - tc) <= 0.03]
+        me = at[at["fish_id"] == fid]
+        if me.empty:
+            continue
+        for o in at[at["fish_id"] != fid].drop_duplicates("fish_id").itertuples(index=False):
+            dx = float(me["x_m"].iloc[0] - o.x_m)
+            la, lb = float(length[fid]), float(length[o.fish_id])
+            if not 0.0 < dx < 0.5 * (la + lb) - 0.25 * min(la, lb):
+                continue
+            out.append(SideBySide(fid, o.fish_id, tc, dx, abs(float(me["y_m"].iloc[0] - o.y_m)),
+                                  0.5 * float(height[fid] + height[o.fish_id])))
+    return out
+
+
 def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float = 1.5) -> pd.DataFrame:
-    """Pairs of fish touching (side by side within their heights, overlapping along the line) when the
+    """Pairs of fish touching (side by side within their heights and 2 cm, overlapping along the line) when the
     leading one's mid-point crosses a transfer: separation along the line ``after_s`` later, simulated
     minus measured."""
     rows = []
-    tracks = run.tracks
-    fish = run.fish.set_index("fish_id")
-    height = fish["height_m"] if "height_m" in fish.columns else pd.Series(np.nan, index=fish.index)
-    height = height.fillna(pd.Series(length_regressions().height_m(fish["length_m"].to_numpy()), index=fish.index))
     for c in line.conveyors[1:]:
-        for fid, m in tracks.groupby("fish_id", sort=False):
-            x, t = m["x_m"].to_numpy(), m["t_s"].to_numpy()
-            cross = np.flatnonzero((x[:-1] < c.x_start_m) & (x[1:] >= c.x_start_m))
-            if not len(cross):
+        for p in side_by_side_at(run.tracks, run.fish, c.x_start_m):
+            if not p.dy_m < p.half_heights_m + 0.02:
                 continue
-            tc = float(t[cross[0] + 1])
-            at = tracks[np.abs(tracks["t_s"] - tc) <= 0.03]
-            me = at[at["fish_id"] == fid]
-            if me.empty:
-                continue
-            for _, o in at[at["fish_id"] != fid].drop_duplicates("fish_id").iterrows():
-                dx = float(me["x_m"].iloc[0] - o["x_m"])
-                dy = abs(float(me["y_m"].iloc[0] - o["y_m"]))
-                la, lb = float(fish.loc[fid, "length_m"]), float(fish.loc[o["fish_id"], "length_m"])
-                reach = 0.5 * (la + lb) - 0.25 * min(la, lb)  # overlapping along at least a quarter of a fish
-                side = 0.5 * float(height[fid] + height[o["fish_id"]]) + 0.02
-                if not (0.0 < dx < reach and dy < side):
-                    continue
-                sep_m = _separation(tracks, fid, o["fish_id"], tc + after_s)
-                sep_s = _separation(simulated, fid, o["fish_id"], tc + after_s)
-                if sep_m is not None and sep_s is not None:
-                    rows.append({"run_id": run.id, "leader": fid, "follower": o["fish_id"], "conveyor_id": c.id,
-                                 "t_s": tc, "separation_m": sep_m, "dsep_m": sep_s - sep_m})
+            sep_m = _separation(run.tracks, p.leader, p.follower, p.t_s + after_s)
+            sep_s = _separation(simulated, p.leader, p.follower, p.t_s + after_s)
+            if sep_m is not None and sep_s is not None:
+                rows.append({"run_id": run.id, "leader": p.leader, "follower": p.follower, "conveyor_id": c.id,
+                             "t_s": p.t_s, "separation_m": sep_m, "dsep_m": sep_s - sep_m})
     return typed_frame(rows, PAIR_RESIDUAL_DTYPES)
 
 
