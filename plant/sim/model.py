@@ -100,6 +100,10 @@ TRIANGLE_STIFFNESS = 1.0e8
 """Stiffness of belt and guide triangles; in series with a sphere's much softer spring, so the sphere's rules."""
 DRUM_RADIUS_M = 0.03
 PARK_SPACING_M = (0.8, 0.25, 0.2)
+SEARCH_CELL_M = (0.1, 0.1, 0.1)
+"""Cells of the contact search grid along x, y, z: each sphere looks for partners in the cells its box overlaps.
+Coarser cells ((0.15, 0.15, 0.5) m) took 5 % less time on a dumped batch, within the noise, but change the order
+in which contacts are summed and so every run in its last bits: not worth breaking runs' reproducibility."""
 
 
 @dataclass(frozen=True)
@@ -314,7 +318,7 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
     gc = mbs.AddGeneralContact()
     gc.verboseMode = 0
     gc.frictionProportionalZone = num.friction_regularization_mps
-    gc.SetFrictionPairings(friction_pairings(params))
+    gc.SetFrictionPairings(friction_pairings(params).tolist())  # a list converts in half the time of an array (1.4 ms)
     adhesion = params.extensions.adhesion.on
 
     ground = mbs.AddObject(ObjectGround())
@@ -394,9 +398,8 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
                    min(c.z_top_m for c in line.conveyors) - 0.6 - PARK_SPACING_M[2] * 4 - 0.3])
     hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
                    max(c.z_top_m for c in line.conveyors) + 1.2])
-    cell = 0.1
     gc.SetSearchTreeBox(lo, hi)
-    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / cell))) for s_ in hi - lo])
+    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / c_))) for s_, c_ in zip(hi - lo, SEARCH_CELL_M)])
     mbs.Assemble()
 
     ss = exu.SimulationSettings()
