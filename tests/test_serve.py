@@ -161,6 +161,50 @@ def test_the_address_space_names_types_units_and_methods(tmp_path):
     assert seen["t"] == pytest.approx(0.5) and seen["t_reset"] == 0.0 and seen["t_after"] == 0.0
 
 
+class _Changes:
+    """asyncua's subscription handler: every data change notified, as (node name, value)."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[str, object]] = []
+
+    def datachange_notification(self, node, value, data) -> None:  # noqa: ANN001 - asyncua's handler signature
+        self.seen.append((node.nodeid.Identifier, value))
+
+
+async def subscribe_and_step(url: str, proc: subprocess.Popen) -> list[tuple[str, object]]:
+    """Subscribes to the time and to a beam no fish reaches in the first steps, steps 1 at a time, resets."""
+    client = await connect(url, proc)
+    try:
+        idx = await client.get_namespace_index("urn:fishfmu")
+        node = lambda name: client.get_node(ua.NodeId(name, idx))  # noqa: E731
+        folder = node("fishfmu")
+        changes = _Changes()
+        subscription = await client.create_subscription(5, changes)  # ms: faster than the steps below
+        await subscription.subscribe_data_change([node("fishfmu.time_s"), node("plant.pe_c4.blocked")])
+        await asyncio.sleep(0.3)
+        for _ in range(3):
+            await folder.call_method(ua.QualifiedName("step", idx), ua.Variant(1, ua.VariantType.Int32))
+            await asyncio.sleep(0.3)  # one publishing interval and more: each step its own notification
+        await folder.call_method(ua.QualifiedName("reset", idx))
+        await asyncio.sleep(0.3)
+        await folder.call_method(ua.QualifiedName("stop", idx))
+        return changes.seen
+    finally:
+        await client.disconnect()
+
+
+def test_a_subscriber_is_notified_of_each_change_and_of_nothing_else(tmp_path):
+    """The server writes its values straight into its address space, only those that changed: a subscribed client
+    still hears every change (the time after each step and after the reset) and, of a beam that stays clear, only
+    the value it had when the client subscribed."""
+    proc, url = start_server(tmp_path / "served")
+    seen = asyncio.run(subscribe_and_step(url, proc))
+    proc.communicate(timeout=300)
+    times = [round(v, 6) for name, v in seen if name == "fishfmu.time_s"]
+    assert times == [0.0, 0.01, 0.02, 0.03, 0.0]
+    assert [v for name, v in seen if name == "plant.pe_c4.blocked"] == [False]
+
+
 def test_a_non_loopback_endpoint_is_refused_without_allow_remote(tmp_path):
     cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint",
                           "opc.tcp://0.0.0.0:4840", "--out", str(tmp_path / "o")], capture_output=True, text=True)
