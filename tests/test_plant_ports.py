@@ -54,11 +54,21 @@ def test_the_wiring_knows_the_declared_ports_with_their_types_and_units(line):
                    for p in candidates)
 
 
-def test_the_plant_fmu_has_the_declared_ports_as_variables():
-    line = load_scenario(PAPER).line
+def with_a_camera(tmp_path: Path) -> Path:
+    """The paper's scenario with a camera over its last belt: a line with every kind of port."""
+    text = PAPER.read_text()
+    at = text.index("[[line.photoeyes]]")
+    scenario = tmp_path / "camera.toml"
+    scenario.write_text(text[:at] + '[[line.cameras]]\nid = "cam"\nx_start_m = 5.2\nx_end_m = 6.1\n\n' + text[at:])
+    return scenario
+
+
+def test_the_plant_fmu_has_the_declared_ports_as_variables(tmp_path):
+    scenario = with_a_camera(tmp_path)
+    line = load_scenario(scenario).line
     ports = PlantPorts.of(line)
     logged: list[str] = []
-    fmu = PlantInFmu(PAPER, logged.append)
+    fmu = PlantInFmu(scenario, logged.append)
     assert fmu.input_names == ports.inputs()
     plant_outputs = [n for n in fmu.output_names if n not in PlantInFmu.counts]
     assert sorted(plant_outputs) == sorted(set(ports.outputs()) - set(ports.inputs()))
@@ -66,3 +76,6 @@ def test_the_plant_fmu_has_the_declared_ports_as_variables():
         n: signal_of(n).unit for n in fmu.input_names + plant_outputs}
     assert not logged
     assert set(SIGNALS) == {signal_of(n).name for n in ports.outputs()}
+    # each variable of the type its signal declares (pythonfmu takes the type from the start value)
+    kinds = {"Boolean": bool, "Integer": int, "Real": float}
+    assert all(type(fmu.values[n]) is kinds[signal_of(n).type] for n in plant_outputs)

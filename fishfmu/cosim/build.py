@@ -133,7 +133,7 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
     """The co-simulation of a checked scenario with this batch of fish; it owns the plant and the FMU
     instances (terminated when the ``with`` ends).  ``clock`` times the stages of each step (benchmarks)."""
     sc = checked_scenario.scenario
-    plant = Plant(sc.line, fish, sc.plant, sc.run.comm_step_s)
+    plant = Plant(sc.line, fish, sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
     ports = PlantPorts.of(sc.line)
     recorder = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids),
                            sc.run.comm_step_s, record_poses=record_poses)

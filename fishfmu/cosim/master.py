@@ -227,7 +227,8 @@ class CoSimulation:
         if self.recorder is not None:
             setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
             state = self.plant.state
-            self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses)
+            self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses,
+                                 state.detections)
 
     def signal_frame(self) -> pd.DataFrame:
         """Every recorded signal per step (see the module's docstring for the types)."""

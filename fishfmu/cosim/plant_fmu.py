@@ -10,8 +10,10 @@ Exudyn.
 Variables (the plant's ports as declared in :mod:`plant.sim.ports`, named as in a scenario's wiring):
 
 * inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.contract.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
-* outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg)
-  (every output port but the belt speed, which is the input), and counts so far: ``fish_dropped``,
+* outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg), each
+  camera's ``<camera>.count``, ``.double``, ``.lead_x``, ``.lead_length``, ``.lead_heading``, ``.events`` (Integer,
+  Boolean or Real as declared) (every output port but the belt speed, which is the input), and counts so far:
+  ``fish_dropped``,
   ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
   ``outfeed_count`` (fish heads seen at the scenario's outfeed photo-eye: its blocked edges);
 * parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
@@ -131,12 +133,13 @@ class PlantInFmu:
         self.input_names = ports.inputs()
         outputs = [n for n in ports.outputs() if n not in self.input_names]  # a belt's speed is its input
         plant_outputs = ([n for n in outputs if signal_of(n).of == "photoeye"]  # the photo-eyes first
-                         + [n for n in outputs if signal_of(n).of == "conveyor"])
+                         + [n for n in outputs if signal_of(n).of == "conveyor"]
+                         + [n for n in outputs if signal_of(n).of == "camera"])
         self.plant_outputs = set(plant_outputs)
         self.output_names = plant_outputs + list(self.counts)
         self.values: dict[str, Any] = {"seed": self.scenario.run.seed, "fish_count": self.scenario.fish.count}
         self.values.update(dict.fromkeys(self.input_names, 0.0))
-        self.values.update({n: (False if signal_of(n).type == "Boolean" else 0.0) for n in plant_outputs})
+        self.values.update({n: {"Boolean": False, "Integer": 0}.get(signal_of(n).type, 0.0) for n in plant_outputs})
         self.values.update(dict.fromkeys(self.counts, 0))
         self.units = {n: signal_of(n).unit for n in self.input_names + plant_outputs if signal_of(n).unit}
         self.refused: dict[str, str] = {}
@@ -188,7 +191,7 @@ class PlantInFmu:
         sc = self.scenario.model_copy(deep=True)
         try:
             sc.run.seed, sc.fish.count = self.values["seed"], self.values["fish_count"]
-            self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s)
+            self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
         except (InputError, SimulationError) as exc:
             self.failure = (f"the plant could not be built with seed = {self.values['seed']} and "
                             f"fish_count = {self.values['fish_count']}: {exc}")

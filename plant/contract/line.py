@@ -1,4 +1,4 @@
-"""The line: conveyors, side guides and photo-eyes, as the ``[line]`` table describes them.
+"""The line: conveyors, side guides, photo-eyes and cameras, as the ``[line]`` table describes them.
 
 One schema serves scenario files and measured datasets (contracts/measured-data.md), so a
 line measured on a plant floor and a line simulated here are described the same way.
@@ -52,19 +52,41 @@ class PhotoEye(Strict):
         "beam height (absolute z): above the belt top there, by at most 0.5 m"))
 
 
+class Camera(Strict):
+    """A vision system looking down on the line: its field of view spans the guides across y and
+    ``x_start_m``..``x_end_m`` along x; it takes a frame ``rate_hz`` times a second and reports what it saw
+    ``latency_s`` later, positions and lengths with Gaussian noise."""
+
+    id: Id = Field(description=(
+        "unique among conveyors, photo-eyes and cameras; names its plant ports (plant.<id>.count, .double, .lead_x, "
+        ".lead_length, .lead_heading, .events)"))
+    x_start_m: float = Field(ge=-100.0, le=1000.0, description="upstream edge of the field of view, on the line")
+    x_end_m: float = Field(ge=-100.0, le=1000.0, description="downstream edge of the field of view, on the line")
+    rate_hz: float = Field(30.0, ge=1.0, le=200.0, description="frames a second (industrial line cameras: 25-60)")
+    latency_s: float = Field(0.04, ge=0.0, le=1.0, description=(
+        "from a frame to its result on the camera's outputs (exposure, transfer, image processing)"))
+    position_noise_m: float = Field(0.003, ge=0.0, le=0.1, description=(
+        "standard deviation of every position and length the camera reports (independent per frame)"))
+    double_gap_m: float = Field(0.05, ge=0.0, le=2.0, description=(
+        "two fish in view whose extents along x overlap or are closer than this are a double"))
+
+
 class Line(Strict):
-    """Conveyors in flow order, side guides along the whole line, photo-eyes."""
+    """Conveyors in flow order, side guides along the whole line, photo-eyes, cameras."""
 
     guide_width_m: float = Field(gt=0.05, le=5.0, description="side guides at y = +-guide_width_m/2")
     conveyors: list[Conveyor] = Field(min_length=1, max_length=64, description="the belts, in flow order")
     photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
+    cameras: list[Camera] = Field(default_factory=list, max_length=64, description=(
+        "vision systems over the line (none in a file without the key)"))
 
     @pydantic.model_validator(mode="after")
     def _check_geometry(self) -> "Line":
-        ids = [c.id for c in self.conveyors] + [p.id for p in self.photoeyes]
+        ids = [c.id for c in self.conveyors] + [p.id for p in self.photoeyes] + [c.id for c in self.cameras]
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
-            raise ValueAtKey("conveyors", f"ids must be unique across conveyors and photo-eyes; repeated: {', '.join(dup)}")
+            raise ValueAtKey("conveyors", "ids must be unique across conveyors, photo-eyes and cameras; repeated: "
+                             f"{', '.join(dup)}")
         for i, (a, b) in enumerate(zip(self.conveyors, self.conveyors[1:])):
             if b.x_start_m < a.x_end_m - 1e-9:
                 raise ValueAtKey(f"conveyors.{i + 1}.x_start_m",
@@ -94,6 +116,11 @@ class Line(Strict):
             if not (top < p.z_m <= top + 0.5):
                 raise ValueAtKey(f"photoeyes.{i}.z_m", f"photoeyes[{i}] ('{p.id}') beam z_m = {p.z_m} must be above the belt top "
                                  f"there (z = {top:g} m) and at most 0.5 m above it")
+        for i, c in enumerate(self.cameras):
+            if not (self.x_start_m <= c.x_start_m < c.x_end_m <= self.x_end_m):
+                raise ValueAtKey(f"cameras.{i}.x_end_m", f"cameras[{i}] ('{c.id}') sees x_start_m = {c.x_start_m:g} to "
+                                 f"x_end_m = {c.x_end_m:g} m: it must be a stretch of the line [{self.x_start_m:g}, "
+                                 f"{self.x_end_m:g}] m with x_start_m < x_end_m")
         return self
 
     @property

@@ -63,6 +63,9 @@ TRACKS = TableSpec("tracks", ("t_s", "fish_id", "x_m", "y_m", "yaw_rad"), frozen
 PHOTOEYES = TableSpec("photoeyes", ("sensor_id", "t_on_s", "t_off_s"), frozenset({"sensor_id"}))
 BELTS = TableSpec("belts", ("t_s", "conveyor_id", "setpoint_mps", "speed_mps"), frozenset({"conveyor_id"}))
 TABLES = (FISH, TRACKS, PHOTOEYES, BELTS)
+DETECTIONS = TableSpec("detections", ("t_s", "camera_id", "track", "x_back_m", "x_front_m", "y_m", "length_m",
+                                      "heading", "double"), frozenset({"camera_id"}))
+"""Optional: what the line's cameras logged, one row per fish in view per frame (absent: no camera log)."""
 POSITIVE = ("length_m", "weight_kg", "height_m", "width_m")
 
 
@@ -98,7 +101,7 @@ class DatasetFile(Strict):
 
 @dataclass
 class Run:
-    """One run: its ``[[runs]]`` entry and its four tables (contract column order, extra columns after)."""
+    """One run: its ``[[runs]]`` entry and its tables (contract column order, extra columns after)."""
 
     id: str
     hours_post_mortem: float | None
@@ -107,6 +110,8 @@ class Run:
     tracks: pd.DataFrame = field(default_factory=lambda: empty_table(TRACKS))
     photoeyes: pd.DataFrame = field(default_factory=lambda: empty_table(PHOTOEYES))
     belts: pd.DataFrame = field(default_factory=lambda: empty_table(BELTS))
+    detections: pd.DataFrame = field(default_factory=lambda: empty_table(DETECTIONS))
+    """The cameras' log (``detections.csv``; empty without one)."""
     extra: dict[str, Any] = field(default_factory=dict)
     """Keys of the ``[[runs]]`` entry beyond id, hours_post_mortem and notes."""
     filled: dict[str, list[str]] = field(default_factory=dict)
@@ -255,17 +260,20 @@ def _check_ids(df: pd.DataFrame, column: str, allowed: list[str], path: Path, wh
         fail_first(bad, path, column, f"unknown {column} '{value}': not {what} (known: {known or 'none'})")
 
 
-def _check_increasing(df: pd.DataFrame, key: str, path: Path) -> None:
-    """Within each ``key`` (a fish, a conveyor) ``t_s`` must increase from row to row."""
+def _check_increasing(df: pd.DataFrame, key: str, path: Path, strictly: bool = True) -> None:
+    """Within each ``key`` (a fish, a conveyor) ``t_s`` must increase from row to row (``strictly=False``: must not
+    decrease, for a camera that logs several fish per frame)."""
     codes = pd.factorize(df[key])[0]
     order = np.argsort(codes, kind="stable")
     t = df["t_s"].to_numpy(float)[order]
-    bad = np.flatnonzero((codes[order][1:] == codes[order][:-1]) & (t[1:] <= t[:-1]))
+    back = (t[1:] <= t[:-1]) if strictly else (t[1:] < t[:-1])
+    bad = np.flatnonzero((codes[order][1:] == codes[order][:-1]) & back)
     if len(bad):
         k = bad[np.argmin(order[bad + 1])]  # the first offending row in file order
         row, prev = df.index[order[k + 1]], df.index[order[k]]
-        raise InputError(f"{key} '{df[key].iloc[order[k]]}': t_s = {t[k + 1]:g} is not after its previous sample "
-                         f"(t_s = {t[k]:g} in row {row_number(prev)}); time must increase within each {key}",
+        raise InputError(f"{key} '{df[key].iloc[order[k]]}': t_s = {t[k + 1]:g} is "
+                         f"{'not after' if strictly else 'before'} its previous sample (t_s = {t[k]:g} in row "
+                         f"{row_number(prev)}); time must {'increase' if strictly else 'not go back'} within each {key}",
                          file=path, where=f"row {row_number(row)}, column t_s")
 
 
@@ -323,7 +331,13 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
             filled[c] = list(fish["fish_id"][empty])
     if check_physics:
         plausibility.check_footprint(fish, fish_file, line)
-    tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts)]
+    detections_file = folder / DETECTIONS.file
+    detections = empty_table(DETECTIONS)
+    if detections_file.exists():
+        detections = read_table(detections_file, DETECTIONS)
+        _check_ids(detections, "camera_id", [c.id for c in line.cameras], detections_file, "a camera of the line")
+        _check_increasing(detections, "camera_id", detections_file, strictly=False)
+    tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections)]
     return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables, extra=dict(entry.model_extra or {}),
                filled=filled, path=folder)
 
@@ -366,7 +380,8 @@ def _ordered(df: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
 
 
 def write_run(run: Run, folder: str | Path) -> None:
-    """Write the run's four CSVs into ``folder`` (created if needed); floats round-trip exactly."""
+    """Write the run's four CSVs into ``folder`` (created if needed), and its cameras' log when it has one;
+    floats round-trip exactly."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     fish = run.fish.copy()
@@ -374,6 +389,8 @@ def write_run(run: Run, folder: str | Path) -> None:
         fish.loc[fish["fish_id"].isin(ids), c] = np.nan  # written empty, as measured
     for spec, df in zip(TABLES, (fish, run.tracks, run.photoeyes, run.belts)):
         _ordered(df, spec).to_csv(folder / spec.file, index=False, na_rep="")
+    if len(run.detections):
+        _ordered(run.detections, DETECTIONS).to_csv(folder / DETECTIONS.file, index=False, na_rep="")
 
 
 def run_entry(run: Run) -> dict[str, Any]:
@@ -390,7 +407,7 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
     doc = {"dataset": {"name": dataset.name, "description": dataset.description},
-           "line": dataset.line.model_dump(mode="json"),
+           "line": dataset.line.model_dump(mode="json", exclude=None if dataset.line.cameras else {"cameras"}),
            "kpi": dataset.kpi.model_dump(mode="json", exclude_none=True),
            "runs": [run_entry(r) for r in dataset.runs]}
     with (root / "dataset.toml").open("wb") as fh:

@@ -47,6 +47,7 @@ from plant.sim.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_
 from plant.sim.params import PlantParams
 from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
+from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
 from plant.sim.sensors import beams_blocked, belt_loads, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 
@@ -61,7 +62,8 @@ class Plant:
     scripts that look inside; fishfmu reads none of them."""
 
     def __init__(self, line: Line, fish: list[FishSpec], params: PlantParams | None = None,
-                 comm_step_s: float = 0.01, joint_factors: list[tuple[float, float]] | None = None) -> None:
+                 comm_step_s: float = 0.01, joint_factors: list[tuple[float, float]] | None = None,
+                 seed: int = 0) -> None:
         self._line = line
         self._params = params or PlantParams()
         self._fish_specs = list(fish)
@@ -92,10 +94,14 @@ class Plant:
         self._mucus = np.array([ext.mucus_friction.factor(f.hours_post_mortem) for f in self._fish_specs])
         self._level = friction_level(self._mucus) if len(self._fish_specs) else np.zeros(0, dtype=np.int64)
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self._prepared]
+        self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
+        # each camera's noise its own stream of the run's seed: adding a camera changes no other's
+        self._cameras = [CameraUnit(c, np.random.default_rng([seed, 7, i])) for i, c in enumerate(line.cameras)]
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._geometry = tuple(p.geometry for p in self._prepared)
         self.status = np.full(len(self._fish_specs), WAITING, dtype=np.int8)
         self._drop_adjustments: tuple[DropAdjustment, ...] = ()
+        self._detections: tuple[tuple, ...] = ()
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0}
         self._steps = 0
         self._t_model0 = 0.0
@@ -151,6 +157,9 @@ class Plant:
         self._pose_bodies = np.array([[5 * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
                                      dtype=np.int64).reshape(-1, 3)
         self._pose_local = np.array([[r[1] for r in self._spine_refs[m.index]] for m in members]).reshape(-1, 3, 3)
+        self._tip_bodies = np.array([[5 * i + r[0] for r in self._tip_refs[m.index]] for i, m in enumerate(members)],
+                                    dtype=np.int64).reshape(-1, 2)
+        self._tip_local = np.array([[r[1] for r in self._tip_refs[m.index]] for m in members]).reshape(-1, 2, 3)
         self._solver = exu.MainSolverExplicit()
         ss = model.settings
         ss.timeIntegration.endTime = 1.0e6  # extended chunk by chunk
@@ -331,12 +340,32 @@ class Plant:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2)
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
                                 self._beams, 0.5 * self._line.guide_width_m)
+        readings = self._camera_readings()
         return PlantOutputs(
             t_s=self.t_s,
             belt_speed_mps=dict(zip(self.conveyor_ids, map(float, speeds))),
             belt_load_force_n=dict(zip(self.conveyor_ids, map(float, load))),
             belt_load_mass_kg=dict(zip(self.conveyor_ids, map(float, mass))),
-            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, blocked))))
+            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, blocked))), **output_fields(readings))
+
+    def _camera_readings(self) -> dict:
+        """Each camera's outputs after this step; the fish seen from above only when a camera takes a frame."""
+        if not self._cameras:
+            return {}
+        t = self.t_s
+        due = [c for c in self._cameras if c.frame_due(t)]
+        if due:
+            view = self._top_view()
+            self._detections = tuple(row for c in due for row in c.take_frame(t, view))
+        else:
+            self._detections = ()
+        return {c.camera.id: c.output(t) for c in self._cameras}
+
+    def _top_view(self) -> TopView:
+        slots = np.flatnonzero(self.status[self._member] == ON_LINE)
+        return fish_seen_from_above(self.model, self._pos, self._rot, slots, self._member[slots],
+                                    (self._tip_bodies[slots], self._tip_local[slots]),
+                                    (self._pose_bodies[slots, :1], self._pose_local[slots, :1]))
 
     def _retire_fish(self) -> None:
         """Fish past the end of the line (or fallen off its end) are parked; the next rebuild drops them.
@@ -395,7 +424,7 @@ class Plant:
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
             outputs=outputs, pose_bodies=self._pose_bodies, pose_local=self._pose_local, geometry=self._geometry,
-            drop_adjustments=self._drop_adjustments, timings_s=dict(self._timings_s))
+            drop_adjustments=self._drop_adjustments, detections=self._detections, timings_s=dict(self._timings_s))
 
     def _check_health(self) -> None:
         s = self._state

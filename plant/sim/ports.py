@@ -5,7 +5,11 @@ Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<s
 - ``c.speed`` (Real, m/s): in, the belt surface speed for the coming step; out, the speed it ran at;
 - ``c.load_force`` (Real, N): out, the fish's force on the belt against its motion;
 - ``c.load_mass`` (Real, kg): out, the mass resting on the belt;
-- ``p.blocked`` (Boolean): out, whether a fish cuts the beam.
+- ``p.blocked`` (Boolean): out, whether a fish cuts the beam;
+- for every camera ``k`` (outputs, what its last result said, see :mod:`plant.sim.camera`): ``k.count`` (Integer,
+  fish in view), ``k.double`` (Boolean), ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest
+  downstream), ``k.lead_length`` (Real, m), ``k.lead_heading`` (Integer: 1 head first, -1 tail first, 0 no fish),
+  ``k.events`` (Integer: fish seen so far).
 
 Everything that names the plant's ports derives them from :data:`SIGNALS` and :class:`PlantPorts`: the
 plant's outputs (:meth:`plant.sim.state.PlantOutputs.port_values`), a scenario's wiring
@@ -36,9 +40,9 @@ class Signal:
 
     name: str
     of: str
-    """``conveyor`` or ``photoeye``: whose port it is."""
+    """``conveyor``, ``photoeye`` or ``camera``: whose port it is."""
     type: str
-    """FMI-style type name of its values: ``Real`` (float) or ``Boolean`` (bool)."""
+    """FMI-style type name of its values: ``Real`` (float), ``Integer`` (int) or ``Boolean`` (bool)."""
     unit: str | None
     unit_base: tuple[float, ...] | None
     """The unit in SI base units (kg, m, s, A, K, mol, cd, rad, factor, offset), as an FMU defines one."""
@@ -56,9 +60,20 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
     Signal("load_mass", "conveyor", "Real", "kg", (1, 0, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "belt_load_mass_kg",
            "mass resting on the belt"),
     Signal("blocked", "photoeye", "Boolean", None, None, False, "photoeyes", "a fish cuts the beam"),
+    Signal("count", "camera", "Integer", None, None, False, "camera_count", "fish in the camera's view"),
+    Signal("double", "camera", "Boolean", None, None, False, "camera_double",
+           "two fish in view overlap or are closer than the camera's double_gap_m along the line"),
+    Signal("lead_x", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_x_m",
+           "front end of the leading fish in view (the one furthest downstream); 0 with none in view"),
+    Signal("lead_length", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_length_m",
+           "length of the leading fish as seen from above (snout to tail tip); 0 with none in view"),
+    Signal("lead_heading", "camera", "Integer", None, None, False, "camera_lead_heading",
+           "the leading fish comes head first (1) or tail first (-1); 0 with none in view"),
+    Signal("events", "camera", "Integer", None, None, False, "camera_events",
+           "fish the camera has seen so far: steps by one each time a new fish comes into view"),
 )}
-"""Every signal of the plant's ports, conveyors' first; each conveyor's and each photo-eye's ports come in this
-order."""
+"""Every signal of the plant's ports, conveyors' first; each conveyor's, each photo-eye's and each camera's ports
+come in this order."""
 
 
 def signal_of(port: str) -> Signal:
@@ -68,18 +83,20 @@ def signal_of(port: str) -> Signal:
 
 @dataclass(frozen=True)
 class PlantPorts:
-    """The ports of one line's plant: per conveyor and per photo-eye, in the line's order."""
+    """The ports of one line's plant: per conveyor, per photo-eye and per camera, in the line's order."""
 
     conveyor_ids: tuple[str, ...]
     photoeye_ids: tuple[str, ...]
+    camera_ids: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, line: Line) -> PlantPorts:
-        return cls(tuple(c.id for c in line.conveyors), tuple(p.id for p in line.photoeyes))
+        return cls(tuple(c.id for c in line.conveyors), tuple(p.id for p in line.photoeyes),
+                   tuple(c.id for c in line.cameras))
 
     def _names(self, signals: Iterable[Signal]) -> list[str]:
         signals = list(signals)
-        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids}
+        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids, "camera": self.camera_ids}
         return [f"{i}.{s.name}" for of in ids for i in ids[of] for s in signals if s.of == of]
 
     def inputs(self) -> list[str]:
@@ -87,5 +104,6 @@ class PlantPorts:
         return self._names(s for s in SIGNALS.values() if s.is_input)
 
     def outputs(self, signals: Iterable[str] | None = None) -> list[str]:
-        """Output port names: every conveyor's, then every photo-eye's, or only those of the named ``signals``."""
+        """Output port names: every conveyor's, then every photo-eye's and camera's, or only those of the named
+        ``signals``."""
         return self._names(SIGNALS[n] for n in (SIGNALS if signals is None else signals))

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.contract.measured import BELTS, PHOTOEYES, TRACKS
+from plant.contract.measured import BELTS, DETECTIONS, PHOTOEYES, TRACKS
 from plant.sim.rotations import matrix_to_quaternion
 from plant.sim.state import FishState, FishStatus, PlantState
 
@@ -36,6 +36,7 @@ class RunRecorder:
     _tracks: list[tuple] = field(default_factory=list)
     _belts: list[tuple] = field(default_factory=list)
     _intervals: list[tuple[str, float, float]] = field(default_factory=list)
+    _detections: list[tuple] = field(default_factory=list)
     _blocked_since: dict[str, float | None] = field(default_factory=dict)
     _last_track_t: float = -1.0
     _last_belt_t: float = -1.0
@@ -52,8 +53,11 @@ class RunRecorder:
 
     def record(self, t_s: float, fish: Callable[[], FishState] | None, photoeyes: dict[str, bool],
                belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
-               body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None) -> None:
-        """One communication step; ``fish`` and ``body_poses`` are called only when a sample is due."""
+               body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
+               detections: tuple[tuple, ...] = ()) -> None:
+        """One communication step; ``fish`` and ``body_poses`` are called only when a sample is due;
+        ``detections`` the cameras' rows of the step (:attr:`plant.sim.state.PlantState.detections`)."""
+        self._detections.extend(detections)
         eps = 1e-9
         if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
@@ -91,7 +95,8 @@ class RunRecorder:
                 "status": np.array(self._pose_status, dtype=np.int8).reshape(-1, len(self.fish_ids))}
 
     def tables(self) -> dict[str, pd.DataFrame]:
-        """tracks, photoeyes and belts tables; a beam still blocked at the end closes at the last time."""
+        """tracks, photoeyes, belts and detections tables; a beam still blocked at the end closes at the last
+        time."""
         intervals = list(self._intervals) + [(p, s, self._t_last) for p, s in self._blocked_since.items()
                                              if s is not None]
         intervals.sort(key=lambda r: (r[1], r[0]))
@@ -99,6 +104,8 @@ class RunRecorder:
             "tracks": pd.DataFrame(self._tracks, columns=list(TRACKS.columns)),
             "photoeyes": pd.DataFrame(intervals, columns=list(PHOTOEYES.columns)),
             "belts": pd.DataFrame(self._belts, columns=list(BELTS.columns)),
+            "detections": pd.DataFrame([(*r[:-1], int(r[-1])) for r in self._detections],
+                                       columns=list(DETECTIONS.columns)),
         }
 
 

@@ -131,7 +131,7 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
         state = plant.state
         energy.check(state, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
-                   state.body_poses if record_poses else None)
+                   state.body_poses if record_poses else None, state.detections)
         if on_step is not None:
             on_step(plant)
 

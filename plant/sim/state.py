@@ -55,6 +55,12 @@ class PlantOutputs:
     belt_load_force_n: dict[str, float]
     belt_load_mass_kg: dict[str, float]
     photoeyes: dict[str, bool]
+    camera_count: dict[str, int] = field(default_factory=dict)
+    camera_double: dict[str, bool] = field(default_factory=dict)
+    camera_lead_x_m: dict[str, float] = field(default_factory=dict)
+    camera_lead_length_m: dict[str, float] = field(default_factory=dict)
+    camera_lead_heading: dict[str, int] = field(default_factory=dict)
+    camera_events: dict[str, int] = field(default_factory=dict)
 
     def port_values(self) -> dict[str, float | bool]:
         """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
@@ -69,14 +75,17 @@ class PlantOutputs:
 
     @classmethod
     def at_rest(cls, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
-        """Belts stopped and unloaded, every beam clear (the outputs before the first step)."""
-        conveyors = ports.conveyor_ids
+        """Belts stopped and unloaded, every beam clear, every camera with nothing seen (the outputs before the first
+        step)."""
+        conveyors, cameras = ports.conveyor_ids, ports.camera_ids
         return cls(t_s, dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0),
-                   dict.fromkeys(ports.photoeye_ids, False))
+                   dict.fromkeys(ports.photoeye_ids, False), dict.fromkeys(cameras, 0), dict.fromkeys(cameras, False),
+                   dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0),
+                   dict.fromkeys(cameras, 0))
 
 
-_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"))
-"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes."""
+_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"), ("camera", "camera_count"))
+"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes, of the cameras."""
 
 
 @dataclass
@@ -143,6 +152,9 @@ class PlantState:
     """(n_fish,) every fish's bodies (to draw them: their outlines)."""
     drop_adjustments: tuple[DropAdjustment, ...] = ()
     """Every drop so far that the plant raised to clear the fish below."""
+    detections: tuple[tuple, ...] = ()
+    """The cameras' detections of the frames taken in this step (rows of
+    :data:`plant.sim.camera.DETECTION_COLUMNS`; empty in a step without a frame)."""
     timings_s: dict[str, float] = field(default_factory=dict)
     """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``)."""
 
