@@ -38,6 +38,7 @@ def test_paper_table_iv_real_column() -> None:
                            min_gap_m=0.05)
     assert k["throughput_time_s"] == pytest.approx(45.0)
     assert k["singulated"] == 10 and k["lost"] == 0
+    assert k["doubles_out"] == 8                               # the four pairs reach the outfeed together
     assert k["fpm_in"] == pytest.approx(60 * 18 / 45)          # 24.0
     assert k["singulation_rate"] == pytest.approx(10 / 18)    # 0.5556
     assert k["fpm_out"] == pytest.approx(60 * 10 / 45)        # 13.33
@@ -53,6 +54,7 @@ def test_paper_table_iv_simulation_column() -> None:
     k = kpis_from_passages(table(*alone, *side_by_side, *touching), n_fish=23, first_drop_t_s=0.0,
                            belt_speed_fn=speed(), min_gap_m=0.05)
     assert k["singulated"] == 12 and k["throughput_time_s"] == pytest.approx(8.0)
+    assert k["doubles_out"] == 11 and k["lost"] == 0           # 3 side by side and 4 touching pairs
     assert k["fpm_in"] == pytest.approx(172.5)                # the paper printed 173: rounded half up
     assert paper_rounded(k) == {"fish_in": 23, "throughput_time_s": 8, "fpm_in": 173, "singulated": 12,
                                 "singulation_rate_pct": 52, "fpm_out": 90}

@@ -16,8 +16,8 @@ so the arithmetic can be checked by hand:
 >>> p = pd.DataFrame({"t_start_s": [10.0, 12.0, 12.5], "t_end_s": [10.5, 12.75, 13.0]})
 >>> k = kpis_from_passages(p, n_fish=4, first_drop_t_s=1.0, belt_speed_fn=lambda t: np.full(len(t), 2.0),
 ...                        min_gap_m=0.05)
->>> k["singulated"], k["lost"], k["throughput_time_s"], k["gap_min_m"], k["fpm_in"]
-(1, 1, 12.0, -0.5, 20.0)
+>>> k["singulated"], k["doubles_out"], k["lost"], k["throughput_time_s"], k["gap_min_m"], k["fpm_in"]
+(1, 2, 1, 12.0, -0.5, 20.0)
 """
 
 from __future__ import annotations
@@ -57,6 +57,8 @@ KPIS: tuple[Kpi, ...] = (
     Kpi("singulation_rate", "1", "singulated / N"),
     Kpi("fpm_out", "fish/min", "singulated fish per minute: 60 singulated / T"),
     Kpi("lost", "fish", "fish that never passed the outfeed beam"),
+    Kpi("doubles_out", "fish", "fish that passed the outfeed beam not singulated: what reaches the machine downstream "
+        "as doubles (N = singulated + doubles_out + lost on a line without devices)"),
     Kpi("gap_min_m", "m", "smallest gap between consecutive fish at the outfeed (negative: overlap)"),
     Kpi("gap_median_m", "m", "median gap between consecutive fish at the outfeed"),
     Kpi("gap_p10_m", "m", "10th percentile of the gaps between consecutive fish at the outfeed"),
@@ -133,6 +135,7 @@ def kpis_from_passages(passages: pd.DataFrame, n_fish: int, first_drop_t_s: floa
         "singulation_rate": _json(singulated / n_fish) if n_fish else None,
         "fpm_out": _json(60.0 * singulated / throughput),
         "lost": max(int(n_fish) - n_out, 0),
+        "doubles_out": n_out - singulated,
         "gap_min_m": _json(gaps.min()) if len(gaps) else None,
         "gap_median_m": _json(np.median(gaps)) if len(gaps) else None,
         "gap_p10_m": _json(np.percentile(gaps, 10)) if len(gaps) else None,
