@@ -45,7 +45,9 @@ def scenario_fish(scenario: Scenario) -> list[FishSpec]:
     """The batch of a scenario: sampled from its seed (the same seed gives the same fish)."""
     rng = np.random.default_rng([scenario.run.seed, scenario.fish.seed_offset])
     first = scenario.line.conveyors[0]
-    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), 0.5 * scenario.line.guide_width_m, rng)
+    # dropped within the guides wherever on the infeed: the narrowest of them there (all of it without a funnel)
+    left, right = scenario.line.guide_y_at(np.linspace(first.x_start_m, first.x_end_m, 51))
+    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), float(min(left.min(), -right.max())), rng)
 
 
 def fmu_path(fmu: FmuEntry) -> Path:

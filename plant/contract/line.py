@@ -1,4 +1,5 @@
-"""The line: conveyors, side guides, photo-eyes and cameras, as the ``[line]`` table describes them.
+"""The line: conveyors, side guides (straight or polylines), photo-eyes and cameras, as the ``[line]`` table
+describes them.
 
 One schema serves scenario files and measured datasets (contracts/measured-data.md), so a
 line measured on a plant floor and a line simulated here are described the same way.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
+import numpy as np
 import pydantic
 from pydantic import Field
 
@@ -52,6 +54,21 @@ class PhotoEye(Strict):
         "beam height (absolute z): above the belt top there, by at most 0.5 m"))
 
 
+Point = Annotated[list[float], Field(min_length=2, max_length=2)]
+"""(x_m, y_m): TOML has arrays, not tuples."""
+
+
+class Guides(Strict):
+    """Side guides as polylines seen from above (a funnel, a flare): (x, y) points with x increasing; before the
+    first point and after the last a guide runs straight on.  Without them, straight guides at
+    ``y = +-guide_width_m/2``."""
+
+    left: list[Point] = Field(min_length=1, max_length=256, description=(
+        "the left guide (y > 0 side, looking downstream) as (x_m, y_m) points, x increasing"))
+    right: list[Point] = Field(min_length=1, max_length=256, description=(
+        "the right guide (y < 0 side) as (x_m, y_m) points, x increasing"))
+
+
 class Camera(Strict):
     """A vision system looking down on the line: its field of view spans the guides across y and
     ``x_start_m``..``x_end_m`` along x; it takes a frame ``rate_hz`` times a second and reports what it saw
@@ -79,6 +96,9 @@ class Line(Strict):
     photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
     cameras: list[Camera] = Field(default_factory=list, max_length=64, description=(
         "vision systems over the line (none in a file without the key)"))
+    guides: Guides | None = Field(None, description=(
+        "side guides as polylines (a funnel narrowing towards a belt's end); without it straight at "
+        "+-guide_width_m/2, which stays the widest they may get"))
 
     @pydantic.model_validator(mode="after")
     def _check_geometry(self) -> "Line":
@@ -116,6 +136,26 @@ class Line(Strict):
             if not (top < p.z_m <= top + 0.5):
                 raise ValueAtKey(f"photoeyes.{i}.z_m", f"photoeyes[{i}] ('{p.id}') beam z_m = {p.z_m} must be above the belt top "
                                  f"there (z = {top:g} m) and at most 0.5 m above it")
+        if self.guides is not None:
+            half = 0.5 * self.guide_width_m
+            for side, points in (("left", self.guides.left), ("right", self.guides.right)):
+                x = [p[0] for p in points]
+                for j in range(1, len(x)):
+                    if x[j] <= x[j - 1]:
+                        raise ValueAtKey(f"guides.{side}.{j}", f"guides.{side}[{j}] at x = {x[j]:g} m is not after the "
+                                         f"point before it (x = {x[j - 1]:g} m): x must increase along a guide")
+                for j, (px, py) in enumerate(points):
+                    if abs(py) > half + 1e-9:
+                        raise ValueAtKey(f"guides.{side}.{j}", f"guides.{side}[{j}] at y = {py:g} m is outside "
+                                         f"guide_width_m = {self.guide_width_m:g} (+-{half:g} m): the belts are only "
+                                         "known to be that wide")
+            xs = sorted({p[0] for p in self.guides.left} | {p[0] for p in self.guides.right})
+            left, right = self.guide_y_at(np.array(xs))
+            narrow = np.flatnonzero(left - right < 0.1 - 1e-9)
+            if len(narrow):
+                k = int(narrow[0])
+                raise ValueAtKey("guides", f"at x = {xs[k]:g} m the guides are {left[k] - right[k]:.3f} m apart (left "
+                                 f"y = {left[k]:g}, right y = {right[k]:g}): at least 0.1 m, left of right")
         for i, c in enumerate(self.cameras):
             if not (self.x_start_m <= c.x_start_m < c.x_end_m <= self.x_end_m):
                 raise ValueAtKey(f"cameras.{i}.x_end_m", f"cameras[{i}] ('{c.id}') sees x_start_m = {c.x_start_m:g} to "
@@ -137,6 +177,15 @@ class Line(Strict):
             if x_m < c.x_end_m:
                 return c
         return self.conveyors[-1]
+
+    def guide_y_at(self, x_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(left y, right y) of the side guides at each x (straight on beyond their first and last points)."""
+        x = np.asarray(x_m, dtype=float)
+        if self.guides is None:
+            half = 0.5 * self.guide_width_m
+            return np.full(x.shape, half), np.full(x.shape, -half)
+        left, right = (np.array(g, dtype=float).reshape(-1, 2) for g in (self.guides.left, self.guides.right))
+        return np.interp(x, left[:, 0], left[:, 1]), np.interp(x, right[:, 0], right[:, 1])
 
     def z_top_at(self, x_m: float) -> float:
         return self.conveyor_at(x_m).z_top_m

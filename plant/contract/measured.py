@@ -407,7 +407,8 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
     doc = {"dataset": {"name": dataset.name, "description": dataset.description},
-           "line": dataset.line.model_dump(mode="json", exclude=None if dataset.line.cameras else {"cameras"}),
+           "line": dataset.line.model_dump(mode="json", exclude_none=True,
+                                           exclude=None if dataset.line.cameras else {"cameras"}),
            "kpi": dataset.kpi.model_dump(mode="json", exclude_none=True),
            "runs": [run_entry(r) for r in dataset.runs]}
     with (root / "dataset.toml").open("wb") as fh:

@@ -95,10 +95,12 @@ def check_fish(fish: pd.DataFrame, path: Path, line: Line) -> None:
     if i is not None:
         refuse(path, i, "drop_x_m", f"drop_x_m = {x[i]:g} m is outside the line: its conveyors span "
                                     f"x = {line.x_start_m:g} to {line.x_end_m:g} m")
-    y, half = fish["drop_y_m"], 0.5 * line.guide_width_m
-    i = first_row(y.abs() > half)
+    y = fish["drop_y_m"]
+    left, right = line.guide_y_at(fish["drop_x_m"].to_numpy(float))
+    i = first_row((y > left) | (y < right))
     if i is not None:
-        refuse(path, i, "drop_y_m", f"drop_y_m = {y[i]:g} m is outside the side guides (y = +-{half:g} m)")
+        refuse(path, i, "drop_y_m", f"drop_y_m = {y[i]:g} m is outside the side guides (y = {right[i]:g} to "
+                                    f"{left[i]:g} m there)")
     z = fish["drop_z_m"]
     i = first_row((z < 0) | (z > MAX_DROP_HEIGHT_M))
     if i is not None:
@@ -111,15 +113,15 @@ def check_fish(fish: pd.DataFrame, path: Path, line: Line) -> None:
 def check_footprint(fish: pd.DataFrame, path: Path, line: Line) -> None:
     """A dropped fish fits between the guides (with heights filled in from the regressions)."""
     yaw = fish["drop_yaw_rad"]
-    reach = (fish["drop_y_m"].abs() + 0.5 * fish["length_m"] * np.abs(np.sin(yaw))
-             + 0.5 * fish["height_m"] * np.abs(np.cos(yaw)))
-    half = 0.5 * line.guide_width_m
-    i = first_row(reach > half + GUIDE_OVERLAP_M)
+    spread = 0.5 * fish["length_m"] * np.abs(np.sin(yaw)) + 0.5 * fish["height_m"] * np.abs(np.cos(yaw))
+    left, right = line.guide_y_at(fish["drop_x_m"].to_numpy(float))
+    into = np.maximum(fish["drop_y_m"] + spread - left, right - (fish["drop_y_m"] - spread))
+    i = first_row(into > GUIDE_OVERLAP_M)
     if i is not None:
         refuse(path, i, "drop_y_m", f"a {fish['length_m'][i]:g} m fish at drop_y_m = {fish['drop_y_m'][i]:g} m "
-                                    f"with drop_yaw_rad = {yaw[i]:g} would reach {reach[i] - half:.3f} m into a "
-                                    f"side guide (at y = +-{half:g} m; at most {GUIDE_OVERLAP_M:g} m is allowed): "
-                                    "it cannot lie there")
+                                    f"with drop_yaw_rad = {yaw[i]:g} would reach {into[i]:.3f} m into a "
+                                    f"side guide (at y = {right[i]:g} and {left[i]:g} m there; at most "
+                                    f"{GUIDE_OVERLAP_M:g} m is allowed): it cannot lie there")
 
 
 def check_belts(belts: pd.DataFrame, path: Path, line: Line) -> None:

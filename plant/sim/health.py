@@ -78,12 +78,14 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
         raise SimulationError(f"numerical blow-up: fish '{fish_ids[fish_of[i]]}' moves at "
                               f"{speed[i]:.1f} m/s", t_s)
     within_x = (pos[:, 0] >= line.x_start_m - 0.1) & (pos[:, 0] <= line.x_end_m)
-    half = 0.5 * line.guide_width_m
-    outside = within_x & (np.abs(pos[:, 1]) > half + 0.05)
+    left, right = line.guide_y_at(pos[:, 0])
+    outside = within_x & ((pos[:, 1] > left + 0.05) | (pos[:, 1] < right - 0.05))
     if np.any(outside):
         i = int(np.flatnonzero(outside)[0])
-        raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' left the line sideways "
-                              f"(y = {pos[i, 1]:.3f} m, guides at +-{half:g} m)", t_s)
+        guides = (f"guides at +-{left[i]:g} m" if line.guides is None else
+                  f"at x = {pos[i, 0]:.3f} m, guides there at y = {right[i]:.3f} and {left[i]:.3f} m")
+        raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' left the line sideways (y = {pos[i, 1]:.3f} m, "
+                              f"{guides})", t_s)
     floor = floor_below(line, pos[:, 0])
     # a fish sliding off the end of the line hangs over the last drum, and one leaving slowly drops
     # and tumbles beside it: only a fish wholly clear of that drum (as floor_below counts it, 0.1 m)

@@ -231,19 +231,24 @@ def _belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], l
 
 
 def _guides(line: Line, params: PlantParams) -> tuple[list[list[float]], list[list[int]]]:
-    """Side walls along the whole line and an end plate at the infeed, in 0.5 m panels."""
+    """Side walls along the whole line (straight, or along the guides' polylines) and an end plate at the infeed,
+    in panels of at most 0.5 m."""
     pts: list[list[float]] = []
     trigs: list[list[int]] = []
     z_lo = min(c.z_top_m for c in line.conveyors) - 0.15
     z_hi = max(c.z_top_m for c in line.conveyors) + params.guide_height_m
     x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
-    xs = np.linspace(x_lo, x_hi, max(2, int(np.ceil((x_hi - x_lo) / 0.5)) + 1))
-    y = 0.5 * line.guide_width_m
-    for x0, x1 in zip(xs[:-1], xs[1:]):
-        _quad(pts, trigs, (x0, y, z_lo), (x1, y, z_lo), (x1, y, z_hi), (x0, y, z_hi))      # left wall, normal -y
-        _quad(pts, trigs, (x0, -y, z_lo), (x0, -y, z_hi), (x1, -y, z_hi), (x1, -y, z_lo))  # right wall, normal +y
+    corners = {x for g in ((line.guides.left, line.guides.right) if line.guides else ()) for x, _ in g}
+    knots = sorted({x_lo, x_hi} | {x for x in corners if x_lo < x < x_hi})
+    xs = np.concatenate([np.linspace(a, b, max(2, int(np.ceil((b - a) / 0.5)) + 1))[:-1]
+                         for a, b in zip(knots[:-1], knots[1:])] + [[x_hi]])
+    left, right = line.guide_y_at(xs)
+    for x0, x1, l0, l1, r0, r1 in zip(xs[:-1], xs[1:], left[:-1], left[1:], right[:-1], right[1:]):
+        _quad(pts, trigs, (x0, l0, z_lo), (x1, l1, z_lo), (x1, l1, z_hi), (x0, l0, z_hi))  # left wall, normal inwards
+        _quad(pts, trigs, (x0, r0, z_lo), (x0, r0, z_hi), (x1, r1, z_hi), (x1, r1, z_lo))  # right wall, normal inwards
     xp = line.x_start_m - 0.02
-    _quad(pts, trigs, (xp, -y, z_lo), (xp, y, z_lo), (xp, y, z_hi), (xp, -y, z_hi))        # end plate, normal +x
+    yl, yr = (float(v[0]) for v in line.guide_y_at([xp]))
+    _quad(pts, trigs, (xp, yr, z_lo), (xp, yl, z_lo), (xp, yl, z_hi), (xp, yr, z_hi))  # end plate, normal +x
     return pts, trigs
 
 

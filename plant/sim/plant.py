@@ -77,6 +77,7 @@ class Plant:
         self._ports = PlantPorts.of(line)
         self.conveyor_ids = list(self._ports.conveyor_ids)
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
+        self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._gravity = self._params.gravity_mps2 * np.array(
             [np.sin(np.radians(self._params.incline_deg)), 0.0, -np.cos(np.radians(self._params.incline_deg))])
@@ -339,7 +340,7 @@ class Plant:
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2)
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
-                                self._beams, 0.5 * self._line.guide_width_m)
+                                self._beams, self._beam_span)
         readings = self._camera_readings()
         return PlantOutputs(
             t_s=self.t_s,

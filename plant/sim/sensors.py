@@ -28,8 +28,9 @@ def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.n
 
 
 def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, half_len: np.ndarray,
-                      radius: np.ndarray, beams_xz: np.ndarray, half_width_m: float) -> np.ndarray:
-    """(n_beams,) True where a beam at (x, z), spanning |y| <= half_width_m, cuts a fish cross-section.
+                      radius: np.ndarray, beams_xz: np.ndarray, span_y_m: np.ndarray) -> np.ndarray:
+    """(n_beams,) True where a beam at (x, z), spanning y from ``span_y_m[:, 1]`` to ``span_y_m[:, 0]`` (between
+    the guides there: (left, right) per beam), cuts a fish cross-section.
 
     A cross-section is a capsule: the segment ``centre +- s * axis`` (|s| <= half_len, axis = the
     body's dorsal direction) thickened by ``radius``.  The beam runs along y, so only the distance
@@ -46,12 +47,14 @@ def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, hal
     ex = dx + s * u[None, :, 0]
     ez = dz + s * u[None, :, 2]
     y = c[None, :, 1] + s * u[None, :, 1]
-    hit = (ex * ex + ez * ez < radius[None, :] ** 2) & (np.abs(y) < half_width_m + radius[None, :])
+    span = np.asarray(span_y_m, dtype=float).reshape(-1, 2)
+    hit = ((ex * ex + ez * ez < radius[None, :] ** 2) & (y < span[:, :1] + radius[None, :])
+           & (y > span[:, 1:] - radius[None, :]))
     return hit.any(axis=1)
 
 
 def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: np.ndarray, beams_xz: np.ndarray,
-                  half_width_m: float) -> np.ndarray:
+                  span_y_m: np.ndarray) -> np.ndarray:
     """(n_beams,) True where a beam cuts the outline of a body of a fish on the line (``body_on``), from the
     bodies' positions and rotations; only bodies within 0.5 m of a beam along x are looked at."""
     if len(beams_xz) == 0 or len(model.section_body) == 0:
@@ -64,7 +67,7 @@ def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: 
     r = rot[b]
     centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
     return photoeyes_blocked(centres, r[:, :, 1], model.section_half_len[sel], model.section_radius[sel], beams_xz,
-                             half_width_m)
+                             span_y_m)
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,

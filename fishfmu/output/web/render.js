@@ -171,7 +171,19 @@ function lineExtent(line) {
            zTop: Math.max(...cs.map((c) => c.z_top_m)), zLow: Math.min(...cs.map((c) => c.z_top_m)) };
 }
 
-// Belts (moving stripes), frames and legs, floor, side guides, photo-eye beams and their heads.
+// The side guides' y at x: straight at +-guide_width_m/2, or along the guides' polylines (straight on beyond them).
+function guideY(line, x) {
+  const at = (pts) => {
+    if (x <= pts[0][0]) return pts[0][1];
+    for (let i = 1; i < pts.length; i++) {
+      if (x <= pts[i][0]) return pts[i - 1][1] + (pts[i][1] - pts[i - 1][1]) * (x - pts[i - 1][0]) / (pts[i][0] - pts[i - 1][0]);
+    }
+    return pts[pts.length - 1][1];
+  };
+  return line.guides ? [at(line.guides.left), at(line.guides.right)] : [line.guide_width_m / 2, -line.guide_width_m / 2];
+}
+
+// Belts (moving stripes), frames and legs, floor, side guides, photo-eye beams and their heads, cameras.
 function buildLine(program) {
   const line = header.line, ext = lineExtent(line), g = line.guide_width_m / 2;
   const floorZ = ext.zLow - 0.75, objects = [];
@@ -185,20 +197,30 @@ function buildLine(program) {
   });
   const measuredEyes = header.measured && header.measured.photoeyes;
   line.photoeyes.forEach((pe) => {
-    const reach = g + 0.06;
-    objects.push(sceneObject(program, [[pe.x_m - 0.003, pe.x_m + 0.003, -reach, reach, pe.z_m - 0.003, pe.z_m + 0.003],
-                                        [pe.x_m - 0.02, pe.x_m + 0.02, -reach - 0.03, -reach, pe.z_m - 0.05, pe.z_m + 0.05],
+    const [yl, yr] = guideY(line, pe.x_m), reach = yl + 0.06, rreach = yr - 0.06;
+    objects.push(sceneObject(program, [[pe.x_m - 0.003, pe.x_m + 0.003, rreach, reach, pe.z_m - 0.003, pe.z_m + 0.003],
+                                        [pe.x_m - 0.02, pe.x_m + 0.02, rreach - 0.03, rreach, pe.z_m - 0.05, pe.z_m + 0.05],
                                         [pe.x_m - 0.02, pe.x_m + 0.02, reach, reach + 0.03, pe.z_m - 0.05, pe.z_m + 0.05]],
                              [0.2, 0.7, 0.3, 1], { photoeye: pe.id }));
     if (measuredEyes) {   // a lamp on each head: the measured beam (the heads show the simulated one)
       const lamp = (y0, y1) => [pe.x_m - 0.014, pe.x_m + 0.014, y0, y1, pe.z_m + 0.055, pe.z_m + 0.09];
-      objects.push(sceneObject(program, [lamp(-reach - 0.03, -reach), lamp(reach, reach + 0.03)],
+      objects.push(sceneObject(program, [lamp(rreach - 0.03, rreach), lamp(reach, reach + 0.03)],
                                MEASURED_EYE_CLEAR, { measuredEye: pe.id }));
     }
   });
-  const top = ext.zTop + 0.15;
-  objects.push(sceneObject(program, [[ext.x0, ext.x1, -g - 0.004, -g, ext.zLow - 0.01, top],
-                                      [ext.x0, ext.x1, g, g + 0.004, ext.zLow - 0.01, top]], [0.55, 0.7, 0.85, 0.22]));
+  const top = ext.zTop + 0.15, walls = [];
+  const step = line.guides ? 0.02 : ext.x1 - ext.x0;  // a polyline drawn in 2 cm pieces
+  for (let x = ext.x0; x < ext.x1 - 1e-9; x += step) {
+    const [yl, yr] = guideY(line, x + step / 2);
+    walls.push([x, Math.min(x + step, ext.x1), yr - 0.004, yr, ext.zLow - 0.01, top],
+               [x, Math.min(x + step, ext.x1), yl, yl + 0.004, ext.zLow - 0.01, top]);
+  }
+  objects.push(sceneObject(program, walls, [0.55, 0.7, 0.85, 0.22]));
+  (line.cameras || []).forEach((cam) => {   // its field of view as a faint pane above the line, and the camera
+    const xm = (cam.x_start_m + cam.x_end_m) / 2, h = ext.zTop + 0.6;
+    objects.push(sceneObject(program, [[cam.x_start_m, cam.x_end_m, -g, g, h - 0.002, h]], [0.95, 0.8, 0.3, 0.15]));
+    objects.push(sceneObject(program, [[xm - 0.05, xm + 0.05, -0.04, 0.04, h, h + 0.06]], [0.15, 0.15, 0.18, 1]));
+  });
   return objects;
 }
 
@@ -415,5 +437,5 @@ function createRenderer(pageCanvas, pageHeader, pageData) {
   return { draw };
 }
 
-return { createRenderer, viewProjection, project, lineExtent };
+return { createRenderer, viewProjection, project, lineExtent, guideY };
 })();

@@ -325,6 +325,7 @@ const api = {
   measuredFish: () => measuredAt(state.time),
   measuredDrawn: () => (state.showMeasured ? measuredAt(state.time) : []),
   measuredPhotoeyesBlocked: () => measuredPhotoeyesBlocked(state.time),
+  guideY: (x) => ReplayRender.guideY(header.line, x),
 };
 window.replay = api;
 
