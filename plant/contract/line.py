@@ -16,6 +16,7 @@ the left looking downstream, 0 on the centre line), z up (0 at the top of the fi
 
 from __future__ import annotations
 
+import math
 from typing import Annotated
 
 import numpy as np
@@ -38,11 +39,25 @@ class Conveyor(Strict):
     length_m: float = Field(gt=0.05, le=200.0, description="length of the flat top surface along x")
     width_m: float = Field(gt=0.05, le=5.0, description="belt width across y; at least guide_width_m")
     z_top_m: float = Field(ge=-10.0, le=10.0, description=(
-        "height of the top surface; a conveyor may step down from the one before, by at most 0.5 m, not up"))
+        "height of the top surface at the belt's upstream end; a conveyor may step down from where the one before "
+        "ends, by at most 0.5 m, not up"))
+    incline_deg: float = Field(0.0, ge=-30.0, le=30.0, description=(
+        "slope of the belt along x (positive: it climbs downstream); length_m stays measured along x, the "
+        "downstream end is length_m tan(incline) higher"))
 
     @property
     def x_end_m(self) -> float:
         return self.x_start_m + self.length_m
+
+    @property
+    def z_end_m(self) -> float:
+        """Height of the top surface at the downstream end."""
+        return self.z_top_m + self.length_m * math.tan(math.radians(self.incline_deg))
+
+    def z_at(self, x_m: float) -> float:
+        """Height of the top surface at x (held at the ends' heights beyond them)."""
+        return self.z_top_m + (min(max(x_m, self.x_start_m), self.x_end_m) - self.x_start_m) * math.tan(
+            math.radians(self.incline_deg))
 
 
 class PhotoEye(Strict):
@@ -116,12 +131,12 @@ class Line(Strict):
                 raise ValueAtKey(f"conveyors.{i + 1}.x_start_m",
                     f"gap of {b.x_start_m - a.x_end_m:.3f} m between '{a.id}' and '{b.id}': fish would fall "
                     "through; gaps up to 0.5 m are supported")
-            if b.z_top_m > a.z_top_m + 1e-3:
+            if b.z_top_m > a.z_end_m + 1e-3:
                 raise ValueAtKey(f"conveyors.{i + 1}.z_top_m",
-                    f"conveyors[{i + 1}] ('{b.id}') top z_top_m = {b.z_top_m} is above '{a.id}' "
-                    f"({a.z_top_m}): a step up stops fish; only steps down are supported")
-            if a.z_top_m - b.z_top_m > 0.5:
-                raise ValueAtKey(f"conveyors.{i + 1}.z_top_m", f"step down of {a.z_top_m - b.z_top_m:.3f} m from '{a.id}' to '{b.id}' "
+                    f"conveyors[{i + 1}] ('{b.id}') top z_top_m = {b.z_top_m} is above where '{a.id}' ends "
+                    f"({a.z_end_m:g}): a step up stops fish; only steps down are supported")
+            if a.z_end_m - b.z_top_m > 0.5:
+                raise ValueAtKey(f"conveyors.{i + 1}.z_top_m", f"step down of {a.z_end_m - b.z_top_m:.3f} m from '{a.id}' to '{b.id}' "
                                  "is more than 0.5 m: that is a drop, not a transfer")
         for i, c in enumerate(self.conveyors):
             if c.width_m < self.guide_width_m - 1e-9:
@@ -188,7 +203,14 @@ class Line(Strict):
         return np.interp(x, left[:, 0], left[:, 1]), np.interp(x, right[:, 0], right[:, 1])
 
     def z_top_at(self, x_m: float) -> float:
-        return self.conveyor_at(x_m).z_top_m
+        """Height of the belt top under x (in a gap: the downstream belt's start)."""
+        return self.conveyor_at(x_m).z_at(x_m)
+
+    @property
+    def z_range_m(self) -> tuple[float, float]:
+        """Lowest and highest point of the belts' top surfaces."""
+        z = [z for c in self.conveyors for z in (c.z_top_m, c.z_end_m)]
+        return min(z), max(z)
 
     def conveyor(self, conveyor_id: str) -> Conveyor:
         for c in self.conveyors:

@@ -54,8 +54,10 @@ def floor_below(line, x_m: np.ndarray) -> np.ndarray:
     starts = np.array([c.x_start_m for c in line.conveyors])
     ends = np.array([c.x_end_m for c in line.conveyors])
     z_top = np.array([c.z_top_m for c in line.conveyors])
+    slope = np.tan(np.radians([c.incline_deg for c in line.conveyors]))
+    z = z_top[None, :] + np.clip(x - starts[None, :], 0.0, (ends - starts)[None, :]) * slope[None, :]
     near = (x >= starts[None, :] - 0.1) & (x <= ends[None, :] + 0.1)
-    return np.where(near, z_top[None, :], np.inf).min(axis=1)
+    return np.where(near, z, np.inf).min(axis=1)
 
 
 def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids, line, t_s: float) -> None:

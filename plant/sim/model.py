@@ -235,8 +235,8 @@ def _guides(line: Line, params: PlantParams) -> tuple[list[list[float]], list[li
     in panels of at most 0.5 m."""
     pts: list[list[float]] = []
     trigs: list[list[int]] = []
-    z_lo = min(c.z_top_m for c in line.conveyors) - 0.15
-    z_hi = max(c.z_top_m for c in line.conveyors) + params.guide_height_m
+    z_lo = line.z_range_m[0] - 0.15
+    z_hi = line.z_range_m[1] + params.guide_height_m
     x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
     corners = {x for g in ((line.guides.left, line.guides.right) if line.guides else ()) for x, _ in g}
     knots = sorted({x_lo, x_hi} | {x for x in corners if x_lo < x < x_hi})
@@ -276,7 +276,7 @@ def park_positions(line: Line, n: int) -> np.ndarray:
     dx, dy, dz = PARK_SPACING_M
     nx = max(1, int((line.x_end_m - line.x_start_m) // dx))
     ny = max(1, int(line.guide_width_m // dy) + 1)
-    z0 = min(c.z_top_m for c in line.conveyors) - 0.6
+    z0 = line.z_range_m[0] - 0.6
     out = np.zeros((n, 3))
     for k in range(n):
         ix, rest = k % nx, k // nx
@@ -333,10 +333,12 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
                                   frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
     belt_nodes = []
     for c in line.conveyors:
-        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[c.x_start_m, 0.0, c.z_top_m, 0.0, 0.0, 0.0]))
+        # an inclined belt's body is turned about y: its local x runs up (or down) the belt
+        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[c.x_start_m, 0.0, c.z_top_m, 0.0,
+                                                                       -np.radians(c.incline_deg), 0.0]))
         body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
         marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
-        pts, trigs = _belt_surface(c.length_m, c.width_m)
+        pts, trigs = _belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m)
         gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                       frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
         belt_nodes.append(node)
@@ -400,9 +402,9 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
 
     # contact search: a box over the line, the space above it and the parking grid below it
     lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
-                   min(c.z_top_m for c in line.conveyors) - 0.6 - PARK_SPACING_M[2] * 4 - 0.3])
+                   line.z_range_m[0] - 0.6 - PARK_SPACING_M[2] * 4 - 0.3])
     hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
-                   max(c.z_top_m for c in line.conveyors) + 1.2])
+                   line.z_range_m[1] + 1.2])
     gc.SetSearchTreeBox(lo, hi)
     gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / c_))) for s_, c_ in zip(hi - lo, SEARCH_CELL_M)])
     mbs.Assemble()

@@ -21,8 +21,7 @@ One step is a short, fixed pipeline (read it top to bottom):
 3. re-linearise the joints that are at or running into their limits; with the model's extensions
    (plant.fish.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
 4. let Exudyn integrate to the end of the step;
-5. read the state, work out the sensors, retire fish that have left the line, publish the state, check
-   its health.
+5. read the state, work out the sensors, retire fish that have left the line, publish the state, check its health.
 
 Only fish in play are in the Exudyn system (see :mod:`plant.sim.model`): when fish are about to be
 dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
@@ -79,6 +78,7 @@ class Plant:
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
+        self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
         self._gravity = self._params.gravity_mps2 * np.array(
             [np.sin(np.radians(self._params.incline_deg)), 0.0, -np.cos(np.radians(self._params.incline_deg))])
         self._gravity.setflags(write=False)
@@ -211,8 +211,8 @@ class Plant:
         # sphere centres of the fish placed with its mid point at z = 0
         centres = (fm.prepared.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
         radii = self.model.sphere_radius[mine]
-        surface = self._line.z_top_at(spec.drop_x_m)
-        z_mid = surface + spec.drop_z_m - float(np.min(centres[:, 2] - radii))
+        surface = np.array([self._line.z_top_at(float(x)) for x in centres[:, 0]])  # under each sphere: inclines
+        z_mid = float(np.max(surface + spec.drop_z_m - (centres[:, 2] - radii)))
         # clear of fish already on the line below it: lowest sphere above their highest, plus the drop height
         on_line = (self.status[self._fish_of_body] == ON_LINE)[sph]
         if np.any(on_line):
@@ -252,8 +252,9 @@ class Plant:
         ltg = self.model.belt_ltg
         q[ltg] = 0.0
         v[ltg] = 0.0
-        q[ltg[:, 0]] = -0.5 * speeds * self._comm_step_s
-        v[ltg[:, 0]] = speeds
+        for axis, share in ((0, self._belt_dir[:, 0]), (2, self._belt_dir[:, 1])):  # along an inclined belt's slope
+            q[ltg[:, axis]] = -0.5 * speeds * self._comm_step_s * share
+            v[ltg[:, axis]] = speeds * share
         sd.SetODE2Coordinates(q)
         sd.SetODE2Coordinates_t(v)
 
@@ -338,7 +339,8 @@ class Plant:
         self._belt_vel_end = v[self.model.belt_ltg[:, :3]] if len(self.model.belt_ltg) else np.zeros((0, 3))
 
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
-        load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2)
+        load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2,
+                                self._belt_dir)
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
                                 self._beams, self._beam_span)
         readings = self._camera_readings()
@@ -379,7 +381,7 @@ class Plant:
             return
         pos = self._pos.reshape(-1, 5, 3)
         x_gone = self._line.x_end_m + self._params.retire_after_m
-        z_floor = min(c.z_top_m for c in self._line.conveyors) - 0.5
+        z_floor = self._line.z_range_m[0] - 0.5
         past = np.all(pos[:, :, 0] > x_gone, axis=1)
         fell_off_end = np.all(pos[:, :, 0] > self._line.x_end_m, axis=1) & np.all(pos[:, :, 2] < z_floor, axis=1)
         # one that left slowly drops beside the end drum, some of it not past the end: gone once far below

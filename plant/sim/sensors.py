@@ -71,16 +71,18 @@ def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: 
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
-               gravity_mps2: float) -> tuple[np.ndarray, np.ndarray]:
-    """(load force along x opposing the belt [N], mass resting on the belt [kg]) per belt.
+               gravity_mps2: float, direction: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(load force along the belt opposing it [N], mass resting on the belt [kg]: its normal force / g) per belt.
 
-    ``vel_end``: (n_belts, 3) belt body velocity at the end of the step, which started at
-    (speed, 0, 0).  The fish's mean force on the belt over the step is m * dv / dt.
+    ``vel_end``: (n_belts, 3) belt body velocity at the end of the step, which started at ``speed`` along the
+    belt; ``direction``: (n_belts, 2) the belts' (cos, sin) of their incline (None: all flat).  The fish's mean
+    force on the belt over the step is m * dv / dt.
     """
-    fx = mass_kg * (vel_end[:, 0] - speed_set_mps) / dt_s
-    fz = mass_kg * vel_end[:, 2] / dt_s
-    load = -fx
-    mass = -fz / gravity_mps2 if gravity_mps2 > 0 else np.zeros_like(fz)
+    c, s = (np.ones(len(vel_end)), np.zeros(len(vel_end))) if direction is None else (direction[:, 0], direction[:, 1])
+    along = mass_kg * (vel_end[:, 0] * c + vel_end[:, 2] * s - speed_set_mps) / dt_s
+    normal = mass_kg * (vel_end[:, 2] * c - vel_end[:, 0] * s) / dt_s
+    load = -along
+    mass = -normal / gravity_mps2 if gravity_mps2 > 0 else np.zeros_like(normal)
     return load, mass
 
 

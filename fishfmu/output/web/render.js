@@ -168,7 +168,13 @@ function sceneObject(program, boxes, color, options = {}) {
 function lineExtent(line) {
   const cs = line.conveyors;
   return { x0: cs[0].x_start_m, x1: cs[cs.length - 1].x_start_m + cs[cs.length - 1].length_m,
-           zTop: Math.max(...cs.map((c) => c.z_top_m)), zLow: Math.min(...cs.map((c) => c.z_top_m)) };
+           zTop: Math.max(...cs.map((c) => Math.max(c.z_top_m, zEnd(c)))),
+           zLow: Math.min(...cs.map((c) => Math.min(c.z_top_m, zEnd(c)))) };
+}
+
+// An inclined belt's top at its downstream end (length_m is along x).
+function zEnd(c) {
+  return c.z_top_m + c.length_m * Math.tan(((c.incline_deg || 0) * Math.PI) / 180);
 }
 
 // The side guides' y at x: straight at +-guide_width_m/2, or along the guides' polylines (straight on beyond them).
@@ -189,10 +195,16 @@ function buildLine(program) {
   const floorZ = ext.zLow - 0.75, objects = [];
   objects.push(sceneObject(program, [[ext.x0 - 1, ext.x1 + 1, -1.5, 1.5, floorZ - 0.02, floorZ]], [0.78, 0.8, 0.8, 1], { pattern: 2 }));
   line.conveyors.forEach((c, i) => {
-    const x0 = c.x_start_m, x1 = c.x_start_m + c.length_m, w = c.width_m / 2, z = c.z_top_m;
-    objects.push(sceneObject(program, [[x0, x1, -w, w, z - 0.03, z]], [0.22, 0.25, 0.29, 1], { pattern: 1, conveyor: i }));
-    const frame = [[x0, x1, -w - 0.03, -w, z - 0.12, z - 0.005], [x0, x1, w, w + 0.03, z - 0.12, z - 0.005]];
-    for (const x of [x0 + 0.05, x1 - 0.09]) for (const y of [-w - 0.03, w - 0.01]) frame.push([x, x + 0.04, y, y + 0.04, floorZ, z - 0.12]);
+    const x0 = c.x_start_m, x1 = c.x_start_m + c.length_m, w = c.width_m / 2;
+    const slope = (zEnd(c) - c.z_top_m) / c.length_m, zAt = (x) => c.z_top_m + slope * (x - x0);
+    const pieces = slope ? Math.ceil(c.length_m / 0.02) : 1, belt = [], frame = [];  // an incline as 2 cm steps
+    for (let k = 0; k < pieces; k++) {
+      const a = x0 + (k * (x1 - x0)) / pieces, b = x0 + ((k + 1) * (x1 - x0)) / pieces, z = zAt((a + b) / 2);
+      belt.push([a, b, -w, w, z - 0.03, z]);
+      frame.push([a, b, -w - 0.03, -w, z - 0.12, z - 0.005], [a, b, w, w + 0.03, z - 0.12, z - 0.005]);
+    }
+    objects.push(sceneObject(program, belt, [0.22, 0.25, 0.29, 1], { pattern: 1, conveyor: i }));
+    for (const x of [x0 + 0.05, x1 - 0.09]) for (const y of [-w - 0.03, w - 0.01]) frame.push([x, x + 0.04, y, y + 0.04, floorZ, zAt(x) - 0.12]);
     objects.push(sceneObject(program, frame, [0.55, 0.58, 0.62, 1]));
   });
   const measuredEyes = header.measured && header.measured.photoeyes;
