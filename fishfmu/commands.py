@@ -48,6 +48,7 @@ def default_out(scenario_file: str | Path) -> Path:
 def run_inputs(scenario_file: Path, sc: schema.Scenario, junit: Path | None) -> list:
     """The files a run reads (never written over); checks ``junit`` against them and for ownership."""
     inputs = [scenario_file, *(f.path for f in sc.fmu if f.path), *(f.parameter_file for f in sc.fmu if f.parameter_file),
+              *(p.stl for p in sc.line.parts),
               *([sc.system.ssp] if sc.system.ssp else [])]
     if junit is not None:
         check_single_file_target(junit, inputs)

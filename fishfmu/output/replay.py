@@ -39,6 +39,7 @@ import pandas as pd
 from plant.errors import InputError
 from plant.fish.fish_data import length_regressions
 from plant.contract.line import Line
+from plant.contract.parts import part_triangles
 from plant.contract.measured import Run, read_dataset
 from plant.sim.state import FishStatus
 
@@ -315,6 +316,7 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
         "run_id": run_id or run.id,
         "duration_s": float(t_s[-1]) if len(t_s) else 0.0,
         "line": line.model_dump(),
+        "parts": _part_triangles(line),
         "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(n_fish),
                  "body_fish": body_fish.astype(int).tolist()},
         "photoeyes": _photoeye_intervals(run.photoeyes, [pe.id for pe in line.photoeyes]),
@@ -325,6 +327,12 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
         header["duration_s"] = max(header["duration_s"], header["measured"]["t_end_s"])
     header["arrays"] = packer.index
     return header, packer.blob()
+
+
+def _part_triangles(line: Line) -> list[float]:
+    """The line's fixed parts as one flat list of triangle corners (x, y, z, mm-rounded), to draw."""
+    pts, trigs = part_triangles(line)
+    return [round(c, 4) for t in trigs for i in t for c in pts[i]]
 
 
 def _asset(name: str) -> str:

@@ -357,7 +357,7 @@ class Scenario(Strict):
 def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
     """Read, apply ``overrides`` (dotted keys, e.g. ``{"fish.count": 30}``) and validate a scenario file.
 
-    Relative FMU paths are made absolute against the scenario's folder.
+    Relative FMU, SSP and STL paths are made absolute against the scenario's folder.
     """
     return ScenarioLoader(path).load(overrides)
 
@@ -382,6 +382,11 @@ class ScenarioLoader:
             for key in ("path", "parameter_file"):
                 if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
                     data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
+        line = data.get("line")
+        for i, part in enumerate(line.get("parts", []) if isinstance(line, dict) and isinstance(line.get("parts"), list)
+                                 else []):
+            if isinstance(part, dict) and isinstance(part.get("stl"), str) and not Path(part["stl"]).is_absolute():
+                line["parts"][i] = dict(part, stl=str((path.parent / part["stl"]).resolve()))
         system = data.get("system")
         if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
             data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))

@@ -17,6 +17,7 @@ the left looking downstream, 0 on the centre line), z up (0 at the top of the fi
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Annotated
 
 import numpy as np
@@ -103,6 +104,18 @@ class Camera(Strict):
         "two fish in view whose extents along x overlap or are closer than this are a double"))
 
 
+class Part(Strict):
+    """A fixed part of the line read from an STL file (a chute, a deflector plate): static contact geometry that
+    fish slide on like the guides (fish-guide friction).  Its triangles' normals must face where fish come from."""
+
+    id: Id = Field(description="unique among the line's items")
+    stl: str = Field(min_length=1, description=(
+        "the STL file (ASCII or binary); relative to the scenario or dataset file that names it"))
+    scale: float = Field(1.0, gt=0.0, le=1.0, description="metres per STL unit (0.001 for a file in millimetres)")
+    offset_m: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description=(
+        "where the STL's origin sits in the line frame (x, y, z)"))
+
+
 class Line(Strict):
     """Conveyors in flow order, side guides along the whole line, photo-eyes, cameras."""
 
@@ -111,16 +124,19 @@ class Line(Strict):
     photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
     cameras: list[Camera] = Field(default_factory=list, max_length=64, description=(
         "vision systems over the line (none in a file without the key)"))
+    parts: list[Part] = Field(default_factory=list, max_length=64, description=(
+        "fixed parts from STL files (none in a file without the key)"))
     guides: Guides | None = Field(None, description=(
         "side guides as polylines (a funnel narrowing towards a belt's end); without it straight at "
         "+-guide_width_m/2, which stays the widest they may get"))
 
     @pydantic.model_validator(mode="after")
     def _check_geometry(self) -> "Line":
-        ids = [c.id for c in self.conveyors] + [p.id for p in self.photoeyes] + [c.id for c in self.cameras]
+        ids = ([c.id for c in self.conveyors] + [p.id for p in self.photoeyes] + [c.id for c in self.cameras]
+               + [p.id for p in self.parts])
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
-            raise ValueAtKey("conveyors", "ids must be unique across conveyors, photo-eyes and cameras; repeated: "
+            raise ValueAtKey("conveyors", "ids must be unique across conveyors, photo-eyes, cameras and parts; repeated: "
                              f"{', '.join(dup)}")
         for i, (a, b) in enumerate(zip(self.conveyors, self.conveyors[1:])):
             if b.x_start_m < a.x_end_m - 1e-9:
@@ -192,6 +208,15 @@ class Line(Strict):
             if x_m < c.x_end_m:
                 return c
         return self.conveyors[-1]
+
+    def with_parts_relative_to(self, folder: Path) -> "Line":
+        """The line with each part's relative ``stl`` path made absolute against ``folder`` (the folder of the
+        scenario or dataset file that names it)."""
+        if not any(not Path(p.stl).is_absolute() for p in self.parts):
+            return self
+        parts = [p.model_copy(update={"stl": str((folder / p.stl).resolve())}) if not Path(p.stl).is_absolute() else p
+                 for p in self.parts]
+        return self.model_copy(update={"parts": parts})
 
     def guide_y_at(self, x_m: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
         """(left y, right y) of the side guides at each x (straight on beyond their first and last points)."""

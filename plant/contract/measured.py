@@ -361,6 +361,7 @@ def read_dataset(path: str | Path, check_physics: bool = True) -> Dataset:
     path = Path(path)
     toml = path / "dataset.toml" if path.is_dir() else path
     doc = validate(DatasetFile, read_toml(toml), file=toml)
+    doc.line = doc.line.with_parts_relative_to(toml.parent)
     try:
         doc.kpi.check_against(doc.line)
     except ValueError as exc:

@@ -315,8 +315,10 @@ def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, fricti
                   friction_level)
 
 
-def build_model(line: Line, members: list[Member], params: PlantParams, gravity: np.ndarray) -> PlantModel:
-    """Create, connect and assemble the line and the given fish in their given states."""
+def build_model(line: Line, members: list[Member], params: PlantParams, gravity: np.ndarray,
+                parts: tuple[list, list] = ([], [])) -> PlantModel:
+    """Create, connect and assemble the line and the given fish in their given states; ``parts`` the line's fixed
+    parts' triangles (:func:`plant.contract.parts.part_triangles`, read once per run)."""
     num = params.numerics
     system = exu.SystemContainer()
     mbs = system.AddSystem()
@@ -331,6 +333,10 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
     pts, trigs = _guides(line, params)
     gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                   frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
+    if parts[1]:  # fixed parts: static like the guides, added before the moving belts as Exudyn requires
+        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
+                                      contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=parts[0],
+                                      triangleList=parts[1], staticTriangles=True)
     belt_nodes = []
     for c in line.conveyors:
         # an inclined belt's body is turned about y: its local x runs up (or down) the belt

@@ -35,6 +35,7 @@ import time
 import numpy as np
 
 from plant.contract.line import Line
+from plant.contract.parts import part_triangles
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
                                    stiffening_limit_loss)
@@ -77,7 +78,7 @@ class Plant:
         self.conveyor_ids = list(self._ports.conveyor_ids)
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
-        self._x_ends = np.array([c.x_end_m for c in line.conveyors])
+        self._x_ends, self._parts = np.array([c.x_end_m for c in line.conveyors]), part_triangles(line)  # STLs read once
         self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
         self._gravity = self._params.gravity_mps2 * np.array(
             [np.sin(np.radians(self._params.incline_deg)), 0.0, -np.cos(np.radians(self._params.incline_deg))])
@@ -106,7 +107,7 @@ class Plant:
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0}
         self._steps = 0
         self._t_model0 = 0.0
-        self._set_model(build_model(line, [], self._params, self._gravity), [])
+        self._set_model(build_model(line, [], self._params, self._gravity, self._parts), [])
         self._publish(PlantOutputs.at_rest(self._ports))
 
     @property
@@ -185,7 +186,7 @@ class Plant:
         parks = park_positions(self._line, len(due))
         members += [parked_member(int(k), self._prepared[k], parks[i], int(self._level[k])) for i, k in enumerate(due)]
         t0 = time.perf_counter()
-        self._set_model(build_model(self._line, members, self._params, self._gravity), members)
+        self._set_model(build_model(self._line, members, self._params, self._gravity, self._parts), members)
         self._timings_s["rebuild"] += time.perf_counter() - t0
 
     def _admit_and_release(self, t: float) -> None:
@@ -371,9 +372,8 @@ class Plant:
                                     (self._pose_bodies[slots, :1], self._pose_local[slots, :1]))
 
     def _retire_fish(self) -> None:
-        """Fish past the end of the line (or fallen off its end) are parked; the next rebuild drops them.
-
-        Checked every tenth step: a fish takes far longer than that to clear the end of the line."""
+        """Fish past the end of the line (or fallen off its end) are parked; the next rebuild drops them. Checked
+        every tenth step: a fish takes far longer than that to clear the end of the line."""
         if self._steps % 10:
             return
         on = self.status[self._member] == ON_LINE

@@ -165,6 +165,18 @@ function sceneObject(program, boxes, color, options = {}) {
            photoeye: options.photoeye, measuredEye: options.measuredEye, transparent: color[3] < 1 };
 }
 
+function meshObject(program, corners, color) {   // corners: flat x, y, z of each triangle's three corners
+  const normal = [];
+  for (let i = 0; i < corners.length; i += 9) {
+    const u = [0, 1, 2].map((k) => corners[i + 3 + k] - corners[i + k]), v = [0, 1, 2].map((k) => corners[i + 6 + k] - corners[i + k]);
+    const n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    const l = Math.hypot(...n) || 1;
+    for (let k = 0; k < 3; k++) normal.push(n[0] / l, n[1] / l, n[2] / l);
+  }
+  const { vao } = vertexArray(program, { aPos: [new Float32Array(corners), 3], aNormal: [new Float32Array(normal), 3] });
+  return { vao, count: corners.length / 3, color, pattern: 0, transparent: color[3] < 1 };
+}
+
 function lineExtent(line) {
   const cs = line.conveyors;
   return { x0: cs[0].x_start_m, x1: cs[cs.length - 1].x_start_m + cs[cs.length - 1].length_m,
@@ -228,6 +240,7 @@ function buildLine(program) {
                [x, Math.min(x + step, ext.x1), yl, yl + 0.004, ext.zLow - 0.01, top]);
   }
   objects.push(sceneObject(program, walls, [0.55, 0.7, 0.85, 0.22]));
+  if (header.parts && header.parts.length) objects.push(meshObject(program, header.parts, [0.62, 0.66, 0.7, 1]));
   (line.cameras || []).forEach((cam) => {   // its field of view as a faint pane above the line, and the camera
     const xm = (cam.x_start_m + cam.x_end_m) / 2, h = ext.zTop + 0.6;
     objects.push(sceneObject(program, [[cam.x_start_m, cam.x_end_m, -g, g, h - 0.002, h]], [0.95, 0.8, 0.3, 0.15]));

@@ -1,0 +1,97 @@
+"""Fixed parts from STL files (``[[line.parts]]``): static contact surfaces fish land and rest on; a file that
+cannot be read, or a part placed where contact is not searched, is refused naming the part; relative paths are
+the scenario's."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from stl import mesh
+
+from plant.contract.line import Line
+from plant.errors import InputError
+from plant.sim.plant import Plant
+from tests.chromium import CHROMIUM, Browser
+from tests.plant_helpers import fish
+
+from fishfmu import commands
+from fishfmu.scenario.schema import load_scenario
+
+needs_chromium = pytest.mark.skipif(not CHROMIUM.exists(), reason=f"no {CHROMIUM}: `apt-get install chromium`")
+
+PLATE_Z_M = 0.10
+
+
+def plate(path: Path) -> Path:
+    """A 0.8 x 0.3 m plate in millimetres, its normal up."""
+    m = mesh.Mesh(np.zeros(2, dtype=mesh.Mesh.dtype))
+    m.vectors = np.array([[[0, 0, 0], [800, 0, 0], [800, 300, 0]], [[0, 0, 0], [800, 300, 0], [0, 300, 0]]], float)
+    m.save(str(path))
+    return path
+
+
+def line_with(part: dict | None) -> Line:
+    return Line.model_validate({"guide_width_m": 0.5, "parts": [part] if part else [], "conveyors": [
+        {"id": "c1", "x_start_m": 0.0, "length_m": 3.0, "width_m": 0.5, "z_top_m": 0.0}]})
+
+
+def resting_height(line: Line) -> float:
+    """The mid-length point's height of a fish dropped from 20 cm at x = 1.4 m onto the stopped line, after 1 s."""
+    plant = Plant(line, [fish("f1", 0.6, x_m=1.4, z_m=0.2)])
+    for _ in range(100):
+        plant.step({"c1": 0.0})
+    return float(plant.fish_state().z_m[0])
+
+
+def test_a_fish_dropped_over_a_plate_rests_on_it_not_on_the_belt(tmp_path):
+    on_belt = resting_height(line_with(None))
+    on_plate = resting_height(line_with({"id": "plate", "stl": str(plate(tmp_path / "plate.stl")), "scale": 0.001,
+                                         "offset_m": [1.0, -0.15, PLATE_Z_M]}))
+    assert 0.0 < on_belt < 0.05  # half the fish's thickness above the belt
+    assert on_plate - on_belt == pytest.approx(PLATE_Z_M, abs=0.01)
+
+
+def test_an_unreadable_or_misplaced_part_is_refused_naming_it(tmp_path):
+    with pytest.raises(InputError) as err:
+        Plant(line_with({"id": "chute", "stl": str(tmp_path / "missing.stl")}), [])
+    assert "line.parts[0].stl" in str(err.value) and "missing.stl" in str(err.value) and "chute" in str(err.value)
+    with pytest.raises(InputError, match="outside the space over the line"):
+        Plant(line_with({"id": "plate", "stl": str(plate(tmp_path / "plate.stl"))}), [])  # in mm, not scaled: 800 m
+
+
+def test_a_relative_stl_path_is_the_scenarios(tmp_path):
+    plate(tmp_path / "plate.stl")
+    text = (Path(__file__).parents[1] / "scenarios" / "paper_dump.toml").read_text()
+    at = text.index("[[line.conveyors]]")
+    part = '[[line.parts]]\nid = "plate"\nstl = "plate.stl"\nscale = 0.001\noffset_m = [2.5, -0.15, 0.2]\n\n'
+    (tmp_path / "with_part.toml").write_text(text[:at] + part + text[at:])
+    sc = load_scenario(tmp_path / "with_part.toml")
+    assert sc.line.parts[0].stl == str((tmp_path / "plate.stl").resolve())
+
+
+@needs_chromium
+def test_the_replay_draws_a_part_where_it_is(tmp_path):
+    plate(tmp_path / "plate.stl")
+    text = (Path(__file__).parents[1] / "scenarios" / "paper_dump.toml").read_text()
+    at = text.index("[[line.conveyors]]")
+    part = '[[line.parts]]\nid = "plate"\nstl = "plate.stl"\nscale = 0.001\noffset_m = [2.5, -0.15, 0.2]\n\n'
+    (tmp_path / "with_part.toml").write_text(text[:at] + part + text[at:])
+    done = commands.run(tmp_path / "with_part.toml", tmp_path / "out",
+                        {"fish.count": 2, "run.duration_s": 5.0, "expect": {}}, report=False, replay=True)
+    assert done.result.status == "ok"
+    browser = Browser()
+    try:
+        browser.open(done.replay.as_uri())
+        browser.eval("window.replay.ready")
+        browser.eval("window.replay.setView('top'); window.replay.setTime(0.5)")
+        on_plate = browser.eval("window.replay.project([2.9, 0.0, 0.2])")[:2]
+        beside = browser.eval("window.replay.project([2.9, 0.2, -0.02])")[:2]  # the belt next to it
+        img = np.asarray(Image.open(io.BytesIO(browser.screenshot())).convert("RGB")).astype(int)
+    finally:
+        browser.close()
+    bright = [img[int(round(y)), int(round(x))].mean() for x, y in (on_plate, beside)]
+    assert bright[0] > bright[1] + 40, bright  # the light grey plate over the dark belt
