@@ -63,24 +63,24 @@ def test_an_unreadable_or_misplaced_part_is_refused_naming_it(tmp_path):
         Plant(line_with({"id": "plate", "stl": str(plate(tmp_path / "plate.stl"))}), [])  # in mm, not scaled: 800 m
 
 
-def test_a_relative_stl_path_is_the_scenarios(tmp_path):
-    plate(tmp_path / "plate.stl")
+def scenario_with_a_plate(folder: Path) -> Path:
+    """The dumped paper test with the plate 20 cm over its second belt, the STL named relative to the scenario."""
+    plate(folder / "plate.stl")
     text = (Path(__file__).parents[1] / "scenarios" / "paper_dump.toml").read_text()
     at = text.index("[[line.conveyors]]")
     part = '[[line.parts]]\nid = "plate"\nstl = "plate.stl"\nscale = 0.001\noffset_m = [2.5, -0.15, 0.2]\n\n'
-    (tmp_path / "with_part.toml").write_text(text[:at] + part + text[at:])
-    sc = load_scenario(tmp_path / "with_part.toml")
+    (folder / "with_part.toml").write_text(text[:at] + part + text[at:])
+    return folder / "with_part.toml"
+
+
+def test_a_relative_stl_path_is_the_scenarios(tmp_path):
+    sc = load_scenario(scenario_with_a_plate(tmp_path))
     assert sc.line.parts[0].stl == str((tmp_path / "plate.stl").resolve())
 
 
 @needs_chromium
 def test_the_replay_draws_a_part_where_it_is(tmp_path):
-    plate(tmp_path / "plate.stl")
-    text = (Path(__file__).parents[1] / "scenarios" / "paper_dump.toml").read_text()
-    at = text.index("[[line.conveyors]]")
-    part = '[[line.parts]]\nid = "plate"\nstl = "plate.stl"\nscale = 0.001\noffset_m = [2.5, -0.15, 0.2]\n\n'
-    (tmp_path / "with_part.toml").write_text(text[:at] + part + text[at:])
-    done = commands.run(tmp_path / "with_part.toml", tmp_path / "out",
+    done = commands.run(scenario_with_a_plate(tmp_path), tmp_path / "out",
                         {"fish.count": 2, "run.duration_s": 5.0, "expect": {}}, report=False, replay=True)
     assert done.result.status == "ok"
     browser = Browser()
