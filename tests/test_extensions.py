@@ -66,7 +66,7 @@ def test_rigor_mortis_stiffens_the_joints_by_its_index_of_the_hours_post_mortem(
     plant = Plant(line, [f], params)
     for _ in range(150):
         plant.step({"c1": 0.0})
-    _, rot = plant.body_poses()
+    _, rot = plant.state.body_poses()
     rel = rot[0].T @ rot[1]
     bend = abs(math.degrees(math.atan2(rel[0, 2], rel[0, 0])))
     soft = params.joints.sag_fraction * 13.75

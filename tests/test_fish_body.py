@@ -136,7 +136,7 @@ def test_head_over_the_end_of_a_belt_droops_as_the_sag_rule_says():
     plant = Plant(line, [f], params)
     for _ in range(150):
         plant.step({"c1": 0.0})
-    _, rot = plant.body_poses()
+    _, rot = plant.state.body_poses()
     rel = rot[0].T @ rot[1]
     bend = abs(np.degrees(np.arctan2(rel[0, 2], rel[0, 0])))  # rotation about the dorsal (y) axis
     expected = params.joints.sag_fraction * 13.75

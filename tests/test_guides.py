@@ -48,7 +48,7 @@ def test_a_fish_in_a_funnel_is_centred_and_never_crosses_a_guide(y0: float):
             if last is None:
                 continue  # not dropped yet
             break  # gone past the end
-        p = plant.body_poses()[0]
+        p = plant.state.body_poses()[0]
         left, right = line.guide_y_at(p[:, 0])
         worst_m = max(worst_m, float(np.max(np.maximum(p[:, 1] - left, right - p[:, 1]))))
         last = p

@@ -31,10 +31,10 @@ def ride(incline_deg: float, belt_mps: float, settle_s: float = 1.5, watch_s: fl
     plant = Plant(line, [fish("f1", 0.6, x_m=1.0)])
     for _ in range(round(settle_s / 0.01)):
         plant.step({"c1": belt_mps})
-    x0 = plant.fish_state().x_m[0]
+    x0 = plant.state.fish_poses().x_m[0]
     for _ in range(round(watch_s / 0.01)):
         plant.step({"c1": belt_mps})
-    s = plant.fish_state()
+    s = plant.state.fish_poses()
     along = (s.x_m[0] - x0) / math.cos(math.radians(incline_deg)) / watch_s
     return along, s.z_m[0] - line.z_top_at(s.x_m[0])
 
@@ -55,7 +55,7 @@ def test_above_the_friction_angle_a_fish_slides_back_down_the_moving_belt():
     for k in range(round(1.0 / 0.01)):
         plant.step({"c1": 0.1})
         if k + 1 in (40, 60, 80):  # 0.4, 0.6, 0.8 s: landed, sliding, not yet at the infeed's end plate
-            along.append(plant.fish_state().x_m[0] / math.cos(a))
+            along.append(plant.state.fish_poses().x_m[0] / math.cos(a))
     s0, s1, s2 = along
     assert s2 < s1 < s0  # going down while the belt goes up
     accel = (s2 - 2 * s1 + s0) / 0.2**2

@@ -44,7 +44,7 @@ def resting_height(line: Line) -> float:
     plant = Plant(line, [fish("f1", 0.6, x_m=1.4, z_m=0.2)])
     for _ in range(100):
         plant.step({"c1": 0.0})
-    return float(plant.fish_state().z_m[0])
+    return float(plant.state.fish_poses().z_m[0])
 
 
 def test_a_fish_dropped_over_a_plate_rests_on_it_not_on_the_belt(tmp_path):

@@ -10,6 +10,7 @@ import pytest
 from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
 from plant.fish.population import PopulationSpec, sample_fish
+from plant.sim.health import floor_below
 from plant.sim.simulate import simulate_plant
 from plant.sim.state import FishStatus
 from tests.plant_helpers import fish, straight_line
@@ -113,7 +114,7 @@ def test_twenty_fish_dropped_in_bulk_stay_on_the_line():
     widest: list[float] = []
 
     def watch(plant: Plant) -> None:
-        pos, _ = plant.body_poses()
+        pos, _ = plant.state.body_poses()
         on = np.repeat(plant.status == FishStatus.ON_LINE, 5)
         if np.any(on):
             p = pos[on]
@@ -121,7 +122,7 @@ def test_twenty_fish_dropped_in_bulk_stay_on_the_line():
             if np.any(inside):
                 # away from belt ends a body lies on the belt; near them it may drape over the drum
                 # down to the next belt, never below it
-                lowest.append(float(np.min(p[inside, 2] - plant.floor_below(p[inside, 0]))))
+                lowest.append(float(np.min(p[inside, 2] - floor_below(line, p[inside, 0]))))
             widest.append(float(np.max(np.abs(p[:, 1]))))
 
     run = simulate_plant(line, fishes, {"c1": 0.3, "c2": 0.6, "c3": 1.0}, 6.0, params=params, on_step=watch,

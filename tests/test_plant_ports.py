@@ -54,17 +54,18 @@ def test_the_wiring_knows_the_declared_ports_with_their_types_and_units(line):
                    for p in candidates)
 
 
-def with_a_camera(tmp_path: Path) -> Path:
-    """The paper's scenario with a camera over its last belt: a line with every kind of port."""
+def with_every_kind(tmp_path: Path) -> Path:
+    """The paper's scenario with a camera and a pusher over its last belt: a line with every kind of port."""
     text = PAPER.read_text()
     at = text.index("[[line.photoeyes]]")
     scenario = tmp_path / "camera.toml"
-    scenario.write_text(text[:at] + '[[line.cameras]]\nid = "cam"\nx_start_m = 5.2\nx_end_m = 6.1\n\n' + text[at:])
+    scenario.write_text(text[:at] + '[[line.cameras]]\nid = "cam"\nx_start_m = 5.2\nx_end_m = 6.1\n\n'
+                        + '[[line.devices]]\nid = "pusher"\nkind = "pusher"\nx_m = 5.5\nlength_m = 0.8\n\n' + text[at:])
     return scenario
 
 
 def test_the_plant_fmu_has_the_declared_ports_as_variables(tmp_path):
-    scenario = with_a_camera(tmp_path)
+    scenario = with_every_kind(tmp_path)
     line = load_scenario(scenario).line
     ports = PlantPorts.of(line)
     logged: list[str] = []
@@ -75,7 +76,8 @@ def test_the_plant_fmu_has_the_declared_ports_as_variables(tmp_path):
     assert {n: fmu.units.get(n) for n in fmu.input_names + plant_outputs} == {
         n: signal_of(n).unit for n in fmu.input_names + plant_outputs}
     assert not logged
-    assert set(SIGNALS) == {signal_of(n).name for n in ports.outputs()}
+    assert set(SIGNALS) == {signal_of(n).name for n in ports.outputs() + ports.inputs()}
+    assert ports.inputs() == ["c1.speed", "c2.speed", "c3.speed", "c4.speed", "pusher.command"]
     # each variable of the type its signal declares (pythonfmu takes the type from the start value)
     kinds = {"Boolean": bool, "Integer": int, "Real": float}
-    assert all(type(fmu.values[n]) is kinds[signal_of(n).type] for n in plant_outputs)
+    assert all(type(fmu.values[n]) is kinds[signal_of(n).type] for n in plant_outputs + fmu.input_names)

@@ -151,6 +151,6 @@ def test_the_energy_watch_works_from_a_snapshot_built_by_hand():
 
 
 def test_fish_status_keeps_the_ints_of_the_status_arrays():
-    assert [int(s) for s in FishStatus] == [0, 1, 2]
-    assert [s.name for s in FishStatus] == ["WAITING", "ON_LINE", "LEFT"]
+    assert [int(s) for s in FishStatus] == [0, 1, 2, 3]  # poses.npz of earlier runs hold 0-2
+    assert [s.name for s in FishStatus] == ["WAITING", "ON_LINE", "LEFT", "REJECTED"]
     assert np.array([0, 1, 2], dtype=np.int8)[1] == FishStatus.ON_LINE

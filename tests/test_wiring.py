@@ -72,7 +72,7 @@ def test_bad_connections_name_the_key_and_what_is_wrong(connection, message):
 def test_unconnected_belt_needs_a_constant():
     sc = paper()
     sc.wiring.connections = [c for c in sc.wiring.connections if "-> plant.c3.speed" not in c]
-    with pytest.raises(InputError, match="belt speed not connected and no constant given for: plant.c3.speed"):
+    with pytest.raises(InputError, match="not connected and no constant given for: plant.c3.speed"):
         resolve_wiring(sc, fmu_vars())
     sc.wiring.inputs["plant.c3.speed"] = 0.7
     w = resolve_wiring(sc, fmu_vars())

@@ -5,7 +5,7 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 1. apply the scenario's events due at t (override, bias or reset a variable);
 2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
    its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
-3. set the belt speeds from their sources and step the plant; check that the fish gained no
+3. set the belt speeds and device commands from their sources and step the plant; check that the fish gained no
    energy without a source (:mod:`plant.sim.health`: a blow-up stops the run within this step);
 4. record every connected signal at t + dt (and the run in the measured-data format).
 
@@ -152,8 +152,9 @@ class CoSimulation:
                 self._step_fmu(name, held, t, m * dt)
         lap("fmus")
         speeds = {c: float(self._input_value(f"{PLANT}.{c}.speed", held)) for c in self.ports.conveyor_ids}
+        commands = {d: bool(self._input_value(f"{PLANT}.{d}.command", held)) for d in self.ports.device_ids}
         lap("belt_speeds")
-        out = self.plant.step(speeds)
+        out = self.plant.step(speeds, commands)
         lap("plant")
         self.energy_watch.check(self.plant.state, dt)
         lap("energy_check")

@@ -9,12 +9,13 @@ Exudyn.
 
 Variables (the plant's ports as declared in :mod:`plant.sim.ports`, named as in a scenario's wiring):
 
-* inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.contract.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor;
+* inputs ``<conveyor>.speed`` (m/s, within ±:data:`~plant.contract.plausibility.MAX_BELT_SPEED_MPS`) for every conveyor,
+  ``<device>.command`` (Boolean) for every device;
 * outputs ``<photo-eye>.blocked`` (Boolean), ``<conveyor>.load_force`` (N), ``<conveyor>.load_mass`` (kg), each
   camera's ``<camera>.count``, ``.double``, ``.lead_x``, ``.lead_length``, ``.lead_heading``, ``.events`` (Integer,
-  Boolean or Real as declared) (every output port but the belt speed, which is the input), and counts so far:
-  ``fish_dropped``,
-  ``fish_on_line``, ``fish_left`` (gone past the end or off the line),
+  Boolean or Real as declared), each device's ``<device>.position``, ``.at_home``, ``.at_end``, ``.rejected`` (every
+  output port but the belt speed, which is the input), and counts so far: ``fish_dropped``,
+  ``fish_on_line``, ``fish_left`` (gone past the end or off the line), ``fish_rejected`` (taken off by a device),
   ``outfeed_count`` (fish heads seen at the scenario's outfeed photo-eye: its blocked edges);
 * parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
   the batch is sampled from them as ``fishfmu run`` samples it).
@@ -47,7 +48,7 @@ import tomli_w
 from pydantic import BaseModel
 
 from plant.errors import InputError, SimulationError, one_line
-from plant.sim.plant import LEFT, ON_LINE, WAITING, Plant
+from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING, Plant
 from plant.sim.ports import PlantPorts, signal_of
 from plant.contract.plausibility import MAX_BELT_SPEED_MPS
 from plant.fish.population import PopulationSpec
@@ -121,7 +122,7 @@ class PlantInFmu:
     No method raises (see the module's docstring): what the host got wrong is passed to ``report`` (the slave's
     error log) and refused."""
 
-    counts = ("fish_dropped", "fish_on_line", "fish_left", "outfeed_count")
+    counts = ("fish_dropped", "fish_on_line", "fish_left", "fish_rejected", "outfeed_count")
 
     def __init__(self, scenario_file: Path, report: Callable[[str], None]) -> None:
         self.report = report
@@ -129,16 +130,17 @@ class PlantInFmu:
         self.comm_step_s = self.scenario.run.comm_step_s
         self.outfeed = self.scenario.kpi.outfeed_photoeye
         ports = PlantPorts.of(self.scenario.line)
-        self.conveyor_ids = list(ports.conveyor_ids)
+        self.conveyor_ids, self.device_ids = list(ports.conveyor_ids), list(ports.device_ids)
         self.input_names = ports.inputs()
+        self.command_names = [f"{d}.command" for d in self.device_ids]
         outputs = [n for n in ports.outputs() if n not in self.input_names]  # a belt's speed is its input
         plant_outputs = ([n for n in outputs if signal_of(n).of == "photoeye"]  # the photo-eyes first
                          + [n for n in outputs if signal_of(n).of == "conveyor"]
-                         + [n for n in outputs if signal_of(n).of == "camera"])
+                         + [n for n in outputs if signal_of(n).of in ("camera", "device")])
         self.plant_outputs = set(plant_outputs)
         self.output_names = plant_outputs + list(self.counts)
         self.values: dict[str, Any] = {"seed": self.scenario.run.seed, "fish_count": self.scenario.fish.count}
-        self.values.update(dict.fromkeys(self.input_names, 0.0))
+        self.values.update({n: False if n in self.command_names else 0.0 for n in self.input_names})
         self.values.update({n: {"Boolean": False, "Integer": 0}.get(signal_of(n).type, 0.0) for n in plant_outputs})
         self.values.update(dict.fromkeys(self.counts, 0))
         self.units = {n: signal_of(n).unit for n in self.input_names + plant_outputs if signal_of(n).unit}
@@ -156,6 +158,11 @@ class PlantInFmu:
     def speed_setter(self, name: str):  # noqa: ANN201
         def set_(value: float) -> None:
             self._set_within(name, float(value), SPEED_BOUNDS_MPS, " m/s")
+        return set_
+
+    def command_setter(self, name: str):  # noqa: ANN201
+        def set_(value: bool) -> None:
+            self.values[name] = bool(value)
         return set_
 
     def parameter_setter(self, name: str):  # noqa: ANN201
@@ -233,8 +240,9 @@ class PlantInFmu:
 
     def _advance(self, n_steps: int) -> None:
         speeds = {c: self.values[f"{c}.speed"] for c in self.conveyor_ids}
+        commands = {d: bool(self.values[f"{d}.command"]) for d in self.device_ids}
         for _ in range(n_steps):
-            out = self.plant.step(speeds)
+            out = self.plant.step(speeds, commands)
             for port, v in out.port_values().items():
                 if port in self.plant_outputs:
                     self.values[port] = v
@@ -246,6 +254,7 @@ class PlantInFmu:
         self.values["fish_dropped"] = int(np.count_nonzero(status != WAITING))
         self.values["fish_on_line"] = int(np.count_nonzero(status == ON_LINE))
         self.values["fish_left"] = int(np.count_nonzero(status == LEFT))
+        self.values["fish_rejected"] = int(np.count_nonzero(status == REJECTED))
 
 
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:

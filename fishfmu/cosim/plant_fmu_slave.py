@@ -30,6 +30,10 @@ class FishfmuPlant(Fmi2Slave):
                 name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                 getter=p.getter(name), setter=p.parameter_setter(name)), bounds))
         for name in p.input_names:
+            if name in p.command_names:  # a device's command: any Boolean is valid
+                self.register_variable(Boolean(name, causality=Fmi2Causality.input, start=False, getter=p.getter(name),
+                                               setter=p.command_setter(name)))
+                continue
             self.register_variable(with_bounds(Real(
                 name, causality=Fmi2Causality.input, start=0.0, description=p.units[name],
                 getter=p.getter(name), setter=p.speed_setter(name)), SPEED_BOUNDS_MPS))

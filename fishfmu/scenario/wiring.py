@@ -159,12 +159,13 @@ class Wiring:
 def plant_ports(line: Line) -> dict[str, list[Port]]:
     """The plant's ports by variable name, from its declaration (``c1.speed`` is both an input and an output)."""
     declared = PlantPorts.of(line)
-    inputs = set(declared.inputs())
+    inputs, outputs = declared.inputs(), declared.outputs()
     ports: dict[str, list[Port]] = {}
-    for name in declared.outputs():
+    for name in outputs + [n for n in inputs if n not in outputs]:
         s = SIGNALS[name.rpartition(".")[2]]
         ports[name] = [Port(PLANT, name, causality, s.type, s.unit, s.unit_base)
-                       for causality in (("input", "output") if name in inputs else ("output",))]
+                       for causality in ("input", "output") if causality == "input" and name in inputs
+                       or causality == "output" and s.is_output]
     return ports
 
 
@@ -257,7 +258,8 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
     missing = [key for key in (f"{PLANT}.{name}" for name in PlantPorts.of(scenario.line).inputs())
                if key not in taken and key not in constants]
     if missing:
-        raise InputError(f"belt speed not connected and no constant given for: {', '.join(missing)}",
+        raise InputError(f"plant input (belt speed, device command) not connected and no constant given for: "
+                         f"{', '.join(missing)}",
                          file=scenario_file, where="wiring.connections")
 
     for i, ev in enumerate(scenario.event):

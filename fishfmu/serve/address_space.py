@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from asyncua import ua
 
-from plant.sim.plant import LEFT, ON_LINE, WAITING
+from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING
 from plant.sim.ports import PlantPorts, signal_of
 
 from fishfmu.cosim.build import CheckedScenario
@@ -32,7 +32,8 @@ UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
 # UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)
 _UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "RPM", "1/min": "RPM",
           "rad/s": "2A", "A": "AMP", "V": "VLT", "W": "WTT", "Hz": "HTZ", "K": "KEL", "degC": "CEL"}
-_FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT}
+_FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT,
+                "fishfmu.fish_rejected": REJECTED}
 
 _VARIANT_TYPES = {"Real": (ua.VariantType.Double, 0.0), "Integer": (ua.VariantType.Int32, 0),
                   "Enumeration": (ua.VariantType.Int32, 0), "Boolean": (ua.VariantType.Boolean, False),

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 import numpy as np
 import pydantic
@@ -116,8 +116,46 @@ class Part(Strict):
         "where the STL's origin sits in the line frame (x, y, z)"))
 
 
+class Device(Strict):
+    """An actuated device that takes fish off the line (see :mod:`plant.contract.devices` for its shape and motion):
+
+    - ``gate``: a flap bridging a transfer gap, hinged at its upstream edge; open, it swings down by ``travel_deg``
+      and fish drop through the gap into a bin below;
+    - ``pusher``: a paddle behind the guide opposite ``side`` that strokes ``travel_m`` across the belt and pushes a
+      fish out through an opening in the guide on ``side``;
+    - ``diverter``: an arm that is the guide on ``side`` from ``x_m`` to ``x_m + length_m`` at rest, pivoting at its
+      downstream end; swung ``travel_deg`` into the lane, it blocks the lane and steers fish out through the
+      opening it leaves in the guide.
+
+    Its actuator moves at constant speed, the whole travel in ``stroke_s``, towards the end its command asks for
+    (true: open, stroke, swing; false: back home)."""
+
+    id: Id = Field(description=(
+        "unique among the line's items; names its plant ports (plant.<id>.command in; .position, .at_home, .at_end, "
+        ".rejected out)"))
+    kind: Literal["gate", "pusher", "diverter"] = Field(description="what it is (see above)")
+    x_m: float = Field(ge=-100.0, le=1000.0, description=(
+        "gate: its hinge, at or after the end of a conveyor; pusher: upstream end of the paddle; diverter: upstream "
+        "(free) end of the arm at rest"))
+    length_m: float = Field(gt=0.05, le=3.0, description=(
+        "along x: the gate's flap (it must fit in the gap before the next conveyor), the pusher's paddle and its "
+        "opening, the diverter's arm"))
+    side: Literal["left", "right"] = Field("right", description=(
+        "pusher and diverter: the side fish leave by (y > 0 is left, looking downstream); a gate drops them below"))
+    stroke_s: float = Field(0.25, ge=0.02, le=10.0, description="time for the whole travel, each way")
+    travel_deg: float | None = Field(None, gt=0.0, le=90.0, description=(
+        "gate: how far the flap swings down open (default 60); diverter: how far the arm swings into the lane "
+        "(default 45); not for a pusher"))
+    travel_m: float | None = Field(None, gt=0.0, le=5.0, description=(
+        "pusher: its stroke across the belt (default: the lane's width there); not for a gate or diverter"))
+
+    @property
+    def x_end_m(self) -> float:
+        return self.x_m + self.length_m
+
+
 class Line(Strict):
-    """Conveyors in flow order, side guides along the whole line, photo-eyes, cameras."""
+    """Conveyors in flow order, side guides along the whole line, photo-eyes, cameras, devices."""
 
     guide_width_m: float = Field(gt=0.05, le=5.0, description="side guides at y = +-guide_width_m/2")
     conveyors: list[Conveyor] = Field(min_length=1, max_length=64, description="the belts, in flow order")
@@ -126,6 +164,8 @@ class Line(Strict):
         "vision systems over the line (none in a file without the key)"))
     parts: list[Part] = Field(default_factory=list, max_length=64, description=(
         "fixed parts from STL files (none in a file without the key)"))
+    devices: list[Device] = Field(default_factory=list, max_length=32, description=(
+        "reject gates, pushers and diverters (none in a file without the key)"))
     guides: Guides | None = Field(None, description=(
         "side guides as polylines (a funnel narrowing towards a belt's end); without it straight at "
         "+-guide_width_m/2, which stays the widest they may get"))
@@ -133,10 +173,11 @@ class Line(Strict):
     @pydantic.model_validator(mode="after")
     def _check_geometry(self) -> "Line":
         ids = ([c.id for c in self.conveyors] + [p.id for p in self.photoeyes] + [c.id for c in self.cameras]
-               + [p.id for p in self.parts])
+               + [p.id for p in self.parts] + [d.id for d in self.devices])
         dup = sorted({i for i in ids if ids.count(i) > 1})
         if dup:
-            raise ValueAtKey("conveyors", "ids must be unique across conveyors, photo-eyes, cameras and parts; repeated: "
+            raise ValueAtKey("conveyors", "ids must be unique across conveyors, photo-eyes, cameras, parts and devices; "
+                             "repeated: "
                              f"{', '.join(dup)}")
         for i, (a, b) in enumerate(zip(self.conveyors, self.conveyors[1:])):
             if b.x_start_m < a.x_end_m - 1e-9:
@@ -192,7 +233,25 @@ class Line(Strict):
                 raise ValueAtKey(f"cameras.{i}.x_end_m", f"cameras[{i}] ('{c.id}') sees x_start_m = {c.x_start_m:g} to "
                                  f"x_end_m = {c.x_end_m:g} m: it must be a stretch of the line [{self.x_start_m:g}, "
                                  f"{self.x_end_m:g}] m with x_start_m < x_end_m")
+        for i, d in enumerate(self.devices):
+            self._check_device(i, d)
         return self
+
+    def _check_device(self, i: int, d: Device) -> None:
+        name = f"devices[{i}] ('{d.id}')"
+        unused = "travel_m" if d.kind != "pusher" else "travel_deg"
+        if getattr(d, unused) is not None:
+            raise ValueAtKey(f"devices.{i}.{unused}", f"{name} is a {d.kind}: it has no {unused} "
+                             f"({'travel_deg' if unused == 'travel_m' else 'travel_m'} sets its travel)")
+        if d.kind == "gate":
+            gap = next(((a, b) for a, b in zip(self.conveyors, self.conveyors[1:])
+                        if a.x_end_m - 1e-9 <= d.x_m < b.x_start_m), None)
+            if gap is None or d.x_end_m > gap[1].x_start_m + 1e-9:
+                raise ValueAtKey(f"devices.{i}.x_m", f"{name}: a gate's flap (x_m = {d.x_m:g} to {d.x_end_m:g} m) "
+                                 "must lie in the gap between two conveyors (gaps up to 0.5 m)")
+        elif not (self.x_start_m <= d.x_m and d.x_end_m <= self.x_end_m):
+            raise ValueAtKey(f"devices.{i}.x_m", f"{name} spans x = {d.x_m:g} to {d.x_end_m:g} m: it must be over the "
+                             f"line [{self.x_start_m:g}, {self.x_end_m:g}] m")
 
     @property
     def x_start_m(self) -> float:

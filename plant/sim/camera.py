@@ -13,7 +13,8 @@ positions and lengths with independent Gaussian noise of ``position_noise_m``.  
 - ``count``: fish in view; ``double``: two of them overlap along x or are closer than ``double_gap_m``;
 - the leading fish (its front end furthest downstream): ``lead_x`` its front end, ``lead_length``, ``lead_heading``
   (1 head first, -1 tail first; 0 and zero lengths with no fish in view);
-- ``events``: fish seen so far (a fish counts once, the first time it is in view).
+- ``events``: fish seen so far (a fish counts once, the first time it is in view);
+- ``results``: results given so far (steps with each new one, so that a reader knows one came).
 
 Each frame's detections are returned as a vision system logs them (:data:`DETECTION_COLUMNS`): one row per fish in
 view, named by its track number (the ``events`` count when it first came into view), not by the plant's fish id.
@@ -97,6 +98,8 @@ class Reading:
     lead_length_m: float = 0.0
     lead_heading: int = 0
     events: int = 0
+    results: int = 0
+    """Results given so far, this one included: it steps with every new result (a PLC's cue to read one)."""
 
 
 class CameraUnit:
@@ -140,7 +143,7 @@ class CameraUnit:
         lead = int(np.argmax(front)) if len(k) else -1
         reading = Reading(len(k), double, float(front[lead]) if len(k) else 0.0,
                           float(length[lead]) if len(k) else 0.0, int(heading[lead]) if len(k) else 0,
-                          len(self._track))
+                          len(self._track), self.frames)
         self._pending.append((t_s + cam.latency_s, reading))
         return [(round(t_s, 6), cam.id, self._track[int(f)], float(back[i]), float(front[i]), float(y[i]),
                  float(length[i]), int(heading[i]), double) for i, f in enumerate(view.fish[k])]
@@ -159,4 +162,5 @@ def output_fields(readings: dict[str, Reading]) -> dict[str, dict]:
             "camera_lead_x_m": {i: r.lead_x_m for i, r in readings.items()},
             "camera_lead_length_m": {i: r.lead_length_m for i, r in readings.items()},
             "camera_lead_heading": {i: r.lead_heading for i, r in readings.items()},
-            "camera_events": {i: r.events for i, r in readings.items()}}
+            "camera_events": {i: r.events for i, r in readings.items()},
+            "camera_results": {i: r.results for i, r in readings.items()}}

@@ -13,6 +13,9 @@ fish are
 - with the ``adhesion`` extension on, the attraction between touching fish: counted as at most
   ``|F . v| dt`` per body.
 
+- the devices (gates, pushers, diverters): the work their bodies did on the fish over the step, from their momentum
+  change (:meth:`plant.sim.devices.DeviceActuators.work_on_fish_j`), like the belts'.
+
 Guides and the end plate are fixed and do no work; contact and joint dampers and friction slip
 only take energy out.  Contact and joint springs store some for a moment (a landing fish) and give
 it back, so the check allows the fish that much: :func:`spring_reserve_j`.
@@ -40,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from plant.contract.devices import in_exit_regions
 from plant.errors import SimulationError
 from plant.sim.state import FishStatus, PlantState
 
@@ -67,7 +71,8 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     ``pos`` and ``vel`` (n, 3) are those bodies' positions and velocities, ``fish_of`` (n,) each
     body's fish as an index into ``fish_ids``; ``line`` the :class:`plant.contract.line.Line`; ``t_s`` the
     time reported with the error.  A body over the last 0.1 m of the line (hanging over the end drum)
-    or past its end is not checked against the belts: a fish leaving the line over the end."""
+    or past its end is not checked against the belts: a fish leaving the line over the end; nor is one at a device
+    that takes fish off the line (through a gate's gap, out of a pusher's or diverter's opening)."""
     if len(pos) == 0:
         return
     bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
@@ -82,6 +87,8 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     within_x = (pos[:, 0] >= line.x_start_m - 0.1) & (pos[:, 0] <= line.x_end_m)
     left, right = line.guide_y_at(pos[:, 0])
     outside = within_x & ((pos[:, 1] > left + 0.05) | (pos[:, 1] < right - 0.05))
+    if np.any(outside) and line.devices:  # rare: only then look for a device's opening (a pusher's or diverter's)
+        outside &= ~in_exit_regions(line, pos[:, 0], pos[:, 1])
     if np.any(outside):
         i = int(np.flatnonzero(outside)[0])
         guides = (f"guides at +-{left[i]:g} m" if line.guides is None else
@@ -97,6 +104,8 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
         fish_max_x = np.full(int(fish_of.max()) + 1, -np.inf)
         np.maximum.at(fish_max_x, fish_of, pos[:, 0])
         below &= fish_max_x[fish_of] < line.x_end_m - 0.1
+        if line.devices:  # a gate's fish drop through its gap, a pusher's or diverter's off the belt's side
+            below &= ~in_exit_regions(line, pos[:, 0], None)
     if np.any(below):
         i = int(np.flatnonzero(below)[0])
         raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' fell through a belt "
@@ -171,7 +180,7 @@ class EnergyWatch:
         before = self._energy if self._energy is not None else np.full(len(now), np.nan)
         on_now, on_before = ~np.isnan(now), ~np.isnan(before)
         work = dt_s * sum(belt_load_force_n[c] * belt_speed_mps[c] for c in belt_speed_mps)
-        work += dt_s * self._adhesion_power_bound(state)
+        work += dt_s * self._adhesion_power_bound(state) + state.device_work_j
         entered = float(now[on_now & ~on_before].sum())
         left = float(before[on_before & ~on_now].sum())
         bound = self._bound_j + work + entered - left

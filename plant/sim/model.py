@@ -85,10 +85,12 @@ from exudyn.itemInterface import (  # noqa: E402
 from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
 from plant.fish.fish_body import FishGeometry, fish_geometry  # noqa: E402
 from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
+from plant.contract.devices import device_shapes  # noqa: E402
 from plant.contract.line import Line  # noqa: E402
 from plant.sim.params import PlantParams  # noqa: E402
 from plant.fish.population import FishSpec  # noqa: E402
 from plant.sim.rotations import matrix_to_rotvec  # noqa: E402
+from plant.sim.surfaces import belt_surface, guide_walls  # noqa: E402
 
 exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
@@ -98,7 +100,6 @@ BELT_MASS_KG = 1.0e5
 """Mass of a belt body: the fish cannot move it measurably within one step (1 N for 10 ms -> 1e-7 m/s)."""
 TRIANGLE_STIFFNESS = 1.0e8
 """Stiffness of belt and guide triangles; in series with a sphere's much softer spring, so the sphere's rules."""
-DRUM_RADIUS_M = 0.03
 PARK_SPACING_M = (0.8, 0.25, 0.2)
 SEARCH_CELL_M = (0.1, 0.1, 0.1)
 """Cells of the contact search grid along x, y, z: each sphere looks for partners in the cells its box overlaps.
@@ -187,69 +188,13 @@ class PlantModel:
     section_half_len: np.ndarray
     section_radius: np.ndarray
     search_box: tuple[np.ndarray, np.ndarray] = field(default=(np.zeros(3), np.zeros(3)))
+    device_ltg: np.ndarray = field(default_factory=lambda: np.zeros((0, 6), dtype=np.int64))
+    """(n_devices, 6) indices of each device body's coordinates (origin at its home pose, rotation vector)."""
 
     @property
     def member_index(self) -> np.ndarray:
         """The run's fish index of each fish in the system."""
         return np.array([f.index for f in self.fish], dtype=np.int64)
-
-
-def _quad(pts: list[list[float]], trigs: list[list[int]], a, b, c, d) -> None:
-    """Two triangles a-b-c, a-c-d; the normal (b-a) x (c-a) must point towards the fish."""
-    base = len(pts)
-    pts += [list(a), list(b), list(c), list(d)]
-    trigs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
-
-
-def triangle_normals(pts: list[list[float]], trigs: list[list[int]]) -> np.ndarray:
-    """Unit normals (p1 - p0) x (p2 - p0); GeneralContact pushes spheres out along these."""
-    p = np.asarray(pts, dtype=float)[np.asarray(trigs)]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
-def _belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], list[list[int]]]:
-    """Top surface of a belt in its own frame (origin at the upstream end of the top, z up),
-    in 0.25 m strips, with a rounded lip (drum) at each end."""
-    pts: list[list[float]] = []
-    trigs: list[list[int]] = []
-    hw = 0.5 * width_m
-    xs = np.linspace(0.0, length_m, max(2, int(np.ceil(length_m / 0.25)) + 1))
-    for x0, x1 in zip(xs[:-1], xs[1:]):
-        _quad(pts, trigs, (x0, -hw, 0.0), (x1, -hw, 0.0), (x1, hw, 0.0), (x0, hw, 0.0))
-    angles = np.radians([0.0, 30.0, 60.0, 90.0])
-    r = DRUM_RADIUS_M
-    for sign, x_end in ((1.0, length_m), (-1.0, 0.0)):
-        for a0, a1 in zip(angles[:-1], angles[1:]):
-            p0 = (x_end + sign * r * np.sin(a0), r * np.cos(a0) - r)
-            p1 = (x_end + sign * r * np.sin(a1), r * np.cos(a1) - r)
-            if sign > 0:
-                _quad(pts, trigs, (p0[0], -hw, p0[1]), (p1[0], -hw, p1[1]), (p1[0], hw, p1[1]), (p0[0], hw, p0[1]))
-            else:
-                _quad(pts, trigs, (p1[0], -hw, p1[1]), (p0[0], -hw, p0[1]), (p0[0], hw, p0[1]), (p1[0], hw, p1[1]))
-    return pts, trigs
-
-
-def _guides(line: Line, params: PlantParams) -> tuple[list[list[float]], list[list[int]]]:
-    """Side walls along the whole line (straight, or along the guides' polylines) and an end plate at the infeed,
-    in panels of at most 0.5 m."""
-    pts: list[list[float]] = []
-    trigs: list[list[int]] = []
-    z_lo = line.z_range_m[0] - 0.15
-    z_hi = line.z_range_m[1] + params.guide_height_m
-    x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
-    corners = {x for g in ((line.guides.left, line.guides.right) if line.guides else ()) for x, _ in g}
-    knots = sorted({x_lo, x_hi} | {x for x in corners if x_lo < x < x_hi})
-    xs = np.concatenate([np.linspace(a, b, max(2, int(np.ceil((b - a) / 0.5)) + 1))[:-1]
-                         for a, b in zip(knots[:-1], knots[1:])] + [[x_hi]])
-    left, right = line.guide_y_at(xs)
-    for x0, x1, l0, l1, r0, r1 in zip(xs[:-1], xs[1:], left[:-1], left[1:], right[:-1], right[1:]):
-        _quad(pts, trigs, (x0, l0, z_lo), (x1, l1, z_lo), (x1, l1, z_hi), (x0, l0, z_hi))  # left wall, normal inwards
-        _quad(pts, trigs, (x0, r0, z_lo), (x0, r0, z_hi), (x1, r1, z_hi), (x1, r1, z_lo))  # right wall, normal inwards
-    xp = line.x_start_m - 0.02
-    yl, yr = (float(v[0]) for v in line.guide_y_at([xp]))
-    _quad(pts, trigs, (xp, yr, z_lo), (xp, yl, z_lo), (xp, yl, z_hi), (xp, yr, z_hi))  # end plate, normal +x
-    return pts, trigs
 
 
 def _shaped_inertia(body, enabled: bool) -> np.ndarray:
@@ -330,7 +275,7 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
 
     ground = mbs.AddObject(ObjectGround())
     m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
-    pts, trigs = _guides(line, params)
+    pts, trigs = guide_walls(line, params.guide_height_m)
     gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                   frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
     if parts[1]:  # fixed parts: static like the guides, added before the moving belts as Exudyn requires
@@ -344,10 +289,20 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
                                                                        -np.radians(c.incline_deg), 0.0]))
         body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
         marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
-        pts, trigs = _belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m)
+        pts, trigs = belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m)
         gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                       frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
         belt_nodes.append(node)
+    device_nodes = []
+    for shape in device_shapes(line):  # moved like the belts: put at their pose and given its rate every step
+        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[*shape.origin_m, 0.0, 0.0, 0.0]))
+        body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
+        marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
+        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
+                                      frictionMaterialIndex=MAT_BELT if shape.device.kind == "gate" else MAT_GUIDE,
+                                      pointList=shape.points_m.tolist(),
+                                      triangleList=shape.triangles.tolist(), staticTriangles=False)
+        device_nodes.append(node)
 
     fish_models: list[FishModel] = []
     body_nodes: list[int] = []
@@ -428,10 +383,11 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
     body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in body_nodes], dtype=np.int64).reshape(-1, 6)
     body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in body_nodes]).reshape(-1, 6)
     belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
+    device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in device_nodes], dtype=np.int64).reshape(-1, 6)
     return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_ltg, body_ref, belt_ltg,
                       np.array(sphere_body, dtype=np.int64), np.array(sphere_local).reshape(-1, 3),
                       np.array(sphere_radius), np.array(section_body, dtype=np.int64), np.array(section_x),
-                      np.array(section_half_len), np.array(section_radius), (lo, hi))
+                      np.array(section_half_len), np.array(section_radius), (lo, hi), device_ltg)
 
 
 def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -442,3 +398,21 @@ def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: 
     rv = matrix_to_rotvec(rotation[None])[0]
     values = np.hstack([pos, np.repeat(rv[None, :], len(pos), axis=0)]) - model.body_ref[idx]
     return model.body_ltg[idx].ravel(), values.ravel()
+
+
+def drop_height(centres: np.ndarray, radii: np.ndarray, surface_z: np.ndarray, drop_z_m: float,
+                others: np.ndarray, others_radii: np.ndarray) -> tuple[float, float]:
+    """(z of a dropped fish's mid point, how much higher than asked that is) for a fish whose sphere ``centres``
+    (n, 3) are placed with its mid point at z = 0: its lowest sphere ``drop_z_m`` above the belt top under each
+    sphere (``surface_z``), and clear of the fish already on the line below it (their spheres ``others`` (m, 3)):
+    its lowest sphere above their highest, plus the drop height."""
+    z_mid = float(np.max(surface_z + drop_z_m - (centres[:, 2] - radii)))
+    if not len(others):
+        return z_mid, 0.0
+    d_xy = np.linalg.norm(centres[:, None, :2] - others[None, :, :2], axis=2)
+    near = d_xy < (radii[:, None] + others_radii[None, :] + 0.01)
+    if not np.any(near):
+        return z_mid, 0.0
+    top = np.max(np.where(near, others[None, :, 2] + others_radii[None, :], -np.inf), axis=1)
+    need = float(np.max(top + drop_z_m - (z_mid + centres[:, 2] - radii)))
+    return (z_mid + need, need) if need > 0 else (z_mid, 0.0)

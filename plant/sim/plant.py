@@ -17,11 +17,13 @@ outputs are named by its ports (:mod:`plant.sim.ports`).
 One step is a short, fixed pipeline (read it top to bottom):
 
 1. admit and release the fish whose drop time has come (placed clear of the fish already there);
-2. set the belt speeds (each belt body back in place, moving at its speed);
+2. set the belt speeds (each belt body back in place, moving at its speed) and move the devices (each device
+   body at its pose, moving at its actuator's rate: plant.sim.devices);
 3. re-linearise the joints that are at or running into their limits; with the model's extensions
    (plant.fish.extensions) on, set each fish's friction by the direction it slips, and adhesion forces;
 4. let Exudyn integrate to the end of the step;
-5. read the state, work out the sensors, retire fish that have left the line, publish the state, check its health.
+5. read the state, work out the sensors, retire fish that have left the line or been taken off it by a device,
+   publish the state, check its health.
 
 Only fish in play are in the Exudyn system (see :mod:`plant.sim.model`): when fish are about to be
 dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
@@ -34,32 +36,34 @@ import time
 
 import numpy as np
 
+from plant.contract.devices import exits
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
                                    stiffening_limit_loss)
 from plant.fish.population import FishSpec
-from plant.sim.health import check_health, floor_below
+from plant.sim.health import check_health
 from plant.sim.joints import relinearized, stack_laws
-from plant.sim.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, exu, park_positions,
-                             parked_member, pose_coordinates, prepare_fish)
+from plant.sim.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, drop_height, exu,
+                             park_positions, parked_member, pose_coordinates, prepare_fish)
 from plant.sim.params import PlantParams
 from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
+from plant.sim.devices import DeviceActuators
 from plant.sim.sensors import beams_blocked, belt_loads, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 
-WAITING, ON_LINE, LEFT = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT
+WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
 ADMIT_AHEAD_S = 1.0
 """Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
 
 
 class Plant:
     """The line and its fish in Exudyn, advanced by fixed communication steps: :meth:`step` in, :attr:`state`
-    out.  ``status``, ``t_s``, ``conveyor_ids``, ``model`` and the methods at the end are there for tests and
-    scripts that look inside; fishfmu reads none of them."""
+    out.  ``status``, ``t_s``, ``conveyor_ids`` and ``model`` are there for tests and scripts that look inside;
+    fishfmu reads none of them."""
 
     def __init__(self, line: Line, fish: list[FishSpec], params: PlantParams | None = None,
                  comm_step_s: float = 0.01, joint_factors: list[tuple[float, float]] | None = None,
@@ -99,6 +103,8 @@ class Plant:
         self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
         # each camera's noise its own stream of the run's seed: adding a camera changes no other's
         self._cameras = [CameraUnit(c, np.random.default_rng([seed, 7, i])) for i, c in enumerate(line.cameras)]
+        self._devices = DeviceActuators.of(line)
+        self._rejected_by = np.full(len(self._fish_specs), -1, dtype=np.int64)
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._geometry = tuple(p.geometry for p in self._prepared)
         self.status = np.full(len(self._fish_specs), WAITING, dtype=np.int8)
@@ -121,10 +127,14 @@ class Plant:
         return self._state
 
     # ---- the step ----------------------------------------------------------------------------
-    def step(self, belt_speeds_mps: dict[str, float] | np.ndarray) -> PlantOutputs:
-        """Advance one communication step with the given belt surface speeds."""
+    def step(self, belt_speeds_mps: dict[str, float] | np.ndarray,
+             device_commands: dict[str, bool] | None = None) -> PlantOutputs:
+        """Advance one communication step with the given belt surface speeds and device commands (by device id;
+        a device not named, or all with None, is commanded home)."""
         speeds = self._speeds_array(belt_speeds_mps)
         self._admit_and_release(self.t_s + 1e-9)
+        commands = [bool((device_commands or {}).get(i, False)) for i in self._ports.device_ids]
+        self._devices.advance(np.array(commands, dtype=bool), self._comm_step_s)
         self._set_belts(speeds)
         self._relinearize_joints()
         self._update_friction(speeds)
@@ -213,20 +223,12 @@ class Plant:
         centres = (fm.prepared.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
         radii = self.model.sphere_radius[mine]
         surface = np.array([self._line.z_top_at(float(x)) for x in centres[:, 0]])  # under each sphere: inclines
-        z_mid = float(np.max(surface + spec.drop_z_m - (centres[:, 2] - radii)))
-        # clear of fish already on the line below it: lowest sphere above their highest, plus the drop height
         on_line = (self.status[self._fish_of_body] == ON_LINE)[sph]
-        if np.any(on_line):
-            oc = sphere_centres(self._pos, self._rot, sph[on_line], self.model.sphere_local[on_line])
-            orad = self.model.sphere_radius[on_line]
-            d_xy = np.linalg.norm(centres[:, None, :2] - oc[None, :, :2], axis=2)
-            near = d_xy < (radii[:, None] + orad[None, :] + 0.01)
-            if np.any(near):
-                top = np.max(np.where(near, oc[None, :, 2] + orad[None, :], -np.inf), axis=1)
-                need = float(np.max(top + spec.drop_z_m - (z_mid + centres[:, 2] - radii)))
-                if need > 0:
-                    z_mid += need
-                    self._drop_adjustments += (DropAdjustment(spec.fish_id, need),)
+        others = sphere_centres(self._pos, self._rot, sph[on_line], self.model.sphere_local[on_line])
+        z_mid, raised_by = drop_height(centres, radii, surface, spec.drop_z_m, others,
+                                       self.model.sphere_radius[on_line])
+        if raised_by > 0:
+            self._drop_adjustments += (DropAdjustment(spec.fish_id, raised_by),)
         mid[2] = z_mid
         self._place(slot, mid, rot, list(self._gravity))
         self.status[k] = ON_LINE
@@ -246,7 +248,8 @@ class Plant:
         return speeds
 
     def _set_belts(self, speeds: np.ndarray) -> None:
-        """Each belt body back at its place, shifted back half a step of travel, moving at its speed."""
+        """Each belt body back at its place, shifted back half a step of travel, moving at its speed; each device body
+        at its pose, moving at its actuator's rate."""
         sd = self.model.mbs.systemData
         q = sd.GetODE2Coordinates()
         v = sd.GetODE2Coordinates_t()
@@ -256,6 +259,7 @@ class Plant:
         for axis, share in ((0, self._belt_dir[:, 0]), (2, self._belt_dir[:, 1])):  # along an inclined belt's slope
             q[ltg[:, axis]] = -0.5 * speeds * self._comm_step_s * share
             v[ltg[:, axis]] = speeds * share
+        self._devices.place(q, v, self.model.device_ltg, speeds, self._comm_step_s)
         sd.SetODE2Coordinates(q)
         sd.SetODE2Coordinates_t(v)
 
@@ -338,6 +342,7 @@ class Plant:
         self._vel = vel[:, :3]
         self._omega_local = vel[:, 3:]
         self._belt_vel_end = v[self.model.belt_ltg[:, :3]] if len(self.model.belt_ltg) else np.zeros((0, 3))
+        self._device_vel_end = v[self.model.device_ltg]
 
     def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2,
@@ -345,24 +350,21 @@ class Plant:
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
                                 self._beams, self._beam_span)
         readings = self._camera_readings()
+        self._devices.work_on_fish_j(self._device_vel_end, BELT_MASS_KG)
         return PlantOutputs(
             t_s=self.t_s,
             belt_speed_mps=dict(zip(self.conveyor_ids, map(float, speeds))),
             belt_load_force_n=dict(zip(self.conveyor_ids, map(float, load))),
             belt_load_mass_kg=dict(zip(self.conveyor_ids, map(float, mass))),
-            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, blocked))), **output_fields(readings))
+            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, blocked))), **output_fields(readings),
+            **self._devices.output_fields(self._ports.device_ids, self._rejected_by))
 
     def _camera_readings(self) -> dict:
         """Each camera's outputs after this step; the fish seen from above only when a camera takes a frame."""
-        if not self._cameras:
-            return {}
         t = self.t_s
         due = [c for c in self._cameras if c.frame_due(t)]
-        if due:
-            view = self._top_view()
-            self._detections = tuple(row for c in due for row in c.take_frame(t, view))
-        else:
-            self._detections = ()
+        view = self._top_view() if due else None
+        self._detections = tuple(row for c in due for row in c.take_frame(t, view))
         return {c.camera.id: c.output(t) for c in self._cameras}
 
     def _top_view(self) -> TopView:
@@ -372,13 +374,19 @@ class Plant:
                                     (self._pose_bodies[slots, :1], self._pose_local[slots, :1]))
 
     def _retire_fish(self) -> None:
-        """Fish past the end of the line (or fallen off its end) are parked; the next rebuild drops them. Checked
-        every tenth step: a fish takes far longer than that to clear the end of the line."""
+        """Fish past the end of the line (or fallen off its end) or through a device's exit are parked; the next
+        rebuild drops them. Checked every tenth step: a fish takes far longer than that to clear the end of the line
+        or a device's exit zone."""
         if self._steps % 10:
             return
         on = self.status[self._member] == ON_LINE
         if not np.any(on):
             return
+        through = np.full(len(on), -1)
+        if self._devices.shapes:
+            mid = self._pos[self._pose_bodies[:, 0]] + np.einsum("mij,mj->mi", self._rot[self._pose_bodies[:, 0]],
+                                                                 self._pose_local[:, 0])
+            through = np.where(on, exits(self._devices.shapes, self._line, mid[:, 0], mid[:, 1], mid[:, 2]), -1)
         pos = self._pos.reshape(-1, 5, 3)
         x_gone = self._line.x_end_m + self._params.retire_after_m
         z_floor = self._line.z_range_m[0] - 0.5
@@ -387,14 +395,15 @@ class Plant:
         # one that left slowly drops beside the end drum, some of it not past the end: gone once far below
         fell_off_end |= (np.max(pos[:, :, 0], axis=1) > self._line.x_end_m - 0.1) & np.all(pos[:, :, 2] < z_floor - 0.5,
                                                                                         axis=1)
-        slots = np.flatnonzero(on & (past | fell_off_end))
+        slots = np.flatnonzero(on & (past | fell_off_end | (through >= 0)))
         if not len(slots):
             return
         parks = park_positions(self._line, len(self.model.fish))
         for slot in slots:
             self._park(int(slot), parks[slot])
-            self.status[self._member[slot]] = LEFT
-        gone = int(np.sum(self.status[self._member] == LEFT))
+            k = self._member[slot]
+            self.status[k], self._rejected_by[k] = (REJECTED, through[slot]) if through[slot] >= 0 else (LEFT, -1)
+        gone = int(np.sum(self.status[self._member] >= LEFT))
         if gone >= max(2, len(self._member) // 4):
             self._rebuild(self.t_s)
         else:
@@ -427,7 +436,8 @@ class Plant:
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
             outputs=outputs, pose_bodies=self._pose_bodies, pose_local=self._pose_local, geometry=self._geometry,
-            drop_adjustments=self._drop_adjustments, detections=self._detections, timings_s=dict(self._timings_s))
+            drop_adjustments=self._drop_adjustments, detections=self._detections, rejected_by=self._rejected_by.copy(),
+            device_position=self._devices.position, device_work_j=self._devices.work_j, timings_s=dict(self._timings_s))
 
     def _check_health(self) -> None:
         s = self._state
@@ -435,16 +445,3 @@ class Plant:
         if not np.any(body_on):
             return
         check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self._line, s.t_s)
-
-    def floor_below(self, x_m: np.ndarray) -> np.ndarray:
-        """Lowest belt top within 0.1 m of each x: where a fish can lie, drape or hang over a drum."""
-        return floor_below(self._line, x_m)
-
-    # ---- for tests and scripts: the published state's ---------------------------------------
-    def fish_state(self) -> FishState:
-        """:meth:`PlantState.fish_poses <plant.sim.state.PlantState.fish_poses>` of :attr:`state`."""
-        return self._state.fish_poses()
-
-    def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`PlantState.body_poses <plant.sim.state.PlantState.body_poses>` of :attr:`state`."""
-        return self._state.body_poses()

@@ -9,7 +9,10 @@ Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<s
 - for every camera ``k`` (outputs, what its last result said, see :mod:`plant.sim.camera`): ``k.count`` (Integer,
   fish in view), ``k.double`` (Boolean), ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest
   downstream), ``k.lead_length`` (Real, m), ``k.lead_heading`` (Integer: 1 head first, -1 tail first, 0 no fish),
-  ``k.events`` (Integer: fish seen so far).
+  ``k.events`` (Integer: fish seen so far), ``k.results`` (Integer: results given so far);
+- for every device ``d`` (:mod:`plant.contract.devices`): ``d.command`` (Boolean, in only: true moves it to the end of
+  its travel, false home), ``d.position`` (Real, 0 home to 1 at the end of its travel), ``d.at_home`` and
+  ``d.at_end`` (Boolean: its limit switches), ``d.rejected`` (Integer: fish it has taken off the line so far).
 
 Everything that names the plant's ports derives them from :data:`SIGNALS` and :class:`PlantPorts`: the
 plant's outputs (:meth:`plant.sim.state.PlantOutputs.port_values`), a scenario's wiring
@@ -40,7 +43,7 @@ class Signal:
 
     name: str
     of: str
-    """``conveyor``, ``photoeye`` or ``camera``: whose port it is."""
+    """``conveyor``, ``photoeye``, ``camera`` or ``device``: whose port it is."""
     type: str
     """FMI-style type name of its values: ``Real`` (float), ``Integer`` (int) or ``Boolean`` (bool)."""
     unit: str | None
@@ -48,8 +51,9 @@ class Signal:
     """The unit in SI base units (kg, m, s, A, K, mol, cd, rad, factor, offset), as an FMU defines one."""
     is_input: bool
     field: str
-    """The :class:`~plant.sim.state.PlantOutputs` field holding its output values, by id."""
+    """The :class:`~plant.sim.state.PlantOutputs` field holding its output values, by id ("" for an input only)."""
     description: str
+    is_output: bool = True
 
 
 SIGNALS: dict[str, Signal] = {s.name: s for s in (
@@ -71,6 +75,17 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
            "the leading fish comes head first (1) or tail first (-1); 0 with none in view"),
     Signal("events", "camera", "Integer", None, None, False, "camera_events",
            "fish the camera has seen so far: steps by one each time a new fish comes into view"),
+    Signal("results", "camera", "Integer", None, None, False, "camera_results",
+           "results the camera has given so far: steps by one with each new result (a frame's, after its latency)"),
+    Signal("command", "device", "Boolean", None, None, True, "",
+           "true: move to the end of the travel (open the gate, stroke the pusher, swing the arm); false: home", False),
+    Signal("position", "device", "Real", None, None, False, "device_position",
+           "where the device is along its travel: 0 home, 1 at its end"),
+    Signal("at_home", "device", "Boolean", None, None, False, "device_at_home", "limit switch: the device is home"),
+    Signal("at_end", "device", "Boolean", None, None, False, "device_at_end",
+           "limit switch: the device is at the end of its travel"),
+    Signal("rejected", "device", "Integer", None, None, False, "device_rejected",
+           "fish the device has taken off the line so far"),
 )}
 """Every signal of the plant's ports, conveyors' first; each conveyor's, each photo-eye's and each camera's ports
 come in this order."""
@@ -83,27 +98,30 @@ def signal_of(port: str) -> Signal:
 
 @dataclass(frozen=True)
 class PlantPorts:
-    """The ports of one line's plant: per conveyor, per photo-eye and per camera, in the line's order."""
+    """The ports of one line's plant: per conveyor, per photo-eye, per camera and per device, in the line's order."""
 
     conveyor_ids: tuple[str, ...]
     photoeye_ids: tuple[str, ...]
     camera_ids: tuple[str, ...] = ()
+    device_ids: tuple[str, ...] = ()
 
     @classmethod
     def of(cls, line: Line) -> PlantPorts:
         return cls(tuple(c.id for c in line.conveyors), tuple(p.id for p in line.photoeyes),
-                   tuple(c.id for c in line.cameras))
+                   tuple(c.id for c in line.cameras), tuple(d.id for d in line.devices))
 
     def _names(self, signals: Iterable[Signal]) -> list[str]:
         signals = list(signals)
-        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids, "camera": self.camera_ids}
+        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids, "camera": self.camera_ids,
+               "device": self.device_ids}
         return [f"{i}.{s.name}" for of in ids for i in ids[of] for s in signals if s.of == of]
 
     def inputs(self) -> list[str]:
-        """Input port names (every conveyor's ``speed``)."""
+        """Input port names (every conveyor's ``speed``, every device's ``command``)."""
         return self._names(s for s in SIGNALS.values() if s.is_input)
 
     def outputs(self, signals: Iterable[str] | None = None) -> list[str]:
-        """Output port names: every conveyor's, then every photo-eye's and camera's, or only those of the named
-        ``signals``."""
-        return self._names(SIGNALS[n] for n in (SIGNALS if signals is None else signals))
+        """Output port names: every conveyor's, then every photo-eye's, camera's and device's, or only those of the
+        named ``signals``."""
+        return self._names(s for s in (SIGNALS.values() if signals is None else map(SIGNALS.__getitem__, signals))
+                           if s.is_output)

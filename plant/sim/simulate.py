@@ -60,7 +60,7 @@ class ClearWatch:
         """After the step that ended at ``t``, with the fish's ``status``: is the run over?"""
         if not len(status):
             return False
-        if np.all(status == FishStatus.LEFT):
+        if np.all(status >= FishStatus.LEFT):  # left at the end or taken off by a device
             self.clear_since = t if self.clear_since is None else self.clear_since
             return t - self.clear_since >= self.margin_s - 1e-9
         if np.any(status == FishStatus.WAITING):

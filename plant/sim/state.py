@@ -44,6 +44,8 @@ class FishStatus(enum.IntEnum):
     """Dropped and on the line."""
     LEFT = 2
     """Gone past the end of the line (or fallen off it)."""
+    REJECTED = 3
+    """Taken off the line by one of its devices (a gate, pusher or diverter)."""
 
 
 @dataclass(frozen=True)
@@ -61,13 +63,18 @@ class PlantOutputs:
     camera_lead_length_m: dict[str, float] = field(default_factory=dict)
     camera_lead_heading: dict[str, int] = field(default_factory=dict)
     camera_events: dict[str, int] = field(default_factory=dict)
+    camera_results: dict[str, int] = field(default_factory=dict)
+    device_position: dict[str, float] = field(default_factory=dict)
+    device_at_home: dict[str, bool] = field(default_factory=dict)
+    device_at_end: dict[str, bool] = field(default_factory=dict)
+    device_rejected: dict[str, int] = field(default_factory=dict)
 
     def port_values(self) -> dict[str, float | bool]:
         """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
         :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`."""
         out: dict[str, float | bool] = {}
         for of, ids in _IDS_OF:
-            signals = [(s.name, getattr(self, s.field)) for s in SIGNALS.values() if s.of == of]
+            signals = [(s.name, getattr(self, s.field)) for s in SIGNALS.values() if s.of == of and s.is_output]
             for i in getattr(self, ids):
                 for name, values in signals:
                     out[f"{i}.{name}"] = values[i]
@@ -75,17 +82,21 @@ class PlantOutputs:
 
     @classmethod
     def at_rest(cls, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
-        """Belts stopped and unloaded, every beam clear, every camera with nothing seen (the outputs before the first
-        step)."""
-        conveyors, cameras = ports.conveyor_ids, ports.camera_ids
+        """Belts stopped and unloaded, every beam clear, every camera with nothing seen, every device home (the
+        outputs before the first step)."""
+        conveyors, cameras, devices = ports.conveyor_ids, ports.camera_ids, ports.device_ids
         return cls(t_s, dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0),
                    dict.fromkeys(ports.photoeye_ids, False), dict.fromkeys(cameras, 0), dict.fromkeys(cameras, False),
                    dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0),
-                   dict.fromkeys(cameras, 0))
+                   dict.fromkeys(cameras, 0), dict.fromkeys(cameras, 0), dict.fromkeys(devices, 0.0),
+                   dict.fromkeys(devices, True),
+                   dict.fromkeys(devices, False), dict.fromkeys(devices, 0))
 
 
-_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"), ("camera", "camera_count"))
-"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes, of the cameras."""
+_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"), ("camera", "camera_count"),
+           ("device", "device_position"))
+"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes, of the cameras, of the
+devices."""
 
 
 @dataclass
@@ -155,6 +166,12 @@ class PlantState:
     detections: tuple[tuple, ...] = ()
     """The cameras' detections of the frames taken in this step (rows of
     :data:`plant.sim.camera.DETECTION_COLUMNS`; empty in a step without a frame)."""
+    rejected_by: np.ndarray | None = None
+    """(n_fish,) index of the device (in the line's order) that took each fish off the line, -1 for none."""
+    device_position: np.ndarray | None = None
+    """(n_devices,) every device's position along its travel (0 home, 1 at its end)."""
+    device_work_j: float = 0.0
+    """Work the devices did on the fish during the step [J] (a source of their energy, like the belts)."""
     timings_s: dict[str, float] = field(default_factory=dict)
     """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``)."""
 

@@ -1,0 +1,189 @@
+"""The actuated devices of a line (``[[line.devices]]``): their shape, how they move, where a fish they take off goes.
+
+One description for the plant (which puts each device's triangles on a body it moves), the health checks (which let
+a fish leave where a device sends it) and the replay (which draws them).  A device's state is its position ``p``
+along its travel, 0 at home to 1 at the end of it.
+
+- **gate**: a short belt section (a flap whose surface runs at the speed of the belt before it: a dead plate as long
+  as a gate would stall a fish on it), hinged at its upstream edge ``x_m`` 5 mm below the end of the belt before it,
+  spanning the lane; open, it turns about the hinge (axis y) so that its far edge swings down by
+  ``p * travel_deg``.  A fish whose mid-length point is 0.15 m below the hinge over the flap has gone through:
+  rejected.
+- **pusher**: a paddle (``length_m`` along x, 0.15 m high, 3 cm thick) whose face sits on the guide opposite
+  ``side`` at home and moves ``p * travel_m`` across towards ``side``; the guide on ``side`` is open over the
+  paddle's length.
+- **diverter**: an arm (``length_m``, 0.15 m high, 2 cm thick) that is the guide on ``side`` over
+  ``x_m .. x_m + length_m`` at home, pivoting about a vertical axis at its downstream end; its free end swings
+  ``p * travel_deg`` into the lane, and the guide it was is open.
+
+A pusher's or diverter's fish whose mid-length point is 0.1 m beyond the guide line on ``side`` has left: rejected.
+
+>>> from plant.contract.line import Line
+>>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+...     {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0},
+...     {"id": "c2", "x_start_m": 2.4, "length_m": 1.0, "width_m": 0.5, "z_top_m": -0.02}],
+...     "devices": [{"id": "g", "kind": "gate", "x_m": 2.0, "length_m": 0.35},
+...                 {"id": "p", "kind": "pusher", "x_m": 0.5, "length_m": 0.8}]})
+>>> gate, pusher = device_shapes(line)
+>>> [round(float(v), 3) for v in gate.pose(1.0)[1]], round(float(gate.travel), 4)   # open: 60 deg about y
+([0.0, 1.047, 0.0], 1.0472)
+>>> [round(float(v), 3) for v in pusher.pose(0.5)[0]], pusher.opening  # half way across, to the right
+([0.5, 0.0, 0.0], (-1, 0.5, 1.3))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plant.contract.line import Device, Line
+
+PADDLE_HEIGHT_M = 0.15
+"""Height of a pusher's paddle and a diverter's arm above the belt: above any fish lying on it, below the guides."""
+CLEARANCE_M = 0.003
+"""A paddle's or arm's lower edge above the belt (triangles do not touch triangles, but a fish's fin could be
+caught between them)."""
+GATE_DROP_M = 0.15
+"""A fish whose mid-length point is this far below a gate's hinge, over its flap, has gone through."""
+SIDE_CLEAR_M = 0.1
+"""A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left."""
+ZONE_MARGIN_M = 0.1
+"""Along x, a device's exit zone reaches this far beyond its flap, paddle or arm..."""
+SIDE_REACH_M = 0.6
+"""... and a side opening's this far downstream of it: a fish steered out leaves moving downstream (a diverter's
+leaves past the arm's pivot)."""
+
+
+@dataclass(frozen=True)
+class DeviceShape:
+    """One device of a line: its triangles in its body's frame and how that body moves with the position ``p``."""
+
+    device: Device
+    origin_m: np.ndarray
+    """(3,) the body's origin at home, line frame: a gate's hinge, a pusher's paddle face, a diverter's pivot."""
+    points_m: np.ndarray
+    """(n, 3) triangle corners in the body's frame (its axes those of the line at home)."""
+    triangles: np.ndarray
+    """(m, 3) corner indices; the normal (p1 - p0) x (p2 - p0) faces where fish come from."""
+    travel: float
+    """Full travel: rad for a gate or diverter, m for a pusher."""
+    axis: np.ndarray
+    """(3,) unit axis of the motion: of the rotation (gate, diverter) or of the translation (pusher)."""
+    opening: tuple[int, float, float] | None
+    """(side: +1 left / -1 right, x from, x to) of the guide a pusher or diverter opens; None for a gate."""
+    hinge_z_m: float = 0.0
+    feeder: int = -1
+    """A gate: the index of the conveyor before it, whose speed its surface runs at; -1 for the others."""
+
+    @property
+    def rotates(self) -> bool:
+        return self.device.kind != "pusher"
+
+    def pose(self, p: float) -> tuple[np.ndarray, np.ndarray]:
+        """(position of the body's origin (3,), rotation vector (3,)) at position ``p`` (0 home, 1 end)."""
+        if self.rotates:
+            return self.origin_m.copy(), self.axis * (p * self.travel)
+        return self.origin_m + self.axis * (p * self.travel), np.zeros(3)
+
+    def velocity(self, p: float, p_per_s: float, surface_mps: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """(velocity of the body (3,), angular velocity (3,); the same in the body's frame: about a fixed axis)
+        at ``p`` while it changes at ``p_per_s``; a gate's surface running at ``surface_mps`` along the flap."""
+        if self.device.kind == "gate":
+            a = p * self.travel
+            return surface_mps * np.array([np.cos(a), 0.0, -np.sin(a)]), self.axis * (p_per_s * self.travel)
+        if self.rotates:
+            return np.zeros(3), self.axis * (p_per_s * self.travel)
+        return self.axis * (p_per_s * self.travel), np.zeros(3)
+
+    def exit_zone(self, x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray, line: Line) -> np.ndarray:
+        """True where a fish's mid-length point at (x, y, z) has left the line through this device."""
+        if self.device.kind == "gate":
+            return self.region(x_m, y_m, line) & (z_m < self.hinge_z_m - GATE_DROP_M)
+        return self.region(x_m, y_m, line, beyond_m=SIDE_CLEAR_M)
+
+    def region(self, x_m: np.ndarray, y_m: np.ndarray | None, line: Line, beyond_m: float = 0.0) -> np.ndarray:
+        """True where (x, y) is where a fish leaving through this device goes: over a gate's gap; beyond the guide
+        line (by more than ``beyond_m``) at a pusher's or diverter's opening (anywhere across with ``y_m`` None: a
+        fish falling off a belt's side can swing under it)."""
+        d = self.device
+        if d.kind == "gate":
+            return (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + ZONE_MARGIN_M)
+        along = (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + SIDE_REACH_M)
+        if y_m is None:
+            return along
+        side = self.opening[0]
+        guide = line.guide_y_at(x_m)[0 if side > 0 else 1]
+        return along & (side * (y_m - guide) > beyond_m)
+
+
+def _box(pts: list, trigs: list, x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> None:
+    """The faces of an axis-aligned box, normals outwards (the bottom left out: nothing comes from below)."""
+    (x0, x1), (y0, y1), (z0, z1) = x, y, z
+    faces = (((x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1)),   # -y
+             ((x0, y1, z0), (x0, y1, z1), (x1, y1, z1), (x1, y1, z0)),   # +y
+             ((x0, y0, z0), (x0, y0, z1), (x0, y1, z1), (x0, y1, z0)),   # -x
+             ((x1, y0, z0), (x1, y1, z0), (x1, y1, z1), (x1, y0, z1)),   # +x
+             ((x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)))   # +z
+    for a, b, c, e in faces:
+        base = len(pts)
+        pts += [a, b, c, e]
+        trigs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+
+
+def device_shape(line: Line, d: Device) -> DeviceShape:
+    """The shape and motion of device ``d`` of ``line``."""
+    pts: list = []
+    trigs: list = []
+    left, right = (float(v) for v in line.guide_y_at(np.array(0.5 * (d.x_m + d.x_end_m))))
+    if d.kind == "gate":
+        feeder = next(k for k, c in enumerate(line.conveyors) if d.x_m - 1e-6 < c.x_end_m)  # ends at x_m or before
+        hinge_z = line.conveyors[feeder].z_end_m - 0.005
+        # the flap: its top at the hinge's height, spanning the lane and a little under the guides
+        _box(pts, trigs, (0.0, d.length_m), (right - 0.02, left + 0.02), (-0.01, 0.0))
+        return DeviceShape(d, np.array([d.x_m, 0.0, hinge_z]), np.array(pts, float), np.array(trigs),
+                           np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder)
+    side = 1 if d.side == "left" else -1
+    z_belt = min(line.z_top_at(d.x_m), line.z_top_at(d.x_end_m))
+    z = (CLEARANCE_M, PADDLE_HEIGHT_M)
+    if d.kind == "pusher":
+        home_y = right if side > 0 else left  # the paddle's face on the guide opposite the side fish leave by
+        # the paddle behind its face (away from the lane)
+        _box(pts, trigs, (0.0, d.length_m), (-0.03, 0.0) if side > 0 else (0.0, 0.03), z)
+        travel = d.travel_m if d.travel_m is not None else left - right
+        return DeviceShape(d, np.array([d.x_m, home_y, z_belt]), np.array(pts, float), np.array(trigs), travel,
+                           np.array([0.0, float(side), 0.0]), (side, d.x_m, d.x_end_m))
+    guide_y = float(line.guide_y_at(np.array(d.x_end_m))[0 if side > 0 else 1])
+    # the arm upstream of its pivot, its inner face on the guide line
+    _box(pts, trigs, (-d.length_m, 0.0), (0.0, 0.02) if side > 0 else (-0.02, 0.0), z)
+    # its free end swings into the lane: about +z for a left arm (towards -y), about -z for a right one
+    return DeviceShape(d, np.array([d.x_end_m, guide_y, z_belt]), np.array(pts, float), np.array(trigs),
+                       np.radians(d.travel_deg or 45.0), np.array([0.0, 0.0, float(side)]), (side, d.x_m, d.x_end_m))
+
+
+def device_shapes(line: Line) -> tuple[DeviceShape, ...]:
+    """Every device of ``line``, in its order."""
+    return tuple(device_shape(line, d) for d in line.devices)
+
+
+def in_exit_regions(line: Line, x_m: np.ndarray, y_m: np.ndarray | None) -> np.ndarray:
+    """True where (x, y) is in any device's :meth:`DeviceShape.region` (where the health checks let a fish be)."""
+    out = np.zeros(np.shape(x_m), dtype=bool)
+    for shape in device_shapes(line):
+        out |= shape.region(x_m, y_m, line)
+    return out
+
+
+def guide_openings(line: Line) -> tuple[tuple[int, float, float], ...]:
+    """(side, x from, x to) of every stretch of guide a device opens."""
+    return tuple(s.opening for s in device_shapes(line) if s.opening is not None)
+
+
+def exits(shapes: tuple[DeviceShape, ...], line: Line, x_m: np.ndarray, y_m: np.ndarray,
+          z_m: np.ndarray) -> np.ndarray:
+    """(n,) index of the device each mid-length point has left the line through, -1 for none (the first device
+    in the line's order where zones overlap)."""
+    out = np.full(np.shape(x_m), -1, dtype=np.int64)
+    for i, shape in reversed(list(enumerate(shapes))):
+        out[shape.exit_zone(x_m, y_m, z_m, line)] = i
+    return out

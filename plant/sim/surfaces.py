@@ -1,0 +1,69 @@
+"""The line's fixed contact surfaces as triangles: each belt's top (in its own frame) and the side guides with the
+infeed end plate (in the line frame).  Normals, (p1 - p0) x (p2 - p0), face where fish come from: GeneralContact
+pushes spheres out along them."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from plant.contract.devices import guide_openings
+from plant.contract.line import Line
+
+DRUM_RADIUS_M = 0.03
+"""A belt's rounded lip at each end (its drum)."""
+
+
+def _quad(pts: list[list[float]], trigs: list[list[int]], a, b, c, d) -> None:
+    """Two triangles a-b-c, a-c-d; the normal (b-a) x (c-a) must point towards the fish."""
+    base = len(pts)
+    pts += [list(a), list(b), list(c), list(d)]
+    trigs += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+
+
+def belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], list[list[int]]]:
+    """Top surface of a belt in its own frame (origin at the upstream end of the top, z up),
+    in 0.25 m strips, with a rounded lip (drum) at each end."""
+    pts: list[list[float]] = []
+    trigs: list[list[int]] = []
+    hw = 0.5 * width_m
+    xs = np.linspace(0.0, length_m, max(2, int(np.ceil(length_m / 0.25)) + 1))
+    for x0, x1 in zip(xs[:-1], xs[1:]):
+        _quad(pts, trigs, (x0, -hw, 0.0), (x1, -hw, 0.0), (x1, hw, 0.0), (x0, hw, 0.0))
+    angles = np.radians([0.0, 30.0, 60.0, 90.0])
+    r = DRUM_RADIUS_M
+    for sign, x_end in ((1.0, length_m), (-1.0, 0.0)):
+        for a0, a1 in zip(angles[:-1], angles[1:]):
+            p0 = (x_end + sign * r * np.sin(a0), r * np.cos(a0) - r)
+            p1 = (x_end + sign * r * np.sin(a1), r * np.cos(a1) - r)
+            if sign > 0:
+                _quad(pts, trigs, (p0[0], -hw, p0[1]), (p1[0], -hw, p1[1]), (p1[0], hw, p1[1]), (p0[0], hw, p0[1]))
+            else:
+                _quad(pts, trigs, (p1[0], -hw, p1[1]), (p0[0], -hw, p0[1]), (p0[0], hw, p0[1]), (p1[0], hw, p1[1]))
+    return pts, trigs
+
+
+def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], list[list[int]]]:
+    """Side walls along the whole line (straight, or along the guides' polylines) and an end plate at the infeed,
+    in panels of at most 0.5 m."""
+    pts: list[list[float]] = []
+    trigs: list[list[int]] = []
+    z_lo = line.z_range_m[0] - 0.15
+    z_hi = line.z_range_m[1] + guide_height_m
+    x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
+    corners = {x for g in ((line.guides.left, line.guides.right) if line.guides else ()) for x, _ in g}
+    openings = guide_openings(line)  # where a pusher or diverter sends fish out, no wall
+    corners |= {x for _, a, b in openings for x in (a, b)}
+    knots = sorted({x_lo, x_hi} | {x for x in corners if x_lo < x < x_hi})
+    xs = np.concatenate([np.linspace(a, b, max(2, int(np.ceil((b - a) / 0.5)) + 1))[:-1]
+                         for a, b in zip(knots[:-1], knots[1:])] + [[x_hi]])
+    left, right = line.guide_y_at(xs)
+    for x0, x1, l0, l1, r0, r1 in zip(xs[:-1], xs[1:], left[:-1], left[1:], right[:-1], right[1:]):
+        open_on = {side for side, a, b in openings if a - 1e-9 <= 0.5 * (x0 + x1) <= b + 1e-9}
+        if 1 not in open_on:  # left wall, normal inwards
+            _quad(pts, trigs, (x0, l0, z_lo), (x1, l1, z_lo), (x1, l1, z_hi), (x0, l0, z_hi))
+        if -1 not in open_on:  # right wall, normal inwards
+            _quad(pts, trigs, (x0, r0, z_lo), (x0, r0, z_hi), (x1, r1, z_hi), (x1, r1, z_lo))
+    xp = line.x_start_m - 0.02
+    yl, yr = (float(v[0]) for v in line.guide_y_at([xp]))
+    _quad(pts, trigs, (xp, yr, z_lo), (xp, yl, z_lo), (xp, yl, z_hi), (xp, yr, z_hi))  # end plate, normal +x
+    return pts, trigs
