@@ -30,12 +30,46 @@
  *
  * Priority of a belt's setpoint: not started -> 0; stopped by a jam -> 0; held -> hold_factor x
  * speed; else speed.  In mode 0 gaps are measured but never acted on.
+ *
+ * Reject (reject_mode 1: doubles; 2: doubles and fish coming tail first; 0: off).  A camera
+ * upstream of a reject device (gate, pusher) that acts at x = reject_x reports results; the fish go
+ * from the camera to the device on belt reject_belt (1..8, also a belt beyond n_belts whose speed is
+ * wired), whose measured speed belt_speed_<reject_belt> is v.  The controller integrates that belt's
+ * travel s (m): s = 0 at scan 0, each later scan adds v x T (v as read at that scan), in every mode.
+ * Reject windows are kept in travel, not in time, so that a change of belt speed between a result and
+ * the fish's arrival moves the reject with the fish.
+ *
+ * A new result is a scan at which cam_results differs from its value at the previous scan (the value
+ * at scan 0 is the reference: a result there is not new); a repeated result is never looked at again.
+ * A new result calls for a reject when (reject_mode >= 1 and cam_double) or (reject_mode = 2 and
+ * cam_lead_heading = -1), and cam_lead_length > 0.  It is camera_latency old: the leading fish's
+ * front is now at x_front = cam_lead_x + v x camera_latency, its back cam_lead_length behind.  With
+ * d = reject_x - x_front its window opens at s_open = s + d - reject_margin - v x actuator_time (the
+ * device is commanded actuator_time before the front, less the margin, reaches reject_x) and closes
+ * at s_close = s + d + cam_lead_length + reject_margin (held until the back, plus the margin, has
+ * passed).  A window with s_close < s already (the fish is past the device) is ignored.
+ *
+ * Up to 32 windows are pending, in the order scheduled.  A new window that overlaps or touches the
+ * most recent pending one (s_open <= its s_close and s_close >= its s_open) is merged into it (the
+ * union's ends); otherwise it is appended and reject_events counts one.  With 32 pending, a warning
+ * is logged and the new window is merged into the most recent one (not counted).  A window is
+ * dropped at the first scan with s_close < s; reject_mode = 0 drops them all.  reject is true at a
+ * scan with s_open <= s <= s_close for a pending window (s compared to within 1e-9 m, so that the
+ * rounding of the running sum costs no scan); in mode 0 it is false and no window is scheduled.
+ * The reject logic runs after the setpoints in each scan and changes nothing else.  A result set
+ * between two scans is read at the next one: the fish has then moved up to v x T more than assumed.
  */
 #include <math.h>
 
 #include "fmu_glue.h"
 
 #define MAX_BELTS 8
+#define MAX_WINDOWS 32          /* reject windows pending at once */
+#define TRAVEL_TOLERANCE_M 1e-9 /* travel comparisons: float rounding of the running sum costs no scan */
+
+typedef struct {
+    double open_m, close_m; /* in travel s of belt reject_belt */
+} RejectWindow;
 
 typedef struct {
     long scan; /* index of the last scan run */
@@ -48,6 +82,11 @@ typedef struct {
     long hold_until[MAX_BELTS + 1];    /* belt is held while scan < hold_until */
     int jam_belt;
     long gap_events;
+    double travel_m;      /* s: travel of belt reject_belt since scan 0 */
+    double last_results;  /* cam_results at the previous scan */
+    int n_windows;
+    RejectWindow windows[MAX_WINDOWS]; /* pending reject windows, in the order scheduled */
+    long reject_events;
     /* derived from the parameters */
     long start_scan[MAX_BELTS + 1];
     long hold_scans, jam_scans, jam_clear_scans;
@@ -130,6 +169,53 @@ static void write_setpoints(ModelInstance *inst, ControllerState *s, int n, long
     }
 }
 
+/* Does the camera result on the inputs call for a reject under reject_mode? */
+static int result_calls_for_reject(ModelInstance *inst) {
+    int mode = (int)V(REJECT_MODE);
+    return (mode >= 1 && V(CAM_DOUBLE) != 0.0) || (mode == 2 && (int)V(CAM_LEAD_HEADING) == -1);
+}
+
+/* Schedule the window of the leading fish of a new result, the belt moving at v_mps. */
+static void schedule_reject(ModelInstance *inst, ControllerState *s, double v_mps) {
+    double length_m = V(CAM_LEAD_LENGTH);
+    double front_now_m = V(CAM_LEAD_X) + v_mps * V(CAMERA_LATENCY);
+    double to_go_m = V(REJECT_X) - front_now_m;
+    RejectWindow w, *last = s->n_windows > 0 ? &s->windows[s->n_windows - 1] : NULL;
+    int overlaps;
+    w.open_m = s->travel_m + to_go_m - V(REJECT_MARGIN) - v_mps * V(ACTUATOR_TIME);
+    w.close_m = s->travel_m + to_go_m + length_m + V(REJECT_MARGIN);
+    if (w.close_m + TRAVEL_TOLERANCE_M < s->travel_m) return; /* the fish is past the device already */
+    overlaps = last != NULL && w.open_m <= last->close_m + TRAVEL_TOLERANCE_M &&
+               w.close_m + TRAVEL_TOLERANCE_M >= last->open_m;
+    if (!overlaps && s->n_windows < MAX_WINDOWS) {
+        s->windows[s->n_windows++] = w;
+        s->reject_events++;
+        return;
+    }
+    if (!overlaps)
+        fmu_log(inst, fmi2Warning, "reject: %d windows are pending; the window of the fish at x = %g m is merged "
+                "into the most recent one", MAX_WINDOWS, V(CAM_LEAD_X));
+    if (w.open_m < last->open_m) last->open_m = w.open_m;
+    if (w.close_m > last->close_m) last->close_m = w.close_m;
+}
+
+static void update_reject(ModelInstance *inst, ControllerState *s, long k) {
+    double v_mps = VI(BELT_SPEED, (int)V(REJECT_BELT));
+    int new_result = k > 0 && V(CAM_RESULTS) != s->last_results;
+    int i, kept = 0, reject = 0;
+    if (k > 0) s->travel_m += v_mps * V(SCAN_TIME);
+    s->last_results = V(CAM_RESULTS);
+    for (i = 0; i < s->n_windows; i++) /* drop the windows the fish has passed */
+        if (s->windows[i].close_m + TRAVEL_TOLERANCE_M >= s->travel_m) s->windows[kept++] = s->windows[i];
+    s->n_windows = (int)V(REJECT_MODE) == 0 ? 0 : kept;
+    if (new_result && result_calls_for_reject(inst) && V(CAM_LEAD_LENGTH) > 0.0) schedule_reject(inst, s, v_mps);
+    for (i = 0; i < s->n_windows && !reject; i++)
+        reject = s->windows[i].open_m <= s->travel_m + TRAVEL_TOLERANCE_M &&
+                 s->travel_m <= s->windows[i].close_m + TRAVEL_TOLERANCE_M;
+    V(REJECT) = reject;
+    V(REJECT_EVENTS) = (double)s->reject_events;
+}
+
 static void run_scan(ModelInstance *inst, ControllerState *s, long k) {
     int n = (int)V(N_BELTS), i;
     s->scan = k;
@@ -137,6 +223,7 @@ static void run_scan(ModelInstance *inst, ControllerState *s, long k) {
     update_jam(inst, s, n, k);
     write_setpoints(inst, s, n, k);
     V(GAP_EVENTS) = (double)s->gap_events;
+    update_reject(inst, s, k);
 }
 
 void model_start(ModelInstance *inst) {
@@ -145,6 +232,10 @@ void model_start(ModelInstance *inst) {
     s->start_time_s = inst->time_s;
     s->jam_belt = 0;
     s->gap_events = 0;
+    s->travel_m = 0.0;
+    s->last_results = V(CAM_RESULTS);
+    s->n_windows = 0;
+    s->reject_events = 0;
     for (i = 0; i <= MAX_BELTS; i++) {
         s->was_blocked[i] = 0;
         s->gap_open[i] = 0;
