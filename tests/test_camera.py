@@ -64,9 +64,17 @@ def test_a_gap_below_double_gap_is_a_double_and_above_it_is_not():
     # f1 from 1.70 m, f2 up to 1.66 m: 4 cm apart
     fishes = [fish("f1", LENGTH_M, x_m=2.0), fish("f2", LENGTH_M, x_m=1.36)]
     _, out = settle(camera_line(double_gap_m=0.08), fishes)
-    assert out[-1].port_values()["cam.double"] is True
+    assert out[-1].port_values()["cam.double"] is True and out[-1].port_values()["cam.lead_double"] is True
     _, out = settle(camera_line(double_gap_m=0.01), fishes)
-    assert out[-1].port_values()["cam.double"] is False
+    assert out[-1].port_values()["cam.double"] is False and out[-1].port_values()["cam.lead_double"] is False
+
+
+def test_a_single_leader_ahead_of_a_double_is_not_a_lead_double():
+    # f1 alone ahead (1.85 to 2.45 m), f2 (1.15 to 1.75 m) 0.1 m behind it, f3 up to 1.11 m: 4 cm behind f2
+    _, out = settle(camera_line(double_gap_m=0.08), [fish("f1", LENGTH_M, x_m=2.15), fish("f2", LENGTH_M, x_m=1.45),
+                                                     fish("f3", LENGTH_M, x_m=0.81)])
+    last = out[-1].port_values()
+    assert last["cam.count"] == 3 and last["cam.double"] is True and last["cam.lead_double"] is False
 
 
 def test_a_fish_partly_in_view_is_as_long_as_the_part_in_view():
@@ -84,6 +92,10 @@ def test_frames_come_at_the_rate_and_their_results_after_the_latency():
     assert first == pytest.approx(0.18, abs=1e-9)
     assert all(o.port_values()["cam.count"] == 0 and o.port_values()["cam.lead_heading"] == 0 for o in out
                if o.t_s < first)
+    # the results counter steps with each result: frame k (due at 0.04 k s, taken at the first step then: 0.01 s for
+    # the first) is result k + 1, out 0.1 s after it was taken
+    results = {round(o.t_s, 6): o.port_values()["cam.results"] for o in out}
+    assert (results[0.1], results[0.11], results[0.13], results[0.14], results[0.4]) == (0, 1, 1, 2, 8)
 
 
 def test_positions_carry_the_set_noise_and_no_bias():
@@ -114,8 +126,9 @@ def test_detections_name_fish_by_track_and_each_frame_once():
 
 def test_the_cameras_ports_follow_the_photo_eyes():
     ports = PlantPorts.of(camera_line())
-    assert ports.outputs()[-6:] == ["cam.count", "cam.double", "cam.lead_x", "cam.lead_length", "cam.lead_heading",
-                                    "cam.events"]
+    assert ports.outputs()[-8:] == ["cam.count", "cam.double", "cam.lead_double", "cam.lead_x", "cam.lead_length",
+                                    "cam.lead_heading",
+                                    "cam.events", "cam.results"]
 
 
 @pytest.mark.parametrize("camera, key", [({"x_start_m": 2.0, "x_end_m": 1.0}, "line.cameras[0].x_end_m"),

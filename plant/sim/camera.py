@@ -11,6 +11,7 @@ faster than the plant's steps takes one frame a step), each frame's result on th
 positions and lengths with independent Gaussian noise of ``position_noise_m``.  From a frame:
 
 - ``count``: fish in view; ``double``: two of them overlap along x or are closer than ``double_gap_m``;
+  ``lead_double``: the leading fish is one of such a pair (what a reject downstream acts on: the fish to come);
 - the leading fish (its front end furthest downstream): ``lead_x`` its front end, ``lead_length``, ``lead_heading``
   (1 head first, -1 tail first; 0 and zero lengths with no fish in view);
 - ``events``: fish seen so far (a fish counts once, the first time it is in view);
@@ -94,6 +95,7 @@ class Reading:
 
     count: int = 0
     double: bool = False
+    lead_double: bool = False
     lead_x_m: float = 0.0
     lead_length_m: float = 0.0
     lead_heading: int = 0
@@ -141,7 +143,9 @@ class CameraUnit:
         for f in view.fish[k]:
             self._track.setdefault(int(f), len(self._track) + 1)
         lead = int(np.argmax(front)) if len(k) else -1
-        reading = Reading(len(k), double, float(front[lead]) if len(k) else 0.0,
+        apart = np.maximum(back - front[lead], back[lead] - front) if len(k) else np.zeros(0)  # to the leader
+        lead_double = bool(len(k) > 1 and np.any(np.delete(apart, lead) < cam.double_gap_m))
+        reading = Reading(len(k), double, lead_double, float(front[lead]) if len(k) else 0.0,
                           float(length[lead]) if len(k) else 0.0, int(heading[lead]) if len(k) else 0,
                           len(self._track), self.frames)
         self._pending.append((t_s + cam.latency_s, reading))
@@ -159,6 +163,7 @@ def output_fields(readings: dict[str, Reading]) -> dict[str, dict]:
     """The cameras' readings (by camera id) as the :class:`~plant.sim.state.PlantOutputs` fields that hold them."""
     return {"camera_count": {i: r.count for i, r in readings.items()},
             "camera_double": {i: r.double for i, r in readings.items()},
+            "camera_lead_double": {i: r.lead_double for i, r in readings.items()},
             "camera_lead_x_m": {i: r.lead_x_m for i, r in readings.items()},
             "camera_lead_length_m": {i: r.lead_length_m for i, r in readings.items()},
             "camera_lead_heading": {i: r.lead_heading for i, r in readings.items()},

@@ -7,7 +7,7 @@ Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<s
 - ``c.load_mass`` (Real, kg): out, the mass resting on the belt;
 - ``p.blocked`` (Boolean): out, whether a fish cuts the beam;
 - for every camera ``k`` (outputs, what its last result said, see :mod:`plant.sim.camera`): ``k.count`` (Integer,
-  fish in view), ``k.double`` (Boolean), ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest
+  fish in view), ``k.double`` (Boolean), ``k.lead_double`` (Boolean: the leading fish is one of a double), ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest
   downstream), ``k.lead_length`` (Real, m), ``k.lead_heading`` (Integer: 1 head first, -1 tail first, 0 no fish),
   ``k.events`` (Integer: fish seen so far), ``k.results`` (Integer: results given so far);
 - for every device ``d`` (:mod:`plant.contract.devices`): ``d.command`` (Boolean, in only: true moves it to the end of
@@ -67,6 +67,8 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
     Signal("count", "camera", "Integer", None, None, False, "camera_count", "fish in the camera's view"),
     Signal("double", "camera", "Boolean", None, None, False, "camera_double",
            "two fish in view overlap or are closer than the camera's double_gap_m along the line"),
+    Signal("lead_double", "camera", "Boolean", None, None, False, "camera_lead_double",
+           "the leading fish overlaps another fish in view or is closer to it than double_gap_m along the line"),
     Signal("lead_x", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_x_m",
            "front end of the leading fish in view (the one furthest downstream); 0 with none in view"),
     Signal("lead_length", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_length_m",

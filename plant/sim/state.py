@@ -59,6 +59,7 @@ class PlantOutputs:
     photoeyes: dict[str, bool]
     camera_count: dict[str, int] = field(default_factory=dict)
     camera_double: dict[str, bool] = field(default_factory=dict)
+    camera_lead_double: dict[str, bool] = field(default_factory=dict)
     camera_lead_x_m: dict[str, float] = field(default_factory=dict)
     camera_lead_length_m: dict[str, float] = field(default_factory=dict)
     camera_lead_heading: dict[str, int] = field(default_factory=dict)
@@ -87,7 +88,7 @@ class PlantOutputs:
         conveyors, cameras, devices = ports.conveyor_ids, ports.camera_ids, ports.device_ids
         return cls(t_s, dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0),
                    dict.fromkeys(ports.photoeye_ids, False), dict.fromkeys(cameras, 0), dict.fromkeys(cameras, False),
-                   dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0),
+                   dict.fromkeys(cameras, False), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0),
                    dict.fromkeys(cameras, 0), dict.fromkeys(cameras, 0), dict.fromkeys(devices, 0.0),
                    dict.fromkeys(devices, True),
                    dict.fromkeys(devices, False), dict.fromkeys(devices, 0))
