@@ -78,7 +78,7 @@ class FakePlant:
         self.conveyor_ids = list(conveyors)
         self.received: list[dict[str, float]] = []
 
-    def step(self, speeds: dict[str, float]) -> PlantOutputs:
+    def step(self, speeds: dict[str, float], device_commands: dict[str, bool] | None = None) -> PlantOutputs:
         self.log.append(PLANT)
         self.received.append(dict(speeds))
         out = PlantOutputs(len(self.received) * DT, dict(speeds), {c: 0.5 * v for c, v in speeds.items()},

@@ -138,7 +138,7 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
     plant = Plant(sc.line, fish, sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
     ports = PlantPorts.of(sc.line)
     recorder = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids),
-                           sc.run.comm_step_s, record_poses=record_poses)
+                           sc.run.comm_step_s, ports.device_ids, record_poses=record_poses)
     wiring = checked_scenario.wiring
     with contextlib.ExitStack() as stack:
         try:

@@ -229,7 +229,7 @@ class CoSimulation:
             setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
             state = self.plant.state
             self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses,
-                                 state.detections)
+                                 state.detections, state.rejected_by, state.device_position)
 
     def signal_frame(self) -> pd.DataFrame:
         """Every recorded signal per step (see the module's docstring for the types)."""

@@ -51,8 +51,8 @@ SIDE_CLEAR_M = 0.1
 ZONE_MARGIN_M = 0.1
 """Along x, a device's exit zone reaches this far beyond its flap, paddle or arm..."""
 SIDE_REACH_M = 0.6
-"""... and a side opening's this far downstream of it: a fish steered out leaves moving downstream (a diverter's
-leaves past the arm's pivot)."""
+"""... and this far downstream of it: a fish leaves moving downstream (a diverter's past the arm's pivot, a gate's
+head first under the next belt's end as it falls into the bin)."""
 
 
 @dataclass(frozen=True)
@@ -107,9 +107,9 @@ class DeviceShape:
         line (by more than ``beyond_m``) at a pusher's or diverter's opening (anywhere across with ``y_m`` None: a
         fish falling off a belt's side can swing under it)."""
         d = self.device
-        if d.kind == "gate":
-            return (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + ZONE_MARGIN_M)
         along = (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + SIDE_REACH_M)
+        if d.kind == "gate":
+            return along
         if y_m is None:
             return along
         side = self.opening[0]

@@ -18,6 +18,8 @@ so the arithmetic can be checked by hand:
 ...                        min_gap_m=0.05)
 >>> k["singulated"], k["doubles_out"], k["lost"], k["throughput_time_s"], k["gap_min_m"], k["fpm_in"]
 (1, 2, 1, 12.0, -0.5, 20.0)
+>>> kpis_from_passages(p, 5, 1.0, lambda t: np.full(len(t), 2.0), 0.05, rejected=1)["lost"]  # one a device took off
+1
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ import numpy as np
 import pandas as pd
 
 from plant.contract.line import KpiSettings, Line
-from plant.contract.passages import MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages
+from plant.contract.passages import (MAX_TRACK_GAP_S, RunTables, SpeedFn, arrival_times, belt_speed_fn, passages,
+                                     track_passages)
 
 __all__ = ["KPIS", "KPI_KEYS", "Kpi", "SHOWN_KPI_KEYS", "arrival_times", "compute_kpis", "kpi_keys",
            "kpis_from_passages", "paper_rounded", "passages", "round_half_up", "singulation_table"]
@@ -58,7 +61,10 @@ KPIS: tuple[Kpi, ...] = (
     Kpi("fpm_out", "fish/min", "singulated fish per minute: 60 singulated / T"),
     Kpi("lost", "fish", "fish that never passed the outfeed beam"),
     Kpi("doubles_out", "fish", "fish that passed the outfeed beam not singulated: what reaches the machine downstream "
-        "as doubles (N = singulated + doubles_out + lost on a line without devices)"),
+        "as doubles (N = singulated + doubles_out + rejected + lost)"),
+    Kpi("rejected", "fish", "fish a device (reject gate, pusher, diverter) took off the line (per device: rejected_by)"),
+    Kpi("good_rejected", "fish", "rejected fish that were singulated where they entered their device: their passage of "
+        "its x_m overlapped no other and kept min_gap_m (undefined where the devices' log does not name the fish)"),
     Kpi("gap_min_m", "m", "smallest gap between consecutive fish at the outfeed (negative: overlap)"),
     Kpi("gap_median_m", "m", "median gap between consecutive fish at the outfeed"),
     Kpi("gap_p10_m", "m", "10th percentile of the gaps between consecutive fish at the outfeed"),
@@ -109,9 +115,10 @@ def singulation_table(passages: pd.DataFrame, belt_speed_fn: SpeedFn, min_gap_m:
 
 
 def kpis_from_passages(passages: pd.DataFrame, n_fish: int, first_drop_t_s: float, belt_speed_fn: SpeedFn,
-                       min_gap_m: float) -> dict[str, Any]:
+                       min_gap_m: float, rejected: int = 0, good_rejected: int | None = 0) -> dict[str, Any]:
     """The KPIs of contracts/kpis.md from a table of outfeed passages (``t_start_s``, ``t_end_s``,
-    optionally ``source``; one row per fish that passed).  Undefined values are None.
+    optionally ``source``; one row per fish that passed) and the count of fish devices took off the line (``rejected``,
+    of which ``good_rejected`` were singulated there).  Undefined values are None.
 
     ``method``: "tracks" (no fish count estimated from the beam), "photoeyes" (every passage
     estimated from photo-eye intervals), "mixed", or "none" (no fish passed).
@@ -134,8 +141,10 @@ def kpis_from_passages(passages: pd.DataFrame, n_fish: int, first_drop_t_s: floa
         "singulated": singulated,
         "singulation_rate": _json(singulated / n_fish) if n_fish else None,
         "fpm_out": _json(60.0 * singulated / throughput),
-        "lost": max(int(n_fish) - n_out, 0),
+        "lost": max(int(n_fish) - n_out - int(rejected), 0),
         "doubles_out": n_out - singulated,
+        "rejected": int(rejected),
+        "good_rejected": good_rejected,
         "gap_min_m": _json(gaps.min()) if len(gaps) else None,
         "gap_median_m": _json(np.median(gaps)) if len(gaps) else None,
         "gap_p10_m": _json(np.percentile(gaps, 10)) if len(gaps) else None,
@@ -152,11 +161,34 @@ def compute_kpis(run: RunTables, line: Line, kpi: KpiSettings, max_gap_s: float 
     beam = line.photoeye(kpi.outfeed_photoeye)
     speed = belt_speed_fn(run, line.conveyor_at(beam.x_m).id)
     p = passages(run, line, kpi, max_gap_s)
-    out = kpis_from_passages(p, len(run.fish), float(run.fish["drop_t_s"].min()), speed, kpi.min_gap_m)
+    rejections = getattr(run, "rejections", None)
+    rejections = rejections if rejections is not None else pd.DataFrame({"device_id": [], "fish_id": []})
+    out = kpis_from_passages(p, len(run.fish), float(run.fish["drop_t_s"].min()), speed, kpi.min_gap_m,
+                             len(rejections), good_rejected(run, rejections, line, kpi.min_gap_m, max_gap_s))
+    out["rejected_by"] = {d.id: int((rejections["device_id"] == d.id).sum()) for d in line.devices}
     arr = arrival_times(run, line, max_gap_s)
     out["arrival_t_s"] = {sid: {str(f): _json(t) for f, t in zip(g["fish_id"], g["t_s"])}
                           for sid, g in arr.groupby("sensor_id", sort=False)}
     return out
+
+
+def good_rejected(run: RunTables, rejections: pd.DataFrame, line: Line, min_gap_m: float,
+                  max_gap_s: float = MAX_TRACK_GAP_S) -> int | None:
+    """Rejected fish that were singulated where they entered their device: among the passages from tracks of the
+    device's ``x_m`` (as of a beam there, at the speed of the belt that brings fish to it), theirs overlapped no other
+    and kept ``min_gap_m``.  None when a rejection does not name its fish (a measured log may not)."""
+    if rejections.empty:
+        return 0
+    if rejections["fish_id"].isna().any():
+        return None
+    good = 0
+    for device_id, rows in rejections.groupby("device_id", sort=False):
+        device = next(d for d in line.devices if d.id == device_id)
+        speed = belt_speed_fn(run, line.conveyor_at(device.x_m - 1e-6).id)  # a gate's: the belt before its gap
+        table = singulation_table(track_passages(run, device.x_m, speed, max_gap_s), speed, min_gap_m)
+        singulated = set(table["fish_id"][table["singulated"]])
+        good += int(rows["fish_id"].isin(singulated).sum())
+    return good
 
 
 def round_half_up(x: float, ndigits: int = 0) -> float:

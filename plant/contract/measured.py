@@ -2,7 +2,7 @@
 
 A dataset is a folder with ``dataset.toml`` (``[dataset]``, ``[line]``, ``[kpi]``, ``[[runs]]``)
 and one folder per run under ``runs/`` with ``fish.csv``, ``tracks.csv``, ``photoeyes.csv`` and
-``belts.csv``.  Readers check everything the contract asks and stop at the first problem with
+``belts.csv``, and where the line has them its cameras' ``detections.csv`` and its devices' ``rejections.csv``.  Readers check everything the contract asks and stop at the first problem with
 an :class:`~plant.errors.InputError` naming the file and the key, or the row (as a person counts
 lines in the file: the header is line 1) and column.  Nothing is dropped silently: extra CSV
 columns are kept, extra keys of a ``[[runs]]`` entry are kept in ``Run.extra`` (unless they look
@@ -15,6 +15,9 @@ trailing comma): the error names the row.
 
 A run must also be physically plausible before anything is simulated: :func:`read_run` calls the
 checks of :mod:`plant.contract.plausibility`, where the bounds and their reasons are.
+
+Over 450 lines: one format's tables, their reading with every check, and their writing (which must give back
+what was read); the plausibility checks are already apart.
 """
 
 from __future__ import annotations
@@ -66,6 +69,10 @@ TABLES = (FISH, TRACKS, PHOTOEYES, BELTS)
 DETECTIONS = TableSpec("detections", ("t_s", "camera_id", "track", "x_back_m", "x_front_m", "y_m", "length_m",
                                       "heading", "double"), frozenset({"camera_id"}))
 """Optional: what the line's cameras logged, one row per fish in view per frame (absent: no camera log)."""
+REJECTIONS = TableSpec("rejections", ("t_s", "device_id", "fish_id"), frozenset({"device_id", "fish_id"}),
+                       frozenset({"fish_id"}))
+"""Optional: the line's devices' log, one row per fish a device took off the line (``fish_id`` empty where the log
+does not know which fish; absent: no device took any)."""
 POSITIVE = ("length_m", "weight_kg", "height_m", "width_m")
 
 
@@ -112,6 +119,8 @@ class Run:
     belts: pd.DataFrame = field(default_factory=lambda: empty_table(BELTS))
     detections: pd.DataFrame = field(default_factory=lambda: empty_table(DETECTIONS))
     """The cameras' log (``detections.csv``; empty without one)."""
+    rejections: pd.DataFrame = field(default_factory=lambda: empty_table(REJECTIONS))
+    """The devices' log (``rejections.csv``; empty without one)."""
     extra: dict[str, Any] = field(default_factory=dict)
     """Keys of the ``[[runs]]`` entry beyond id, hours_post_mortem and notes."""
     filled: dict[str, list[str]] = field(default_factory=dict)
@@ -331,15 +340,25 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
             filled[c] = list(fish["fish_id"][empty])
     if check_physics:
         plausibility.check_footprint(fish, fish_file, line)
-    detections_file = folder / DETECTIONS.file
-    detections = empty_table(DETECTIONS)
-    if detections_file.exists():
-        detections = read_table(detections_file, DETECTIONS)
-        _check_ids(detections, "camera_id", [c.id for c in line.cameras], detections_file, "a camera of the line")
-        _check_increasing(detections, "camera_id", detections_file, strictly=False)
-    tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections)]
+    detections = _read_log(folder, DETECTIONS, "camera_id", [c.id for c in line.cameras], "a camera of the line")
+    rejections = _read_log(folder, REJECTIONS, "device_id", [d.id for d in line.devices], "a device of the line")
+    known = rejections["fish_id"].notna()
+    _check_ids(rejections[known], "fish_id", list(fish["fish_id"]), folder / REJECTIONS.file, "a fish of fish.csv")
+    tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections, rejections)]
     return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables, extra=dict(entry.model_extra or {}),
                filled=filled, path=folder)
+
+
+def _read_log(folder: Path, spec: TableSpec, column: str, allowed: list[str], what: str) -> pd.DataFrame:
+    """An optional log of a run (cameras', devices'): its rows by time, each ``column`` one of ``allowed``; no rows
+    without the file."""
+    path = folder / spec.file
+    if not path.exists():
+        return empty_table(spec)
+    log = read_table(path, spec)
+    _check_ids(log, column, allowed, path, what)
+    _check_increasing(log, column, path, strictly=False)
+    return log
 
 
 def _check_run_entries(doc: DatasetFile, toml: Path) -> None:
@@ -381,8 +400,8 @@ def _ordered(df: pd.DataFrame, spec: TableSpec) -> pd.DataFrame:
 
 
 def write_run(run: Run, folder: str | Path) -> None:
-    """Write the run's four CSVs into ``folder`` (created if needed), and its cameras' log when it has one;
-    floats round-trip exactly."""
+    """Write the run's four CSVs into ``folder`` (created if needed), and its cameras' and devices' logs when it has
+    them; floats round-trip exactly."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     fish = run.fish.copy()
@@ -390,8 +409,9 @@ def write_run(run: Run, folder: str | Path) -> None:
         fish.loc[fish["fish_id"].isin(ids), c] = np.nan  # written empty, as measured
     for spec, df in zip(TABLES, (fish, run.tracks, run.photoeyes, run.belts)):
         _ordered(df, spec).to_csv(folder / spec.file, index=False, na_rep="")
-    if len(run.detections):
-        _ordered(run.detections, DETECTIONS).to_csv(folder / DETECTIONS.file, index=False, na_rep="")
+    for spec, df in ((DETECTIONS, run.detections), (REJECTIONS, run.rejections)):
+        if len(df):
+            _ordered(df, spec).to_csv(folder / spec.file, index=False, na_rep="")
 
 
 def run_entry(run: Run) -> dict[str, Any]:
@@ -408,8 +428,9 @@ def write_dataset(dataset: Dataset, path: str | Path) -> None:
     root = Path(path)
     root.mkdir(parents=True, exist_ok=True)
     doc = {"dataset": {"name": dataset.name, "description": dataset.description},
-           "line": dataset.line.model_dump(mode="json", exclude_none=True,
-                                           exclude=None if dataset.line.cameras else {"cameras"}),
+           "line": dataset.line.model_dump(mode="json", exclude_none=True,  # keys a line without them never had
+                                           exclude={k for k in ("cameras", "parts", "devices")
+                                                    if not getattr(dataset.line, k)}),
            "kpi": dataset.kpi.model_dump(mode="json", exclude_none=True),
            "runs": [run_entry(r) for r in dataset.runs]}
     with (root / "dataset.toml").open("wb") as fh:

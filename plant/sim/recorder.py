@@ -2,7 +2,8 @@
 
 The same four tables a line's instruments give: fish tracks at 25 Hz (mid-length point and
 heading, like the overhead camera), photo-eye blocked intervals, and belt setpoints and speeds
-at 100 Hz.  A simulated run written this way goes through exactly the readers and KPI code
+at 100 Hz; and the logs a line with cameras and devices gives: the cameras' detections, the devices'
+rejections (one row per fish a device took off, at the end of the step in which the plant found it gone).  A simulated run written this way goes through exactly the readers and KPI code
 that a measured one does.
 
 Photo-eye interval times are the ends of the communication steps at which the beam was first
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.contract.measured import BELTS, DETECTIONS, PHOTOEYES, TRACKS
+from plant.contract.measured import BELTS, DETECTIONS, PHOTOEYES, REJECTIONS, TRACKS
 from plant.sim.rotations import matrix_to_quaternion
 from plant.sim.state import FishState, FishStatus, PlantState
 
@@ -33,7 +34,11 @@ class RunRecorder:
     conveyor_ids: list[str]
     photoeye_ids: list[str]
     comm_step_s: float
+    device_ids: tuple[str, ...] = ()
     _tracks: list[tuple] = field(default_factory=list)
+    _rejections: list[tuple] = field(default_factory=list)
+    _rejected_by: np.ndarray | None = None
+    _device_position: list[np.ndarray] = field(default_factory=list)
     _belts: list[tuple] = field(default_factory=list)
     _intervals: list[tuple[str, float, float]] = field(default_factory=list)
     _detections: list[tuple] = field(default_factory=list)
@@ -54,10 +59,17 @@ class RunRecorder:
     def record(self, t_s: float, fish: Callable[[], FishState] | None, photoeyes: dict[str, bool],
                belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
                body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
-               detections: tuple[tuple, ...] = ()) -> None:
+               detections: tuple[tuple, ...] = (), rejected_by: np.ndarray | None = None,
+               device_position: np.ndarray | None = None) -> None:
         """One communication step; ``fish`` and ``body_poses`` are called only when a sample is due;
-        ``detections`` the cameras' rows of the step (:attr:`plant.sim.state.PlantState.detections`)."""
+        ``detections`` the cameras' rows of the step (:attr:`plant.sim.state.PlantState.detections`), ``rejected_by``
+        and ``device_position`` the state's (with devices on the line)."""
         self._detections.extend(detections)
+        if rejected_by is not None and self.device_ids:
+            before = self._rejected_by if self._rejected_by is not None else np.full(len(rejected_by), -1)
+            for k in np.flatnonzero(rejected_by != before):
+                self._rejections.append((t_s, self.device_ids[int(rejected_by[k])], self.fish_ids[k]))
+            self._rejected_by = rejected_by
         eps = 1e-9
         if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
@@ -70,6 +82,8 @@ class RunRecorder:
                 self._pose_pos.append(pos.astype(np.float32))
                 self._pose_quat.append(matrix_to_quaternion(rot).astype(np.float32))
                 self._pose_status.append(fish.status.copy())
+                if device_position is not None and self.device_ids:
+                    self._device_position.append(np.asarray(device_position, dtype=np.float32))
         if t_s - self._last_belt_t >= BELT_PERIOD_S - eps:
             self._last_belt_t = t_s
             for c in self.conveyor_ids:
@@ -85,18 +99,22 @@ class RunRecorder:
 
     def poses(self) -> dict[str, np.ndarray] | None:
         """Body poses at the track rate: ``t_s`` (F,), ``pos`` (F, B, 3), ``quat`` (F, B, 4: w, x, y, z),
-        ``status`` (F, n_fish) of :class:`plant.sim.state.FishStatus` (int8); None unless ``record_poses``."""
+        ``status`` (F, n_fish) of :class:`plant.sim.state.FishStatus` (int8), and with devices ``device_id`` (D,) and
+        ``device_position`` (F, D); None unless ``record_poses``."""
         if not self.record_poses:
             return None
         n_b = 5 * len(self.fish_ids)
-        return {"t_s": np.array(self._pose_t),
+        devices = ({"device_id": np.array(list(self.device_ids)),
+                    "device_position": np.array(self._device_position, dtype=np.float32).reshape(-1, len(self.device_ids))}
+                   if self.device_ids else {})
+        return devices | {"t_s": np.array(self._pose_t),
                 "pos": np.array(self._pose_pos, dtype=np.float32).reshape(-1, n_b, 3),
                 "quat": np.array(self._pose_quat, dtype=np.float32).reshape(-1, n_b, 4),
                 "status": np.array(self._pose_status, dtype=np.int8).reshape(-1, len(self.fish_ids))}
 
     def tables(self) -> dict[str, pd.DataFrame]:
-        """tracks, photoeyes, belts and detections tables; a beam still blocked at the end closes at the last
-        time."""
+        """tracks, photoeyes, belts, detections and rejections tables; a beam still blocked at the end closes at the
+        last time."""
         intervals = list(self._intervals) + [(p, s, self._t_last) for p, s in self._blocked_since.items()
                                              if s is not None]
         intervals.sort(key=lambda r: (r[1], r[0]))
@@ -106,6 +124,7 @@ class RunRecorder:
             "belts": pd.DataFrame(self._belts, columns=list(BELTS.columns)),
             "detections": pd.DataFrame([(*r[:-1], int(r[-1])) for r in self._detections],
                                        columns=list(DETECTIONS.columns)),
+            "rejections": pd.DataFrame(self._rejections, columns=list(REJECTIONS.columns)),
         }
 
 

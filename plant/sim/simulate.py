@@ -122,7 +122,7 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     energy = EnergyWatch()
     ports = PlantPorts.of(line)
     rec = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids), comm_step_s,
-                      record_poses=record_poses)
+                      ports.device_ids, record_poses=record_poses)
     speed_fn = belt_speeds if callable(belt_speeds) else (lambda t, s=dict(belt_speeds): s)
 
     def step() -> None:
@@ -131,7 +131,8 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
         state = plant.state
         energy.check(state, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
-                   state.body_poses if record_poses else None, state.detections)
+                   state.body_poses if record_poses else None, state.detections, state.rejected_by,
+                   state.device_position)
         if on_step is not None:
             on_step(plant)
 
