@@ -16,6 +16,13 @@ deflated together and base64-coded into the page, which inflates them with the b
 visible pose, which costs nothing after deflate.  A 60 s, 50-fish run gives a page of about
 0.5 MB, 0.7 MB if all 50 fish move for the whole minute (docs/replay.md).
 
+Devices (``[[line.devices]]``: gates, pushers, diverters).  The header holds each device's triangles
+in its body's frame and its motion (``origin_m``, ``axis``, ``travel``, ``rotates``: the parameters of
+:meth:`plant.contract.devices.DeviceShape.pose`), and the array ``device_p`` (D, F) each device's
+position p (0 home .. 1 end) at each frame, in 1/10000; the page turns p into the body's pose as the
+plant does.  A record without device positions (a line without devices, an older poses.npz) draws
+the devices at home.
+
 >>> codec_round_trip(np.array([[0, 5, -3, 70000, 69990]]))
 True
 """
@@ -38,6 +45,7 @@ import pandas as pd
 
 from plant.errors import InputError
 from plant.fish.fish_data import length_regressions
+from plant.contract.devices import device_shapes, guide_openings
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
 from plant.contract.measured import Run, read_dataset
@@ -51,6 +59,8 @@ QUAT_UNIT = 1.0 / 4096
 """Quaternion quantum: about 0.03 degrees of rotation."""
 TIME_UNIT_S = 0.001
 ANGLE_UNIT_RAD = 1e-4
+DEVICE_P_UNIT = 1e-4
+"""Device position quantum: a 0.35 m gate flap's far edge within 0.04 mm."""
 MAX_FRAME_RATE_HZ = 30.0
 """Poses recorded faster than this are thinned: a browser interpolates between frames anyway."""
 
@@ -231,6 +241,8 @@ def scene(run_dir: Path, measured: Measured | None = None) -> tuple[dict[str, An
 POSE_ARRAYS = {"t_s": 1, "pos": 3, "quat": 3, "status": 2, "fish_id": 1, "body_fish": 1, "section_body": 1,
                "section_x": 1, "section_half_height": 1, "section_half_width": 1}
 """The arrays of poses.npz and their number of dimensions (:func:`plant.sim.recorder.pose_record`)."""
+DEVICE_ARRAYS = ("device_id", "device_position")
+"""The arrays a record of a line with devices has besides (both or neither)."""
 
 
 def read_poses(path: Path) -> dict[str, np.ndarray]:
@@ -246,6 +258,10 @@ def read_poses(path: Path) -> dict[str, np.ndarray]:
             if missing:
                 raise bad(f"not a pose record: no array {', '.join(missing)}")
             p = {k: npz[k] for k in POSE_ARRAYS}
+            present = [k for k in DEVICE_ARRAYS if k in npz.files]
+            if len(present) == 1:
+                raise bad(f"array {present[0]} without {next(k for k in DEVICE_ARRAYS if k not in present)}")
+            p |= {k: npz[k] for k in present}
     except InputError:
         raise
     except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as exc:
@@ -277,6 +293,15 @@ def read_poses(path: Path) -> dict[str, np.ndarray]:
             raise bad(f"array {k} holds a value that is not a finite number")
     if n_t > 1 and np.any(np.diff(p["t_s"]) <= 0):
         raise bad("array t_s does not increase")
+    if "device_id" in p:  # devices: each one's position p at each frame
+        ids, position = p["device_id"], p["device_position"]
+        if ids.ndim != 1 or ids.dtype.kind not in "US":
+            raise bad(f"array device_id holds {ids.ndim}-dimensional {ids.dtype}, expected text (one per device)")
+        if position.dtype.kind not in "iuf" or position.shape != (n_t, len(ids)):
+            raise bad(f"array device_position has shape {position.shape} of {position.dtype}, expected numbers of "
+                      f"shape {(n_t, len(ids))} (frames or devices do not agree)")
+        if not np.all(np.isfinite(position)):
+            raise bad("array device_position holds a value that is not a finite number")
     return p
 
 
@@ -309,6 +334,9 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
     packer.add("sec_body", p["section_body"][order].astype(np.int64))
     for key in ("section_x", "section_half_height", "section_half_width"):
         packer.add(key.replace("section", "sec"), p[key][order], 1e-4)
+    devices = _devices(line)
+    if devices:
+        packer.add("device_p", device_positions(line, p, stride), DEVICE_P_UNIT)
 
     header: dict[str, Any] = {
         "version": 1,
@@ -317,6 +345,8 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
         "duration_s": float(t_s[-1]) if len(t_s) else 0.0,
         "line": line.model_dump(),
         "parts": _part_triangles(line),
+        "devices": devices,
+        "guide_openings": [[side, round(x0, 6), round(x1, 6)] for side, x0, x1 in guide_openings(line)],
         "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(n_fish),
                  "body_fish": body_fish.astype(int).tolist()},
         "photoeyes": _photoeye_intervals(run.photoeyes, [pe.id for pe in line.photoeyes]),
@@ -333,6 +363,27 @@ def _part_triangles(line: Line) -> list[float]:
     """The line's fixed parts as one flat list of triangle corners (x, y, z, mm-rounded), to draw."""
     pts, trigs = part_triangles(line)
     return [round(c, 4) for t in trigs for i in t for c in pts[i]]
+
+
+def _devices(line: Line) -> list[dict[str, Any]]:
+    """Each device of the line to draw: its triangles' corners in its body's frame (flat x, y, z, mm-rounded like
+    the parts') and the parameters of its motion (:meth:`plant.contract.devices.DeviceShape.pose`)."""
+    return [{"id": s.device.id, "kind": s.device.kind, "origin_m": [round(float(v), 6) for v in s.origin_m],
+             "axis": [float(v) for v in s.axis], "travel": round(float(s.travel), 9), "rotates": s.rotates,
+             "triangles": [round(float(c), 4) for t in s.triangles for i in t for c in s.points_m[i]]}
+            for s in device_shapes(line)]
+
+
+def device_positions(line: Line, p: dict[str, np.ndarray], stride: int = 1) -> np.ndarray:
+    """(D, F) each line device's recorded position p at each (thinned) frame, in the line's order; 0 (home) for a
+    device the record does not hold (one without device positions)."""
+    n_frames = len(p["t_s"][::stride])
+    out = np.zeros((len(line.devices), n_frames))
+    recorded = [str(i) for i in p.get("device_id", [])]
+    for d, device in enumerate(line.devices):
+        if device.id in recorded:
+            out[d] = np.clip(p["device_position"][::stride, recorded.index(device.id)], 0.0, 1.0)
+    return out
 
 
 def _asset(name: str) -> str:

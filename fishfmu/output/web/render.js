@@ -45,6 +45,30 @@ function viewProjection(camera, aspect) {
                       lookAt(cameraEye(camera), camera.target, [0, 0, 1]));
 }
 
+// A device's body -> line frame at its position p (0 home .. 1 end), as plant/contract/devices.py's
+// DeviceShape.pose: a rotation by p * travel about `axis` through `origin_m` (gate, diverter), or a
+// translation by p * travel along `axis` (pusher).  -> column-major 4x4, as WebGL reads them.
+function deviceMatrix(device, p) {
+  const [kx, ky, kz] = device.axis, o = device.origin_m, m = new Float32Array(16);
+  m[15] = 1;
+  if (device.rotates) {
+    const a = p * device.travel, c = Math.cos(a), s = Math.sin(a), v = 1 - c;   // Rodrigues, |axis| = 1
+    const r = [[c + kx * kx * v, kx * ky * v - kz * s, kx * kz * v + ky * s],
+               [ky * kx * v + kz * s, c + ky * ky * v, ky * kz * v - kx * s],
+               [kz * kx * v - ky * s, kz * ky * v + kx * s, c + kz * kz * v]];
+    for (let row = 0; row < 3; row++) for (let col = 0; col < 3; col++) m[col * 4 + row] = r[row][col];
+    m[12] = o[0]; m[13] = o[1]; m[14] = o[2];
+  } else {
+    m[0] = m[5] = m[10] = 1;
+    m[12] = o[0] + kx * p * device.travel; m[13] = o[1] + ky * p * device.travel; m[14] = o[2] + kz * p * device.travel;
+  }
+  return m;
+}
+
+function transformPoint(m, p) {
+  return [0, 1, 2].map((r) => m[r] * p[0] + m[4 + r] * p[1] + m[8 + r] * p[2] + m[12 + r]);
+}
+
 // World point -> [x, y] in CSS pixels from the top-left of a canvas width x height, and the clip depth.
 function project(p, vp, width, height) {
   const x = vp[0] * p[0] + vp[4] * p[1] + vp[8] * p[2] + vp[12];
@@ -92,6 +116,17 @@ in vec3 aPos; in vec3 aNormal;
 uniform mat4 uViewProj;
 out vec3 vNormal; out vec3 vWorld;
 void main() { vNormal = aNormal; vWorld = aPos; gl_Position = uViewProj * vec4(aPos, 1.0); }`;
+
+// A device: its triangles in its body's frame, placed by uModel (deviceMatrix) every picture.
+const DEVICE_VS = `#version 300 es
+precision highp float;
+in vec3 aPos; in vec3 aNormal;
+uniform mat4 uViewProj; uniform mat4 uModel;
+out vec3 vNormal; out vec3 vWorld;
+void main() {
+  vec4 world = uModel * vec4(aPos, 1.0);
+  vNormal = mat3(uModel) * aNormal; vWorld = world.xyz; gl_Position = uViewProj * world;
+}`;
 
 const STRIPE_SPACING_M = 0.15;   // marks across each belt, moving with it: a person sees the belt speed
 // uPattern 1: belt top, the marks (uOffset = how far the belt has moved); 2: floor grid every 0.5 m.
@@ -233,11 +268,14 @@ function buildLine(program) {
     }
   });
   const top = ext.zTop + 0.15, walls = [];
-  const step = line.guides ? 0.02 : ext.x1 - ext.x0;  // a polyline drawn in 2 cm pieces
-  for (let x = ext.x0; x < ext.x1 - 1e-9; x += step) {
-    const [yl, yr] = guideY(line, x + step / 2);
-    walls.push([x, Math.min(x + step, ext.x1), yr - 0.004, yr, ext.zLow - 0.01, top],
-               [x, Math.min(x + step, ext.x1), yl, yl + 0.004, ext.zLow - 0.01, top]);
+  for (const side of [1, -1]) {   // each guide, left then right, but where a device opens it
+    for (const [a, b] of guideStretches(ext.x0, ext.x1, side)) {
+      const step = line.guides ? 0.02 : b - a;   // a polyline drawn in 2 cm pieces
+      for (let x = a; x < b - 1e-9; x += step) {
+        const x1 = Math.min(x + step, b), y = guideY(line, (x + x1) / 2)[side > 0 ? 0 : 1];
+        walls.push(side > 0 ? [x, x1, y, y + 0.004, ext.zLow - 0.01, top] : [x, x1, y - 0.004, y, ext.zLow - 0.01, top]);
+      }
+    }
   }
   objects.push(sceneObject(program, walls, [0.55, 0.7, 0.85, 0.22]));
   if (header.parts && header.parts.length) objects.push(meshObject(program, header.parts, [0.62, 0.66, 0.7, 1]));
@@ -247,6 +285,22 @@ function buildLine(program) {
     objects.push(sceneObject(program, [[xm - 0.05, xm + 0.05, -0.04, 0.04, h, h + 0.06]], [0.15, 0.15, 0.18, 1]));
   });
   return objects;
+}
+
+// x0..x1 without the openings a pusher or diverter makes in the guide on `side` (+1 left, -1 right).
+function guideStretches(x0, x1, side) {
+  let out = [[x0, x1]];
+  for (const [s, a, b] of header.guide_openings || []) {
+    if (s !== side) continue;
+    out = out.flatMap(([u, v]) => [[u, Math.min(v, a)], [Math.max(u, b), v]]).filter(([u, v]) => v - u > 1e-9);
+  }
+  return out;
+}
+
+// The devices: one mesh each, in its body's frame (drawn with deviceMatrix at its position p).
+const DEVICE_COLOR = [0.96, 0.74, 0.08, 1];   // safety yellow: the moving machinery
+function buildDevices(program) {
+  return (header.devices || []).map((d) => ({ ...meshObject(program, d.triangles, DEVICE_COLOR), device: d }));
 }
 
 // One mesh for all fish: each body a tube through its outline's cross-sections (a stadium of
@@ -359,6 +413,7 @@ function setupGL() {
   gl = canvas.getContext("webgl2", { antialias: true, preserveDrawingBuffer: true });
   if (!gl) throw new Error("this browser has no WebGL2");
   const sceneProgram = compile(SCENE_VS, SCENE_FS), fishProgram = compile(FISH_VS, FISH_FS);
+  const deviceProgram = compile(DEVICE_VS, SCENE_FS);
   const overlayProgram = compile(SCENE_VS.replace("in vec3 aNormal;", "in vec3 aNormal; in vec3 aColor; out vec3 vColor;")
                                    .replace("vWorld = aPos;", "vWorld = aPos; vColor = aColor;"),
                                  `#version 300 es
@@ -366,7 +421,8 @@ precision highp float;
 in vec3 vColor; in vec3 vNormal; in vec3 vWorld; out vec4 outColor; uniform float uAlpha;
 void main() { outColor = vec4(vColor, uAlpha); }`);
   const overlay = vertexArray(overlayProgram, { aPos: [new Float32Array(0), 3], aColor: [new Float32Array(0), 3] });
-  scene = { sceneProgram, fishProgram, overlayProgram, overlay, line: buildLine(sceneProgram), fish: buildFish(fishProgram) };
+  scene = { sceneProgram, fishProgram, overlayProgram, overlay, line: buildLine(sceneProgram), fish: buildFish(fishProgram),
+            deviceProgram, devices: buildDevices(deviceProgram), drawnDevices: [] };
 }
 
 function resize() {
@@ -396,6 +452,31 @@ function drawSceneObjects(vp, belts, blocked, measuredBlocked, transparent) {
     gl.bindVertexArray(o.vao);
     gl.drawArrays(gl.TRIANGLES, 0, o.count);
   }
+}
+
+// Each device at its position p (`positions`, one per header.devices); keeps the matrices it drew with.
+function drawDevices(vp, positions) {
+  const p = scene.deviceProgram;
+  scene.drawnDevices = [];
+  if (scene.devices.length === 0) return;
+  gl.useProgram(p.program);
+  gl.uniformMatrix4fv(p.uniforms.uViewProj, false, vp);
+  gl.uniform1i(p.uniforms.uLit, 1);
+  gl.uniform1i(p.uniforms.uPattern, 0);
+  gl.uniform1f(p.uniforms.uOffset, 0);
+  scene.devices.forEach((o, i) => {
+    const model = deviceMatrix(o.device, positions[i] || 0);
+    gl.uniformMatrix4fv(p.uniforms.uModel, false, model);
+    gl.uniform4fv(p.uniforms.uColor, o.color);
+    gl.bindVertexArray(o.vao);
+    gl.drawArrays(gl.TRIANGLES, 0, o.count);
+    scene.drawnDevices.push({ id: o.device.id, p: positions[i] || 0, matrix: Array.from(model) });
+  });
+}
+
+// The devices as last drawn: id, position p and body -> line matrix (column-major) of each.
+function drawnDevices() {
+  return scene.drawnDevices.map((d) => ({ ...d, matrix: d.matrix.slice() }));
 }
 
 function drawFish(vp, poses, showSim) {
@@ -444,6 +525,7 @@ function draw(frame) {
   gl.enable(gl.DEPTH_TEST);
   gl.disable(gl.BLEND);
   drawSceneObjects(frame.vp, frame.belts, frame.blocked, frame.measuredBlocked, false);
+  drawDevices(frame.vp, frame.devices || []);
   drawFish(frame.vp, frame.poses, frame.showSim);
   gl.enable(gl.BLEND);
   gl.blendFunc(gl.SRC_ALPHA, gl.ONE_MINUS_SRC_ALPHA);
@@ -459,8 +541,8 @@ function createRenderer(pageCanvas, pageHeader, pageData) {
   header = pageHeader;
   data = pageData;
   setupGL();
-  return { draw };
+  return { draw, drawnDevices };
 }
 
-return { createRenderer, viewProjection, project, lineExtent, guideY };
+return { createRenderer, viewProjection, project, lineExtent, guideY, deviceMatrix, transformPoint };
 })();

@@ -54,6 +54,7 @@ async function loadData() {
     t: a.t, frames: a.t.length, pos: a.pos, quat: a.quat, status: a.status,
     bodies: header.fish.body_fish.length, bodyFish: header.fish.body_fish,
     beltTravel: a.belt_travel, beltSpeed: a.belt_speed,
+    deviceP: a.device_p || null,   // (D, F) each device's position p, 0 home .. 1 end; none: all at home
     sections: { body: a.sec_body, x: a.sec_x, hh: a.sec_half_height, hw: a.sec_half_width },
     measured: header.measured ? { t: a.m_t, xy: a.m_xy, yaw: a.m_yaw, fish: header.measured.fish } : null,
   };
@@ -99,6 +100,14 @@ function beltAt(t) {
     speed.push(data.beltSpeed[c * F + k] * (1 - a) + data.beltSpeed[c * F + k1] * a);
   }
   return { travel, speed };
+}
+
+// Each device's position p at t (one per header.devices), interpolated: the pose is linear in p.
+function devicePositions(t) {
+  const devices = header.devices || [];
+  if (!data.deviceP) return devices.map(() => 0);
+  const { k, k1, a } = frameAt(t), F = data.frames;
+  return devices.map((d, i) => data.deviceP[i * F + k] * (1 - a) + data.deviceP[i * F + k1] * a);
 }
 
 function photoeyesBlocked(t, eyes = header.photoeyes) {
@@ -149,6 +158,7 @@ function draw() {
   const t = state.time, belts = beltAt(t);
   const showMeasured = state.showMeasured && data.measured !== null;
   renderer.draw({ vp: viewProjection(), belts, blocked: photoeyesBlocked(t), poses: bodyPoses(t),
+                  devices: devicePositions(t),
                   showSim: state.showSim, measured: showMeasured ? measuredAt(t) : [],
                   measuredBlocked: showMeasured ? measuredPhotoeyesBlocked(t) : null });
   updateText(belts);
@@ -278,6 +288,7 @@ function describe() {
                          (m ? " · measured and simulated" : "");
   let legend = '<span class="swatch" style="background:#8a7"></span>simulated fish (a colour each)';
   if (m) legend += '<span class="swatch ghost"></span>measured fish: pale ghost, same colour, dark edge';
+  if ((header.devices || []).length) legend += '<span class="swatch" style="background:#f5bd14"></span>gates, pushers, diverters';
   legend += `<span class="swatch" style="background:#2a5"></span>photo-eye clear<span class="swatch" style="background:#e21"></span>blocked${m ? " (simulated)" : ""}`;
   if (m && m.photoeyes) legend += '<span class="swatch lamp"></span>lamp on top: measured beam blocked';
   ui.legend.innerHTML = legend;
@@ -326,6 +337,17 @@ const api = {
   measuredDrawn: () => (state.showMeasured ? measuredAt(state.time) : []),
   measuredPhotoeyesBlocked: () => measuredPhotoeyesBlocked(state.time),
   guideY: (x) => ReplayRender.guideY(header.line, x),
+  // The devices (header.devices' order) at the current time: id, kind and the recorded position p.
+  devicePositions: () => (header.devices || []).map((d, i) => ({ id: d.id, kind: d.kind, p: devicePositions(state.time)[i] })),
+  // Device i as drawn in the last picture: its position p, its body -> line matrix (column-major 4x4) and its
+  // triangles' corners in the line frame (null if the last picture did not draw it).
+  devicePose: (i) => {
+    const drawn = renderer.drawnDevices()[i];
+    if (!drawn) return null;
+    const local = header.devices[i].triangles, corners = [];
+    for (let c = 0; c < local.length; c += 3) corners.push(ReplayRender.transformPoint(drawn.matrix, local.slice(c, c + 3)));
+    return { id: drawn.id, p: drawn.p, matrix: drawn.matrix, corners };
+  },
 };
 window.replay = api;
 
