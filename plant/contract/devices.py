@@ -7,8 +7,10 @@ along its travel, 0 at home to 1 at the end of it.
 - **gate**: a short belt section (a flap whose surface runs at the speed of the belt before it: a dead plate as long
   as a gate would stall a fish on it), hinged at its upstream edge ``x_m`` 5 mm below the end of the belt before it,
   spanning the lane; open, it turns about the hinge (axis y) so that its far edge swings down by
-  ``p * travel_deg``.  A fish whose mid-length point is 0.15 m below the hinge over the flap has gone through:
-  rejected.
+  ``p * travel_deg``.  Under the gap, the walls of its bin: fixed plates below the end of the belt before it and
+  the start of the belt after it, down to 0.8 m below the hinge, so that a falling fish goes down into the bin and
+  not under either belt.  A fish whose mid-length point is 0.15 m below the hinge in the gate's zone has gone
+  through: rejected.
 - **pusher**: a paddle (``length_m`` along x, 0.15 m high, 3 cm thick) whose face sits on the guide opposite
   ``side`` at home and moves ``p * travel_m`` across towards ``side``; the guide on ``side`` is open over the
   paddle's length.
@@ -117,14 +119,18 @@ class DeviceShape:
         return along & (side * (y_m - guide) > beyond_m)
 
 
-def _box(pts: list, trigs: list, x: tuple[float, float], y: tuple[float, float], z: tuple[float, float]) -> None:
-    """The faces of an axis-aligned box, normals outwards (the bottom left out: nothing comes from below)."""
+def _box(pts: list, trigs: list, x: tuple[float, float], y: tuple[float, float], z: tuple[float, float],
+         bottom: bool = False) -> None:
+    """The faces of an axis-aligned box, normals outwards; the bottom only with ``bottom`` (a gate's flap closing
+    onto a fish in its gap must push it down: a triangle acts on a sphere from its front side only)."""
     (x0, x1), (y0, y1), (z0, z1) = x, y, z
     faces = (((x0, y0, z0), (x1, y0, z0), (x1, y0, z1), (x0, y0, z1)),   # -y
              ((x0, y1, z0), (x0, y1, z1), (x1, y1, z1), (x1, y1, z0)),   # +y
              ((x0, y0, z0), (x0, y0, z1), (x0, y1, z1), (x0, y1, z0)),   # -x
              ((x1, y0, z0), (x1, y1, z0), (x1, y1, z1), (x1, y0, z1)),   # +x
              ((x0, y0, z1), (x1, y0, z1), (x1, y1, z1), (x0, y1, z1)))   # +z
+    if bottom:
+        faces += (((x0, y0, z0), (x0, y1, z0), (x1, y1, z0), (x1, y0, z0)),)  # -z
     for a, b, c, e in faces:
         base = len(pts)
         pts += [a, b, c, e]
@@ -140,7 +146,7 @@ def device_shape(line: Line, d: Device) -> DeviceShape:
         feeder = next(k for k, c in enumerate(line.conveyors) if d.x_m - 1e-6 < c.x_end_m)  # ends at x_m or before
         hinge_z = line.conveyors[feeder].z_end_m - 0.005
         # the flap: its top at the hinge's height, spanning the lane and a little under the guides
-        _box(pts, trigs, (0.0, d.length_m), (right - 0.02, left + 0.02), (-0.01, 0.0))
+        _box(pts, trigs, (0.0, d.length_m), (right - 0.02, left + 0.02), (-0.02, 0.0), bottom=True)
         return DeviceShape(d, np.array([d.x_m, 0.0, hinge_z]), np.array(pts, float), np.array(trigs),
                            np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder)
     side = 1 if d.side == "left" else -1
@@ -164,6 +170,31 @@ def device_shape(line: Line, d: Device) -> DeviceShape:
 def device_shapes(line: Line) -> tuple[DeviceShape, ...]:
     """Every device of ``line``, in its order."""
     return tuple(device_shape(line, d) for d in line.devices)
+
+
+BIN_DEPTH_M = 0.8
+"""How far below a gate's hinge the walls of its bin reach."""
+
+
+def bin_walls(line: Line) -> tuple[list[list[float]], list[list[int]]]:
+    """Static triangles (line frame) of every gate's bin: a plate facing downstream under the end of the belt before
+    the gap (from just below its drum) and one facing upstream under the start of the belt after it, across the lane."""
+    pts: list = []
+    trigs: list = []
+    for shape in device_shapes(line):
+        if shape.device.kind != "gate":
+            continue
+        d = shape.device
+        after = next(c for c in line.conveyors if c.x_start_m >= d.x_end_m - 1e-9)
+        left, right = (float(v) + s for v, s in zip(line.guide_y_at(np.array(d.x_m)), (0.02, -0.02)))
+        bottom = shape.hinge_z_m - BIN_DEPTH_M
+        for x, top, facing in ((d.x_m, shape.hinge_z_m - 0.04, 1.0), (after.x_start_m, after.z_top_m - 0.04, -1.0)):
+            base = len(pts)
+            pts += [[x, right, bottom], [x, left, bottom], [x, left, top], [x, right, top]]
+            # (p1 - p0) x (p2 - p0) is +x for this order: flip it for a wall facing upstream
+            trigs += ([[base, base + 1, base + 2], [base, base + 2, base + 3]] if facing > 0 else
+                      [[base, base + 2, base + 1], [base, base + 3, base + 2]])
+    return pts, trigs
 
 
 def in_exit_regions(line: Line, x_m: np.ndarray, y_m: np.ndarray | None) -> np.ndarray:

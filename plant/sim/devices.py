@@ -1,7 +1,8 @@
 """The devices' actuators in the plant: where each device is along its travel, and its body in the Exudyn system.
 
 An actuator moves at constant speed (its whole travel in ``stroke_s``, as a pneumatic cylinder with its flow set by
-a throttle does) towards the end its command asks for, and stops there.  Like a belt body, a device body is put at
+a throttle does) towards the end its command asks for, and stops there.  It is position-controlled: it keeps that
+speed whatever the fish push back with (no force limit: a gate closing on a fish lifts it, a paddle pushes a jam).  Like a belt body, a device body is put at
 its pose at the start of every communication step and given the step's rate; it carries its triangles (the shapes
 of :mod:`plant.contract.devices`) through the step, and what the fish push on it shows as its momentum change.
 

@@ -85,7 +85,7 @@ from exudyn.itemInterface import (  # noqa: E402
 from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
 from plant.fish.fish_body import FishGeometry, fish_geometry  # noqa: E402
 from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
-from plant.contract.devices import device_shapes  # noqa: E402
+from plant.contract.devices import BIN_DEPTH_M, bin_walls, device_shapes  # noqa: E402
 from plant.contract.line import Line  # noqa: E402
 from plant.sim.params import PlantParams  # noqa: E402
 from plant.fish.population import FishSpec  # noqa: E402
@@ -216,12 +216,20 @@ def _shaped_inertia(body, enabled: bool) -> np.ndarray:
     return inertia
 
 
+def park_top_z(line: Line) -> float:
+    """Height of the parking grid's top layer: 0.6 m below the lowest belt, and 0.3 m below the bottom of any gate's
+    bin (a parked fish has no gravity; one overlapping a wall would be shot off by its contact)."""
+    bins = [s.hinge_z_m - BIN_DEPTH_M - 0.3 for s in device_shapes(line) if s.device.kind == "gate"]
+    return min([line.z_range_m[0] - 0.6, *bins])
+
+
 def park_positions(line: Line, n: int) -> np.ndarray:
-    """Waiting places for n fish: a grid below the line (at most four layers deep: few fish wait)."""
+    """Waiting places for n fish (slot k at the k-th): a grid below the line (at most four layers deep: few fish wait).
+    Every fish in the system has its own (a fish parked on another would be shot off by their contact)."""
     dx, dy, dz = PARK_SPACING_M
     nx = max(1, int((line.x_end_m - line.x_start_m) // dx))
     ny = max(1, int(line.guide_width_m // dy) + 1)
-    z0 = line.z_range_m[0] - 0.6
+    z0 = park_top_z(line)
     out = np.zeros((n, 3))
     for k in range(n):
         ix, rest = k % nx, k // nx
@@ -282,6 +290,11 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
         gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
                                       contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=parts[0],
                                       triangleList=parts[1], staticTriangles=True)
+    walls = bin_walls(line)
+    if walls[1]:  # the gates' bins: static too
+        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
+                                      contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=walls[0],
+                                      triangleList=walls[1], staticTriangles=True)
     belt_nodes = []
     for c in line.conveyors:
         # an inclined belt's body is turned about y: its local x runs up (or down) the belt
@@ -363,7 +376,7 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
 
     # contact search: a box over the line, the space above it and the parking grid below it
     lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
-                   line.z_range_m[0] - 0.6 - PARK_SPACING_M[2] * 4 - 0.3])
+                   park_top_z(line) - PARK_SPACING_M[2] * 4 - 0.3])
     hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
                    line.z_range_m[1] + 1.2])
     gc.SetSearchTreeBox(lo, hi)

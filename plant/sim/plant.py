@@ -193,8 +193,9 @@ class Plant:
                 members.append(Member(int(k), self._prepared[k], coords, vel, True, self._k_now[j].copy(),
                                       self._offset_now[j].copy(), int(self._level[k])))
         due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t + ADMIT_AHEAD_S))]
-        parks = park_positions(self._line, len(due))
-        members += [parked_member(int(k), self._prepared[k], parks[i], int(self._level[k])) for i, k in enumerate(due)]
+        parks = park_positions(self._line, len(members) + len(due))  # each slot its own place, as _retire_fish parks
+        members += [parked_member(int(k), self._prepared[k], parks[len(members) + i], int(self._level[k]))
+                    for i, k in enumerate(due)]
         t0 = time.perf_counter()
         self._set_model(build_model(self._line, members, self._params, self._gravity, self._parts), members)
         self._timings_s["rebuild"] += time.perf_counter() - t0
