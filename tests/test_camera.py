@@ -77,6 +77,18 @@ def test_a_single_leader_ahead_of_a_double_is_not_a_lead_double():
     assert last["cam.count"] == 3 and last["cam.double"] is True and last["cam.lead_double"] is False
 
 
+def test_a_fish_seen_in_a_double_stays_one_when_its_partner_has_left_the_view():
+    # f1 (1.70 to 2.30 m) and f2 (up to 1.66 m) 4 cm apart, both in view; the belt then carries them 0.88 m on:
+    # f1 wholly past the view's end (2.5 m), f2 leading alone (its front just past the end: seen up to it)
+    plant = Plant(camera_line(double_gap_m=0.08), [fish("f1", LENGTH_M, x_m=2.0), fish("f2", LENGTH_M, x_m=1.36)])
+    out = [plant.step({"c1": 0.0}).port_values() for _ in range(60)]
+    assert out[-1]["cam.lead_double"] is True and out[-1]["cam.lead_x"] == pytest.approx(2.3, abs=0.02)
+    out = [plant.step({"c1": 0.41}).port_values() for _ in range(215)]
+    lead = out[-1]
+    assert lead["cam.count"] == 1 and lead["cam.double"] is False
+    assert lead["cam.lead_x"] == pytest.approx(2.5, abs=0.001) and lead["cam.lead_double"] is True
+
+
 def test_a_fish_partly_in_view_is_as_long_as_the_part_in_view():
     _, out = settle(camera_line(x_end_m=2.1), [fish("f1", LENGTH_M, x_m=2.0)])  # snout at 2.3, view ends at 2.1
     last = out[-1].port_values()

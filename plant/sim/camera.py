@@ -11,7 +11,9 @@ faster than the plant's steps takes one frame a step), each frame's result on th
 positions and lengths with independent Gaussian noise of ``position_noise_m``.  From a frame:
 
 - ``count``: fish in view; ``double``: two of them overlap along x or are closer than ``double_gap_m``;
-  ``lead_double``: the leading fish is one of such a pair (what a reject downstream acts on: the fish to come);
+  ``lead_double``: the leading fish has been one of such a pair in a frame since it came into view (a vision
+  system classifies each tracked fish, and keeps the class: the second fish of a double is still one when the
+  first has left the view; what a reject downstream acts on, the fish to come);
 - the leading fish (its front end furthest downstream): ``lead_x`` its front end, ``lead_length``, ``lead_heading``
   (1 head first, -1 tail first; 0 and zero lengths with no fish in view);
 - ``events``: fish seen so far (a fish counts once, the first time it is in view);
@@ -116,6 +118,8 @@ class CameraUnit:
         self._pending: deque[tuple[float, Reading]] = deque()
         self._track: dict[int, int] = {}
         """Fish index -> its track number (the events count when it was first in view)."""
+        self._doubled: set[int] = set()
+        """Fish seen as one of a double in some frame."""
 
     def frame_due(self, t_s: float) -> bool:
         return t_s + 1e-9 >= self.frames / self.camera.rate_hz
@@ -143,8 +147,10 @@ class CameraUnit:
         for f in view.fish[k]:
             self._track.setdefault(int(f), len(self._track) + 1)
         lead = int(np.argmax(front)) if len(k) else -1
-        apart = np.maximum(back - front[lead], back[lead] - front) if len(k) else np.zeros(0)  # to the leader
-        lead_double = bool(len(k) > 1 and np.any(np.delete(apart, lead) < cam.double_gap_m))
+        apart = np.maximum(back[:, None] - front[None, :], back[None, :] - front[:, None])  # each pair's gap
+        np.fill_diagonal(apart, np.inf)
+        self._doubled.update(int(f) for f in view.fish[k][np.any(apart < cam.double_gap_m, axis=1)])
+        lead_double = bool(len(k) and int(view.fish[k][lead]) in self._doubled)
         reading = Reading(len(k), double, lead_double, float(front[lead]) if len(k) else 0.0,
                           float(length[lead]) if len(k) else 0.0, int(heading[lead]) if len(k) else 0,
                           len(self._track), self.frames)

@@ -68,7 +68,8 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
     Signal("double", "camera", "Boolean", None, None, False, "camera_double",
            "two fish in view overlap or are closer than the camera's double_gap_m along the line"),
     Signal("lead_double", "camera", "Boolean", None, None, False, "camera_lead_double",
-           "the leading fish overlaps another fish in view or is closer to it than double_gap_m along the line"),
+           "the leading fish has been one of a double (overlapping another fish in view or closer to it than "
+           "double_gap_m) in a frame since it came into view"),
     Signal("lead_x", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_x_m",
            "front end of the leading fish in view (the one furthest downstream); 0 with none in view"),
     Signal("lead_length", "camera", "Real", "m", (0, 1, 0, 0, 0, 0, 0, 0, 1.0, 0.0), False, "camera_lead_length_m",
