@@ -106,6 +106,14 @@ def test_double_is_rejected_from_actuator_time_before_its_front_until_its_back_h
     assert np.all(out["reject_events"][out["t"] < 1.0] == 0) and out["reject_events"][-1] == 1
 
 
+def test_a_device_length_holds_the_window_until_the_back_has_passed_its_far_end(ctrl_dir: Path) -> None:
+    slave = start_slave(ctrl_dir, reject_params(1, reject_length=0.4), inputs=SPEEDS)
+    out = run_script(slave, [(1.0, result(1, lead_x_m=6.0, length_m=0.6))], 5.0, "reject")
+    slave.close()
+    # opens as without it (1.66 s); closes when the back passes 6.5 + 0.4 + 0.05 m: 0.4 m at 0.5 m/s later
+    assert_windows(out["t"], out["reject"], [(1.66, 3.26 + 0.4 / V_MPS)])
+
+
 @pytest.mark.parametrize("reject_mode, rejected", [(1, False), (2, True)])
 def test_tail_first_fish_is_rejected_in_mode_2_only(ctrl_dir: Path, reject_mode: int, rejected: bool) -> None:
     script = [(1.0, result(1, lead_x_m=6.0, double=False, heading=-1)),

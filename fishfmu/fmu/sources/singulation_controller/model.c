@@ -46,8 +46,9 @@
  * front is now at x_front = cam_lead_x + v x camera_latency, its back cam_lead_length behind.  With
  * d = reject_x - x_front its window opens at s_open = s + d - reject_margin - v x actuator_time (the
  * device is commanded actuator_time before the front, less the margin, reaches reject_x) and closes
- * at s_close = s + d + cam_lead_length + reject_margin (held until the back, plus the margin, has
- * passed).  A window with s_close < s already (the fish is past the device) is ignored.
+ * at s_close = s + d + cam_lead_length + reject_length + reject_margin (held until the back, plus the
+ * margin, has passed the device's far end: reject_length is its length along the line, a gate's flap, so
+ * that a fish still falling through an open gate is not caught by it closing).  A window with s_close < s already (the fish is past the device) is ignored.
  *
  * Up to 32 windows are pending, in the order scheduled.  A new window that overlaps or touches the
  * most recent pending one (s_open <= its s_close and s_close >= its s_open) is merged into it (the
@@ -183,7 +184,7 @@ static void schedule_reject(ModelInstance *inst, ControllerState *s, double v_mp
     RejectWindow w, *last = s->n_windows > 0 ? &s->windows[s->n_windows - 1] : NULL;
     int overlaps;
     w.open_m = s->travel_m + to_go_m - V(REJECT_MARGIN) - v_mps * V(ACTUATOR_TIME);
-    w.close_m = s->travel_m + to_go_m + length_m + V(REJECT_MARGIN);
+    w.close_m = s->travel_m + to_go_m + length_m + V(REJECT_LENGTH) + V(REJECT_MARGIN);
     if (w.close_m + TRAVEL_TOLERANCE_M < s->travel_m) return; /* the fish is past the device already */
     overlaps = last != NULL && w.open_m <= last->close_m + TRAVEL_TOLERANCE_M &&
                w.close_m + TRAVEL_TOLERANCE_M >= last->open_m;
