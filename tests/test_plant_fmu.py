@@ -119,3 +119,27 @@ def test_export_never_writes_over_a_file_it_did_not_write(tmp_path):
                          capture_output=True, text=True)
     assert cli.returncode == 2 and "plant.fmu" in cli.stderr
     assert mine.read_bytes() == b"the user's own file"
+
+
+def test_a_plant_fmu_with_a_gate_takes_its_command_and_reports_what_it_rejected(tmp_path):
+    """scenarios/reject_doubles.toml's plant exported: its gate's command is a Boolean input, fmpy holding it open
+    drops every fish that reaches it, as fishfmu's own plant does with the same command (to the step)."""
+    from fmpy import simulate_fmu
+    scenario = ROOT / "scenarios" / "reject_doubles.toml"
+    out = tmp_path / "gate.fmu"
+    cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "export-fmu", str(scenario), "--out", str(out)],
+                         capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    from fmpy.validation import validate_fmu
+    assert validate_fmu(str(out)) == []  # a Boolean input, Real outputs without a unit, Integer counts
+    speeds = {**SPEEDS, "c5.speed": 1.25}
+    res = simulate_fmu(str(out), stop_time=24.0, step_size=0.01, output_interval=0.01,
+                       start_values={**speeds, "gate.command": True, "fish_count": 2, "seed": 1},
+                       output=["gate.position", "gate.at_end", "gate.rejected", "fish_rejected", "fish_left"])
+    sc = load_scenario(scenario, {"fish.count": 2, "run.seed": 1})
+    plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s)
+    ours = [plant.step({c: speeds[f"{c}.speed"] for c in plant.conveyor_ids}, {"gate": True}).device_rejected["gate"]
+            for _ in range(2400)]
+    assert res["gate.position"][-1] == 1.0 and res["gate.at_end"][-1]
+    assert res["fish_rejected"][-1] == 2 and res["fish_left"][-1] == 0  # both through the open gate, none past it
+    assert np.array_equal(res["gate.rejected"][1:], np.array(ours))

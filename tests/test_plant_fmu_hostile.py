@@ -213,7 +213,7 @@ def test_a_plant_that_stops_refuses_the_steps_after_it_and_keeps_its_outputs():
     assert pim.do_step(0.02) and logged == []
     before = dict(pim.values)
 
-    def blow_up(speeds):  # noqa: ANN001, ANN202
+    def blow_up(speeds, commands=None):  # noqa: ANN001, ANN202
         raise SimulationError("numerical blow-up: fish 'f1' moves at 31.0 m/s", 0.03)
     pim.plant.step = blow_up
     assert not pim.do_step(0.01)

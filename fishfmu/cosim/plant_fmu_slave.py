@@ -31,8 +31,8 @@ class FishfmuPlant(Fmi2Slave):
                 getter=p.getter(name), setter=p.parameter_setter(name)), bounds))
         for name in p.input_names:
             if name in p.command_names:  # a device's command: any Boolean is valid
-                self.register_variable(Boolean(name, causality=Fmi2Causality.input, start=False, getter=p.getter(name),
-                                               setter=p.command_setter(name)))
+                self.register_variable(Boolean(name, causality=Fmi2Causality.input, variability=Fmi2Variability.discrete,
+                                               start=False, getter=p.getter(name), setter=p.command_setter(name)))
                 continue
             self.register_variable(with_bounds(Real(
                 name, causality=Fmi2Causality.input, start=0.0, description=p.units[name],
@@ -46,7 +46,7 @@ class FishfmuPlant(Fmi2Slave):
                            initial=Fmi2Initial.exact, start=start, getter=p.getter(name))
             else:
                 var = Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact, start=start,
-                           description=p.units[name], getter=p.getter(name))
+                           description=p.units.get(name, ""), getter=p.getter(name))
             self.register_variable(var)
 
     def log_error(self, message):
