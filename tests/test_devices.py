@@ -169,3 +169,26 @@ def test_rejected_and_good_rejected_by_hand(tmp_path):
                   rejections=rejections.assign(fish_id=[None, None]))
     k = compute_kpis(unnamed, line, KpiSettings(outfeed_photoeye="pe_out", min_gap_m=0.05))
     assert k["rejected"] == 2 and k["good_rejected"] is None
+
+
+# ------------------------------------------------------------------------------------------ parking
+def test_fish_parked_below_the_line_never_touch_each_other_or_a_gates_bin():
+    """A fish waiting for its drop and one gone are parked with gravity off: parked on each other (a fish retiring
+    into the place of one admitted early) or on a bin wall, their contact shot them up through the belts into the
+    fish on the line.  f3 waits parked while f2, released after it was admitted, leaves the line."""
+    line = two_belts([GATE])
+    fishes = [fish("f1", x_m=1.0, t_s=0.05), fish("f2", x_m=3.6, t_s=1.2), fish("f3", x_m=0.5, t_s=2.1)]
+    plant = Plant(line, fishes)
+    bottom = device_shapes(line)[0].hinge_z_m - 0.8
+    waited = []
+    while plant.t_s < 2.09:
+        plant.step({"c1": 0.0, "c2": 1.5}, {"gate": False})
+        s = plant.state
+        parked = np.flatnonzero(s.status[s.fish_of_body] != FishStatus.ON_LINE)
+        assert np.all(s.pos[parked, 2] < bottom)  # below the bin
+        fish_of = s.fish_of_body[parked]
+        gap = np.linalg.norm(s.pos[parked, None, :] - s.pos[None, parked, :], axis=2)
+        assert np.all(gap[fish_of[:, None] != fish_of[None, :]] > 0.15)  # no two fish on one place
+        if s.status[2] == FishStatus.WAITING and 2 in s.member:
+            waited.append(float(np.abs(s.vel[s.fish_of_body == 2]).max()))
+    assert plant.state.status[1] == FishStatus.LEFT and len(waited) > 50 and max(waited) < 1e-6  # at rest

@@ -195,7 +195,7 @@ def test_interrupted_run_writes_a_readable_partial_result(tmp_path: Path, signum
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["paper_dump", "gap_control", "user_fmu"])
+@pytest.mark.parametrize("name", ["paper_dump", "gap_control", "user_fmu", "reject_doubles"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_energy_watch_stays_far_from_its_reserve_in_the_shipped_scenarios(name: str, seed: int, tmp_path: Path,
                                                                           builtin_fmus) -> None:

@@ -88,6 +88,13 @@ def write_report(result: RunResult, out: Path) -> Path:
         blobs[name] = base64.b64encode(data).decode()
     rows = "".join(f"<tr><td>{html.escape(k)}</td><td>{html.escape(_fmt(v))}</td></tr>"
                    for k, v in result.kpis.items() if not isinstance(v, dict))
+    if result.scenario.line.devices:  # beside the singulation rate, what reaches the machine downstream (kpis.md)
+        k = result.kpis
+        out_n = k["singulated"] + k["doubles_out"]
+        purity = k["singulated"] / out_n if out_n else None
+        rows += (f"<tr><td>outfeed purity: singulated / (singulated + doubles_out)</td><td>{_fmt(purity)}</td></tr>"
+                 + "".join(f"<tr><td>rejected by {html.escape(d)}</td><td>{n}</td></tr>"
+                           for d, n in k.get("rejected_by", {}).items()))
     expect = "".join(f"<li class='{'ok' if e.ok else 'bad'}'>{html.escape(e.message)}</li>" for e in result.expect)
     status = html.escape(result.status + (f": {result.error}" if result.error else ""))
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(result.scenario.run.name)}</title>
