@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.model_description import ModelDescription
@@ -94,3 +96,17 @@ def start_slave(unzip_dir: Path, parameters: dict[str, Value] | None = None, *,
         fmu.freeInstance()
         raise
     return slave
+
+
+def run_script(slave: Slave, script: list[tuple[float, dict]], until_s: float, dt_s: float,
+               *names: str) -> dict[str, np.ndarray]:
+    """Apply each (time, inputs) of the script when its time comes; record outputs after every step."""
+    pending = sorted(script, key=lambda row: row[0])
+    rows = []
+    for _ in range(round(until_s / dt_s)):
+        while pending and pending[0][0] <= slave.time_s + 1e-9:
+            slave.set(**pending.pop(0)[1])
+        slave.step(dt_s)
+        rows.append([slave.time_s, *slave.get(*names).values()])
+    table = np.array(rows, dtype=float)
+    return {"t": table[:, 0], **{name: table[:, k + 1] for k, name in enumerate(names)}}

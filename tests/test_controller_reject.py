@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from tests.fmu_helpers import Slave, start_slave
+from tests.fmu_helpers import Slave, run_script, start_slave
 
 SCAN_S = 0.01
 V_MPS = 0.5  # belt 2, the one that carries the fish to the device
@@ -57,19 +57,6 @@ def window_s(t_s: float, lead_x_m: float, length_m: float = 0.6) -> tuple[float,
             t_s + (REJECT_X_M + MARGIN_M - (front_m - length_m)) / V_MPS)
 
 
-def run_script(slave: Slave, script: list[tuple[float, dict]], until_s: float, *names: str) -> dict[str, np.ndarray]:
-    """Apply each (time, inputs) of the script when its time comes; record outputs after every scan-long step."""
-    pending = sorted(script, key=lambda row: row[0])
-    rows = []
-    for _ in range(round(until_s / SCAN_S)):
-        while pending and pending[0][0] <= slave.time_s + 1e-9:
-            slave.set(**pending.pop(0)[1])
-        slave.step(SCAN_S)
-        rows.append([slave.time_s, *slave.get(*names).values()])
-    table = np.array(rows, dtype=float)
-    return {"t": table[:, 0], **{name: table[:, k + 1] for k, name in enumerate(names)}}
-
-
 def runs(flag: np.ndarray) -> int:
     """Number of separate stretches where ``flag`` is true."""
     return int(np.count_nonzero(np.diff(np.concatenate([[0], flag.astype(int)])) == 1))
@@ -95,7 +82,7 @@ def assert_windows(t: np.ndarray, reject: np.ndarray, windows: list[tuple[float,
 
 def test_double_is_rejected_from_actuator_time_before_its_front_until_its_back_has_passed(ctrl_dir: Path) -> None:
     slave = start_slave(ctrl_dir, reject_params(1), inputs=SPEEDS)
-    out = run_script(slave, [(1.0, result(1, lead_x_m=6.0, length_m=0.6))], 4.0, "reject", "reject_events")
+    out = run_script(slave, [(1.0, result(1, lead_x_m=6.0, length_m=0.6))], 4.0, SCAN_S, "reject", "reject_events")
     slave.close()
     # front at 6.0 + 0.5 x 0.04 = 6.02 m at t = 1.0; 0.33 m to go to 6.5 - 0.05 - 0.5 x 0.2 = 6.35 m -> 0.66 s;
     # the back (5.42 m) passes 6.55 m after 1.13 m -> 2.26 s
@@ -108,7 +95,7 @@ def test_double_is_rejected_from_actuator_time_before_its_front_until_its_back_h
 
 def test_a_device_length_holds_the_window_until_the_back_has_passed_its_far_end(ctrl_dir: Path) -> None:
     slave = start_slave(ctrl_dir, reject_params(1, reject_length=0.4), inputs=SPEEDS)
-    out = run_script(slave, [(1.0, result(1, lead_x_m=6.0, length_m=0.6))], 5.0, "reject")
+    out = run_script(slave, [(1.0, result(1, lead_x_m=6.0, length_m=0.6))], 5.0, SCAN_S, "reject")
     slave.close()
     # opens as without it (1.66 s); closes when the back passes 6.5 + 0.4 + 0.05 m: 0.4 m at 0.5 m/s later
     assert_windows(out["t"], out["reject"], [(1.66, 3.26 + 0.4 / V_MPS)])
@@ -119,7 +106,7 @@ def test_tail_first_fish_is_rejected_in_mode_2_only(ctrl_dir: Path, reject_mode:
     script = [(1.0, result(1, lead_x_m=6.0, double=False, heading=-1)),
               (4.0, result(2, lead_x_m=6.0, double=False, heading=1))]  # a single head-first fish: never
     slave = start_slave(ctrl_dir, reject_params(reject_mode), inputs=SPEEDS)
-    out = run_script(slave, script, 7.0, "reject", "reject_events")
+    out = run_script(slave, script, 7.0, SCAN_S, "reject", "reject_events")
     slave.close()
     assert_windows(out["t"], out["reject"], [window_s(1.0, 6.0)] if rejected else [])
     assert out["reject_events"][-1] == (1 if rejected else 0)
@@ -130,7 +117,7 @@ def test_a_repeated_result_schedules_nothing_new(ctrl_dir: Path) -> None:
               (3.5, result(1, lead_x_m=6.2)),  # other values, the same result number: not a new result
               (4.0, result(2, lead_x_m=6.0))]
     slave = start_slave(ctrl_dir, reject_params(1), inputs=SPEEDS)
-    out = run_script(slave, script, 7.0, "reject", "reject_events")
+    out = run_script(slave, script, 7.0, SCAN_S, "reject", "reject_events")
     slave.close()
     # the double stays on the inputs for 3 s (300 scans) but opens one window; result 2 opens the next
     assert_windows(out["t"], out["reject"], [(1.66, 3.26), (4.66, 6.26)])
@@ -139,7 +126,7 @@ def test_a_repeated_result_schedules_nothing_new(ctrl_dir: Path) -> None:
 
 def test_a_result_present_at_the_start_is_not_new(ctrl_dir: Path) -> None:
     slave = start_slave(ctrl_dir, reject_params(1), inputs={**SPEEDS, **result(5, lead_x_m=6.0)})
-    out = run_script(slave, [], 4.0, "reject", "reject_events")
+    out = run_script(slave, [], 4.0, SCAN_S, "reject", "reject_events")
     slave.close()
     assert not out["reject"].any() and out["reject_events"][-1] == 0
 
@@ -150,7 +137,7 @@ def test_overlapping_windows_merge_into_one(ctrl_dir: Path) -> None:
     first, second = window_s(1.0, 6.0), window_s(1.5, 5.9)
     assert second == pytest.approx((2.36, 3.96)) and first[0] < second[0] <= first[1]
     slave = start_slave(ctrl_dir, reject_params(1), inputs=SPEEDS)
-    out = run_script(slave, [(1.0, result(1, 6.0)), (1.5, result(2, 5.9))], 5.0, "reject", "reject_events")
+    out = run_script(slave, [(1.0, result(1, 6.0)), (1.5, result(2, 5.9))], 5.0, SCAN_S, "reject", "reject_events")
     slave.close()
     assert_windows(out["t"], out["reject"], [(first[0], second[1])])
     assert out["reject_events"][-1] == 1
@@ -165,7 +152,7 @@ def test_mode_0_never_rejects_and_changes_nothing_else(ctrl_dir: Path) -> None:
     outs = []
     for script in (eyes, eyes + camera):
         slave = start_slave(ctrl_dir, reject_params(0, mode=1, jam_time=1.0), inputs=SPEEDS)
-        outs.append(run_script(slave, script, 6.0, *names, "reject", "reject_events"))
+        outs.append(run_script(slave, script, 6.0, SCAN_S, *names, "reject", "reject_events"))
         slave.close()
     without, with_camera = outs
     assert not with_camera["reject"].any() and with_camera["reject_events"][-1] == 0
@@ -187,7 +174,7 @@ def test_a_speed_change_after_the_result_moves_the_window_with_the_fish(ctrl_dir
     close_s = 1.2 + (1.13 - (1.2 - read_s) * V_MPS) / 0.25
     assert (open_s, close_s) == pytest.approx((2.14, 5.34))
     slave = start_slave(ctrl_dir, reject_params(1), inputs=SPEEDS)
-    out = run_script(slave, [(1.0, result(1, 6.0)), (1.2, {"belt_speed_2": 0.25, "belt_speed_3": 2.0})], 6.5,
+    out = run_script(slave, [(1.0, result(1, 6.0)), (1.2, {"belt_speed_2": 0.25, "belt_speed_3": 2.0})], 6.5, SCAN_S,
                      "reject", "reject_events")
     slave.close()
     assert_windows(out["t"], out["reject"], [(open_s, close_s)])
@@ -200,7 +187,7 @@ def test_reject_belt_chooses_the_speed_that_counts(ctrl_dir: Path) -> None:
     open_s = 1.0 + SCAN_S + (6.5 - 0.22 - 6.034) / 0.85
     close_s = 1.0 + SCAN_S + (6.55 - 5.434) / 0.85
     slave = start_slave(ctrl_dir, reject_params(1, reject_belt=3), inputs=SPEEDS)
-    out = run_script(slave, [(1.0, result(1, 6.0))], 3.0, "reject")
+    out = run_script(slave, [(1.0, result(1, 6.0))], 3.0, SCAN_S, "reject")
     slave.close()
     assert_windows(out["t"], out["reject"], [(open_s, close_s)])
 
@@ -212,7 +199,7 @@ def test_a_full_window_list_merges_into_the_last_window_and_says_so(ctrl_dir: Pa
     # closes during the run, so the 33rd finds 32 windows pending
     slave = start_slave(ctrl_dir, reject_params(1, reject_x=100.0), inputs=SPEEDS)
     script = [(1.0 + k * SCAN_S, result(k + 1, lead_x_m=10.0 - k, length_m=0.2)) for k in range(33)]
-    out = run_script(slave, script, 1.5, "reject", "reject_events")
+    out = run_script(slave, script, 1.5, SCAN_S, "reject", "reject_events")
     slave.close()
     assert out["reject_events"][-1] == 32 and not out["reject"].any()
     assert sum("32 windows are pending" in line for line in slave.log) == 1, slave.log

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from fmpy.fmi1 import FMICallException
 
-from tests.fmu_helpers import Slave, start_slave, start_values
+from tests.fmu_helpers import Slave, run_script, start_slave, start_values
 
 SCAN_S = 0.01
 
@@ -26,20 +26,6 @@ def speeds(ctrl_dir: Path) -> dict[int, float]:
     """Nominal belt speeds as the FMU's defaults give them."""
     start = start_values(ctrl_dir)
     return {i: start[f"speed_{i}"] for i in range(1, 9)}
-
-
-def run_script(slave: Slave, script: list[tuple[float, dict]], until_s: float, dt_s: float,
-               *names: str) -> dict[str, np.ndarray]:
-    """Apply each (time, inputs) of the script when its time comes; record outputs after every step."""
-    pending = sorted(script, key=lambda row: row[0])
-    rows = []
-    for _ in range(round(until_s / dt_s)):
-        while pending and pending[0][0] <= slave.time_s + 1e-9:
-            slave.set(**pending.pop(0)[1])
-        slave.step(dt_s)
-        rows.append([slave.time_s, *slave.get(*names).values()])
-    table = np.array(rows, dtype=float)
-    return {"t": table[:, 0], **{name: table[:, k + 1] for k, name in enumerate(names)}}
 
 
 def line_params(n_belts: int = 3, **extra: float | int | bool) -> dict:

@@ -1,17 +1,16 @@
 """Reading and writing measured data (contracts/measured-data.md): real runs and simulated ones alike.
 
-A dataset is a folder with ``dataset.toml`` (``[dataset]``, ``[line]``, ``[kpi]``, ``[[runs]]``)
-and one folder per run under ``runs/`` with ``fish.csv``, ``tracks.csv``, ``photoeyes.csv`` and
-``belts.csv``, and where the line has them its cameras' ``detections.csv`` and its devices' ``rejections.csv``.  Readers check everything the contract asks and stop at the first problem with
-an :class:`~plant.errors.InputError` naming the file and the key, or the row (as a person counts
-lines in the file: the header is line 1) and column.  Nothing is dropped silently: extra CSV
-columns are kept, extra keys of a ``[[runs]]`` entry are kept in ``Run.extra`` (unless they look
-like a misspelt known key), and empty ``height_m``, ``width_m``, ``hours_post_mortem`` in
-fish.csv are filled (length regressions, the run's value) and listed in ``Run.filled``;
-:func:`write_run` writes those cells empty again, so a round trip gives back the same files.
-Blank lines in a CSV are skipped; pandas' usual NaN spellings (empty, NaN, NA, null) are missing values.
-A CSV must be UTF-8 (a byte-order mark is allowed) and no row may have more fields than the header (a
-trailing comma): the error names the row.
+A dataset is a folder with ``dataset.toml`` (``[dataset]``, ``[line]``, ``[kpi]``, ``[[runs]]``) and one folder per
+run under ``runs/`` with ``fish.csv``, ``tracks.csv``, ``photoeyes.csv`` and ``belts.csv``, and where the line has
+them its cameras' ``detections.csv`` and its devices' ``rejections.csv``.  Readers check everything the contract
+asks and stop at the first problem with an :class:`~plant.errors.InputError` naming the file and the key, or the row
+(as a person counts lines in the file: the header is line 1) and column.  Nothing is dropped silently: extra CSV
+columns are kept, extra keys of a ``[[runs]]`` entry are kept in ``Run.extra`` (unless they look like a misspelt
+known key), and empty ``height_m``, ``width_m``, ``hours_post_mortem`` in fish.csv are filled (length regressions,
+the run's value) and listed in ``Run.filled``; :func:`write_run` writes those cells empty again, so a round trip
+gives back the same files. Blank lines in a CSV are skipped; pandas' usual NaN spellings (empty, NaN, NA, null) are
+missing values. A CSV must be UTF-8 (a byte-order mark is allowed) and no row may have more fields than the header
+(a trailing comma): the error names the row.
 
 A run must also be physically plausible before anything is simulated: :func:`read_run` calls the
 checks of :mod:`plant.contract.plausibility`, where the bounds and their reasons are.

@@ -2,9 +2,10 @@
 
 An actuator moves at constant speed (its whole travel in ``stroke_s``, as a pneumatic cylinder with its flow set by
 a throttle does) towards the end its command asks for, and stops there.  It is position-controlled: it keeps that
-speed whatever the fish push back with (no force limit: a gate closing on a fish lifts it, a paddle pushes a jam).  Like a belt body, a device body is put at
-its pose at the start of every communication step and given the step's rate; it carries its triangles (the shapes
-of :mod:`plant.contract.devices`) through the step, and what the fish push on it shows as its momentum change.
+speed whatever the fish push back with (no force limit: a gate closing on a fish lifts it, a paddle pushes a jam).
+Like a belt body, a device body is put at its pose at the start of every communication step and given the step's
+rate; it carries its triangles (the shapes of :mod:`plant.contract.devices`) through the step, and what the fish
+push on it shows as its momentum change.
 
 >>> from plant.contract.line import Line
 >>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [

@@ -1,4 +1,4 @@
-"""The plant's ports, declared once: what goes in (belt speeds) and what comes out (sensor readings).
+"""The plant's ports, declared once: what goes in (belt speeds, device commands) and what comes out (sensor readings).
 
 Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<signal>``:
 
@@ -7,9 +7,10 @@ Every conveyor ``c`` and photo-eye ``p`` of the line gives ports named ``<id>.<s
 - ``c.load_mass`` (Real, kg): out, the mass resting on the belt;
 - ``p.blocked`` (Boolean): out, whether a fish cuts the beam;
 - for every camera ``k`` (outputs, what its last result said, see :mod:`plant.sim.camera`): ``k.count`` (Integer,
-  fish in view), ``k.double`` (Boolean), ``k.lead_double`` (Boolean: the leading fish is one of a double), ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest
-  downstream), ``k.lead_length`` (Real, m), ``k.lead_heading`` (Integer: 1 head first, -1 tail first, 0 no fish),
-  ``k.events`` (Integer: fish seen so far), ``k.results`` (Integer: results given so far);
+  fish in view), ``k.double`` (Boolean), ``k.lead_double`` (Boolean: the leading fish is one of a double),
+  ``k.lead_x`` (Real, m: front end of the leading fish, the one furthest downstream), ``k.lead_length`` (Real, m),
+  ``k.lead_heading`` (Integer: 1 head first, -1 tail first, 0 no fish), ``k.events`` (Integer: fish seen so far),
+  ``k.results`` (Integer: results given so far);
 - for every device ``d`` (:mod:`plant.contract.devices`): ``d.command`` (Boolean, in only: true moves it to the end of
   its travel, false home), ``d.position`` (Real, 0 home to 1 at the end of its travel), ``d.at_home`` and
   ``d.at_end`` (Boolean: its limit switches), ``d.rejected`` (Integer: fish it has taken off the line so far).

@@ -1,10 +1,10 @@
 """Recording a simulated run in the measured-data format (contracts/measured-data.md).
 
-The same four tables a line's instruments give: fish tracks at 25 Hz (mid-length point and
-heading, like the overhead camera), photo-eye blocked intervals, and belt setpoints and speeds
-at 100 Hz; and the logs a line with cameras and devices gives: the cameras' detections, the devices'
-rejections (one row per fish a device took off, at the end of the step in which the plant found it gone).  A simulated run written this way goes through exactly the readers and KPI code
-that a measured one does.
+The same four tables a line's instruments give: fish tracks at 25 Hz (mid-length point and heading, like the
+overhead camera), photo-eye blocked intervals, and belt setpoints and speeds at 100 Hz; and the logs a line with
+cameras and devices gives: the cameras' detections, the devices' rejections (one row per fish a device took off, at
+the end of the step in which the plant found it gone).  A simulated run written this way goes through exactly the
+readers and KPI code that a measured one does.
 
 Photo-eye interval times are the ends of the communication steps at which the beam was first
 seen blocked and first seen clear again (resolution: one communication step).
