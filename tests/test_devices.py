@@ -120,6 +120,12 @@ def test_device_ports_are_a_command_in_and_position_switches_and_count_out():
                                     "d.position", "d.at_home", "d.at_end", "d.rejected"]
 
 
+def test_a_command_for_a_device_the_line_lacks_is_refused():
+    plant = Plant(two_belts([GATE]), [])
+    with pytest.raises(KeyError, match="no device named gat"):
+        plant.step({"c1": 0.0, "c2": 0.0}, {"gat": True})
+
+
 @pytest.mark.parametrize("device, key, words", [
     ({"x_m": 1.5}, "devices[0].x_m", "must lie in the gap between two conveyors"),
     ({"length_m": 0.5}, "devices[0].x_m", "must lie in the gap"),

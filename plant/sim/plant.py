@@ -133,6 +133,8 @@ class Plant:
         a device not named, or all with None, is commanded home)."""
         speeds = self._speeds_array(belt_speeds_mps)
         self._admit_and_release(self.t_s + 1e-9)
+        if device_commands and (unknown := sorted(set(device_commands) - set(self._ports.device_ids))):
+            raise KeyError(f"no device named {', '.join(unknown)} (devices: {', '.join(self._ports.device_ids)})")
         commands = [bool((device_commands or {}).get(i, False)) for i in self._ports.device_ids]
         self._devices.advance(np.array(commands, dtype=bool), self._comm_step_s)
         self._set_belts(speeds)
