@@ -25,6 +25,7 @@ The numbers that decide stability are documented in ``plant.sim.params.NumericsP
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import re
 import sys
@@ -79,18 +80,17 @@ except ImportError as exc:  # a bare host or container without the GL/X11 client
         raise
     raise error from exc
 from exudyn.itemInterface import (  # noqa: E402
-    LoadForceVector, LoadMassProportional, MarkerBodyMass, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG,
-    ObjectConnectorRigidBodySpringDamper, ObjectGround, ObjectRigidBody)
+    LoadForceVector, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectGround, ObjectRigidBody)
 
 from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
 from plant.fish.fish_body import FishGeometry, fish_geometry  # noqa: E402
 from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
-from plant.contract.devices import BIN_DEPTH_M, bin_walls, device_shapes  # noqa: E402
+from plant.contract.devices import BIN_DEPTH_M, device_shapes  # noqa: E402
 from plant.contract.line import Line  # noqa: E402
 from plant.sim.params import PlantParams  # noqa: E402
 from plant.fish.population import FishSpec  # noqa: E402
 from plant.sim.rotations import matrix_to_rotvec  # noqa: E402
-from plant.sim.surfaces import belt_surface, guide_walls  # noqa: E402
+from plant.sim.surfaces import LineSurfaces  # noqa: E402
 
 exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
@@ -238,15 +238,17 @@ def park_positions(line: Line, n: int) -> np.ndarray:
     return out
 
 
-def friction_pairings(params: PlantParams) -> np.ndarray:
-    """Coulomb coefficients between materials: fish levels scale their friction on belts and guides."""
-    n = MAT_FISH0 + len(FRICTION_LEVELS)
-    mu = np.zeros((n, n))
-    fish = slice(MAT_FISH0, n)
-    mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = params.friction.fish_belt * FRICTION_LEVELS
-    mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = params.friction.fish_guide * FRICTION_LEVELS
-    mu[fish, fish] = params.friction.fish_fish
-    return mu
+@functools.lru_cache(maxsize=16)
+def friction_pairings(fish_belt: float, fish_guide: float, fish_fish: float) -> list[list[float]]:
+    """Coulomb coefficients between materials (fish levels scale their friction on belts and guides) as Exudyn takes
+    them fastest: a list (it converts in half the time of an array), made once for all the rebuilds of a run
+    (converting it took 0.9 ms of a rebuild's 11).  Shared: never changed."""
+    mu = np.zeros((MAT_FISH0 + len(FRICTION_LEVELS),) * 2)
+    fish = slice(MAT_FISH0, len(mu))
+    mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = fish_belt * FRICTION_LEVELS
+    mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = fish_guide * FRICTION_LEVELS
+    mu[fish, fish] = fish_fish
+    return mu.tolist()
 
 
 def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float, float] = (1.0, 1.0)) -> PreparedFish:
@@ -268,46 +270,39 @@ def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, fricti
                   friction_level)
 
 
-def build_model(line: Line, members: list[Member], params: PlantParams, gravity: np.ndarray,
-                parts: tuple[list, list] = ([], [])) -> PlantModel:
-    """Create, connect and assemble the line and the given fish in their given states; ``parts`` the line's fixed
-    parts' triangles (:func:`plant.contract.parts.part_triangles`, read once per run)."""
+def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantParams, gravity: np.ndarray,
+                line: Line) -> PlantModel:
+    """Create, connect and assemble the line (its ``surfaces``, worked out once per run by
+    :func:`plant.sim.surfaces.line_surfaces`) and the given fish in their given states."""
     num = params.numerics
     system = exu.SystemContainer()
     mbs = system.AddSystem()
     gc = mbs.AddGeneralContact()
     gc.verboseMode = 0
     gc.frictionProportionalZone = num.friction_regularization_mps
-    gc.SetFrictionPairings(friction_pairings(params).tolist())  # a list converts in half the time of an array (1.4 ms)
+    gc.SetFrictionPairings(friction_pairings(params.friction.fish_belt, params.friction.fish_guide,
+                                          params.friction.fish_fish))
     adhesion = params.extensions.adhesion.on
 
     ground = mbs.AddObject(ObjectGround())
     m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
-    pts, trigs = guide_walls(line, params.guide_height_m)
-    gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
-                                  frictionMaterialIndex=MAT_GUIDE, pointList=pts, triangleList=trigs, staticTriangles=True)
-    if parts[1]:  # fixed parts: static like the guides, added before the moving belts as Exudyn requires
-        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
-                                      contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=parts[0],
-                                      triangleList=parts[1], staticTriangles=True)
-    walls = bin_walls(line)
-    if walls[1]:  # the gates' bins: static too
-        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
-                                      contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=walls[0],
-                                      triangleList=walls[1], staticTriangles=True)
+    for pts, trigs in (surfaces.guides, surfaces.parts, surfaces.bins):
+        if trigs:  # guides, fixed parts and the gates' bins: static, added before the moving belts as Exudyn requires
+            gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
+                                          contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=pts,
+                                          triangleList=trigs, staticTriangles=True)
     belt_nodes = []
-    for c in line.conveyors:
+    for c, (pts, trigs) in zip(line.conveyors, surfaces.belts):
         # an inclined belt's body is turned about y: its local x runs up (or down) the belt
         node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[c.x_start_m, 0.0, c.z_top_m, 0.0,
                                                                        -np.radians(c.incline_deg), 0.0]))
         body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
         marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
-        pts, trigs = belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m)
         gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
                                       frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
         belt_nodes.append(node)
     device_nodes = []
-    for shape in device_shapes(line):  # moved like the belts: put at their pose and given its rate every step
+    for shape in surfaces.devices:  # moved like the belts: put at their pose and given its rate every step
         node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[*shape.origin_m, 0.0, 0.0, 0.0]))
         body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
         marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
@@ -335,14 +330,16 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
         materials = MAT_FISH0 + body_friction_levels(mem.friction_level, params.friction.belt_gradient,
                                                      len(geo.bodies))
         for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
-            node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=list(mem.coords[i]),
-                                                     initialVelocities=list(mem.velocities[i])))
-            obj = mbs.AddObject(ObjectRigidBody(mass=b.mass_kg, inertia=list(inertia) + [0.0] * 3, nodeNumber=node))
-            load_vector = list(gravity) if mem.gravity else [0.0, 0.0, 0.0]
-            loads.append(mbs.AddLoad(LoadMassProportional(markerNumber=mbs.AddMarker(MarkerBodyMass(bodyNumber=obj)),
-                                                          loadVector=load_vector)))
+            # a fish's items as plain dicts: Exudyn's item classes cost 3.5 us more an item (2 ms a rebuild of 8 fish)
+            node = mbs.AddNode({"nodeType": "RigidBodyRotVecLG", "referenceCoordinates": mem.coords[i].tolist(),
+                                "initialVelocities": mem.velocities[i].tolist()})
+            obj = mbs.AddObject({"objectType": "RigidBody", "mass": b.mass_kg, "inertia": [*inertia, 0.0, 0.0, 0.0],
+                                 "nodeNumber": node})
+            mass = mbs.AddMarker({"markerType": "BodyMass", "bodyNumber": obj})
+            loads.append(mbs.AddLoad({"loadType": "MassProportional", "markerNumber": mass,
+                                      "loadVector": list(gravity) if mem.gravity else [0.0, 0.0, 0.0]}))
             for (x, y, r) in b.spheres:
-                marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=obj, localPosition=[x, y, 0.0]))
+                marker = mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": obj, "localPosition": [x, y, 0.0]})
                 gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
                                        frictionMaterialIndex=int(materials[i]))
                 sphere_body.append(first + i)
@@ -362,15 +359,15 @@ def build_model(line: Line, members: list[Member], params: PlantParams, gravity:
         for j in range(len(geo.bodies) - 1):
             a, b = geo.bodies[j], geo.bodies[j + 1]
             xj = geo.joint_from_snout_m[j]
-            m0 = mbs.AddMarker(MarkerBodyRigid(bodyNumber=objects[j], localPosition=[a.com_from_snout_m - xj, 0.0, 0.0]))
-            m1 = mbs.AddMarker(MarkerBodyRigid(bodyNumber=objects[j + 1], localPosition=[b.com_from_snout_m - xj, 0.0, 0.0]))
+            m0, m1 = (mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": objects[j + e],
+                                     "localPosition": [body.com_from_snout_m - xj, 0.0, 0.0]}) for e, body in ((0, a), (1, b)))
             m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
             k_t = m_red * num.joint_translation_omega_rad_s**2
             d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
-            connectors.append(mbs.AddObject(ObjectConnectorRigidBodySpringDamper(
-                markerNumbers=[m0, m1], stiffness=np.diag([k_t] * 3 + list(mem.joint_k[j])),
-                damping=np.diag([d_t] * 3 + list(prep.laws.damping[j])), offset=[0.0] * 3 + list(mem.joint_offset[j]),
-                useIntrinsicFormulation=True)))
+            connectors.append(mbs.AddObject({
+                "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1],
+                "stiffness": np.diag([k_t] * 3 + list(mem.joint_k[j])), "damping": np.diag([d_t] * 3 + list(prep.laws.damping[j])),
+                "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
         fish_models.append(FishModel(mem.index, prep, first, connectors, loads, first_sphere,
                                      len(sphere_body) - first_sphere, sticky))
 

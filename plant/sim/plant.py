@@ -38,7 +38,6 @@ import numpy as np
 
 from plant.contract.devices import exits
 from plant.contract.line import Line
-from plant.contract.parts import part_triangles
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
                                    stiffening_limit_loss)
@@ -54,6 +53,7 @@ from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_f
 from plant.sim.devices import DeviceActuators
 from plant.sim.sensors import beams_blocked, belt_loads, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
+from plant.sim.surfaces import line_surfaces
 
 WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
 ADMIT_AHEAD_S = 1.0
@@ -82,10 +82,11 @@ class Plant:
         self.conveyor_ids = list(self._ports.conveyor_ids)
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
-        self._x_ends, self._parts = np.array([c.x_end_m for c in line.conveyors]), part_triangles(line)  # STLs read once
+        self._x_ends = np.array([c.x_end_m for c in line.conveyors])
+        self._surfaces = line_surfaces(line, self._params.guide_height_m)  # once a run (STLs read once)
         self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
-        self._gravity = self._params.gravity_mps2 * np.array(
-            [np.sin(np.radians(self._params.incline_deg)), 0.0, -np.cos(np.radians(self._params.incline_deg))])
+        tilt = np.radians(self._params.incline_deg)
+        self._gravity = self._params.gravity_mps2 * np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
         self._gravity.setflags(write=False)
         ext = self._params.extensions
         if joint_factors is None:
@@ -111,9 +112,8 @@ class Plant:
         self._drop_adjustments: tuple[DropAdjustment, ...] = ()
         self._detections: tuple[tuple, ...] = ()
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0}
-        self._steps = 0
-        self._t_model0 = 0.0
-        self._set_model(build_model(line, [], self._params, self._gravity, self._parts), [])
+        self._steps, self._t_model0 = 0, 0.0
+        self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line), [])
         self._publish(PlantOutputs.at_rest(self._ports))
 
     @property
@@ -199,7 +199,7 @@ class Plant:
         members += [parked_member(int(k), self._prepared[k], parks[len(members) + i], int(self._level[k]))
                     for i, k in enumerate(due)]
         t0 = time.perf_counter()
-        self._set_model(build_model(self._line, members, self._params, self._gravity, self._parts), members)
+        self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line), members)
         self._timings_s["rebuild"] += time.perf_counter() - t0
 
     def _admit_and_release(self, t: float) -> None:

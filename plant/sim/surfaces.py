@@ -4,10 +4,16 @@ pushes spheres out along them."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-from plant.contract.devices import guide_openings
+from plant.contract.devices import DeviceShape, bin_walls, device_shapes, guide_openings
 from plant.contract.line import Line
+from plant.contract.parts import part_triangles
+
+Triangles = tuple[list[list[float]], list[list[int]]]
+"""(points, triangles as three point indices each)."""
 
 DRUM_RADIUS_M = 0.03
 """A belt's rounded lip at each end (its drum)."""
@@ -67,3 +73,24 @@ def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], l
     yl, yr = (float(v[0]) for v in line.guide_y_at([xp]))
     _quad(pts, trigs, (xp, yr, z_lo), (xp, yl, z_lo), (xp, yl, z_hi), (xp, yr, z_hi))  # end plate, normal +x
     return pts, trigs
+
+
+@dataclass(frozen=True)
+class LineSurfaces:
+    """Every contact surface of a line, worked out once per run (STL files read once; each rebuild of the system
+    adds these instead of recomputing them)."""
+
+    guides: Triangles
+    parts: Triangles
+    """The fixed parts (``[[line.parts]]``), line frame."""
+    bins: Triangles
+    """The gates' bin walls, line frame."""
+    belts: tuple[Triangles, ...]
+    """Each conveyor's top, in its body's frame (along the slope of an inclined belt)."""
+    devices: tuple[DeviceShape, ...]
+
+
+def line_surfaces(line: Line, guide_height_m: float) -> LineSurfaces:
+    belts = tuple(belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m) for c in line.conveyors)
+    return LineSurfaces(guide_walls(line, guide_height_m), part_triangles(line), bin_walls(line), belts,
+                        device_shapes(line))
