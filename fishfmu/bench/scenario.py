@@ -53,6 +53,7 @@ def run_case(scenario: str | Path, overrides: dict[str, Any]) -> dict[str, Any]:
         "comm_step_s": result.scenario.run.comm_step_s,
         "plant_exudyn_s": round(result.timings_s.get("plant_exudyn", 0.0), 3),
         "plant_rebuild_s": round(result.timings_s.get("plant_rebuild", 0.0), 3),
+        "plant_rebuild_longest_ms": round(1e3 * result.timings_s.get("plant_rebuild_longest", 0.0), 2),
         "fish": len(result.fish), "fish_in_play_mean": round(float(in_play.mean()), 2) if in_play is not None else 0.0,
         "fish_in_play_max": int(in_play.max()) if in_play is not None else 0,
         "fish_in_play_per_s": ({f"{t:g}": int(n) for t, n in in_play.groupby(in_play.index.astype(int)).max().items()}
@@ -100,7 +101,8 @@ def summary(doc: dict[str, Any]) -> list[str]:
                      f"peak {m['peak_rss_mb']:.0f} MB; stages: "
                      + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in stages.items()))
         lines.append("  CPU per communication step: " + ", ".join(
-            f"{k} {v:.2f} ms" for k, v in last["cpu_per_step_ms"].items()))
+            f"{k} {v:.2f} ms" for k, v in last["cpu_per_step_ms"].items())
+            + f"; the longest rebuild {last.get('plant_rebuild_longest_ms', 0.0):.1f} ms")
     return lines
 
 

@@ -1,14 +1,15 @@
 """How well ``fishfmu serve --realtime`` keeps to the wall clock on this machine.
 
     fishfmu bench serve                               # paper test (controller FMU inside) and over OPC UA
-    fishfmu bench serve --continuous-s 120            # also the first 120 s of the continuous line
+    fishfmu bench serve --continuous-s 120            # also the first 120 s of the continuous line, both ways
 
 Each case serves a scenario in a subprocess at real time x ``factor`` on a free loopback port and reads the
 lateness the server measured (``run_info.json``, ``served.pacing``: each step's start against its due time,
 p50/p99/max and overruns, a step starting more than one communication step late).  The paper test runs
 twice: as shipped (the controller FMU steps inside the server, a passive client polls the photo-eyes every
 10 ms) and as ``paper_opcua.toml``, where a PLC stand-in in its own process writes the four setpoints every
-10 ms over OPC UA (the controller's fixed profile).  Results go to ``bench-results/serve_bench.json``.
+10 ms over OPC UA (the controller's fixed profile); the continuous line the same two ways (``continuous.toml``,
+``continuous_opcua.toml``).  Results go to ``bench-results/serve_bench.json``.
 """
 
 from __future__ import annotations
@@ -103,8 +104,9 @@ def bench(factor: float = 1.0, continuous_s: float | None = None) -> dict[str, A
     cases = [serve_case(scenarios / "paper_dump.toml", factor, [], None),
              serve_case(scenarios / "paper_opcua.toml", factor, [], [0.25, 0.50, 0.80, 1.25])]
     if continuous_s:
-        cases.append(serve_case(scenarios / "continuous.toml", factor, ["--set", f"run.duration_s={continuous_s:g}"],
-                                None))
+        duration = ["--set", f"run.duration_s={continuous_s:g}"]
+        cases += [serve_case(scenarios / "continuous.toml", factor, duration, None),
+                  serve_case(scenarios / "continuous_opcua.toml", factor, duration, [0.50, 0.80, 1.25, 1.60])]
     return {"benchmark": "serve", "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                                               "python": platform.python_version()},
             "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "cases": cases}

@@ -87,7 +87,7 @@ def bench_fmu_worker(
 def bench_serve(
     factor: float = typer.Option(1.0, "--factor", help="Real-time factor to serve at."),
     continuous_s: float | None = typer.Option(None, "--continuous-s", help="Also this many seconds of the "
-                                              "continuous line."),
+                                              "continuous line, controller inside and a PLC over OPC UA."),
     json_file: Path = typer.Option(Path("bench-results/serve_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """Real-time serving: each step's lateness against the wall clock, paper test and (optionally) continuous line."""

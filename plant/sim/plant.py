@@ -109,9 +109,8 @@ class Plant:
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._geometry = tuple(p.geometry for p in self._prepared)
         self.status = np.full(len(self._fish_specs), WAITING, dtype=np.int8)
-        self._drop_adjustments: tuple[DropAdjustment, ...] = ()
-        self._detections: tuple[tuple, ...] = ()
-        self._timings_s = {"exudyn": 0.0, "rebuild": 0.0}
+        self._drop_adjustments, self._detections = (), ()  # tuple[DropAdjustment, ...], camera rows of the step
+        self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
         self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line), [])
         self._publish(PlantOutputs.at_rest(self._ports))
@@ -200,7 +199,8 @@ class Plant:
                     for i, k in enumerate(due)]
         t0 = time.perf_counter()
         self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line), members)
-        self._timings_s["rebuild"] += time.perf_counter() - t0
+        self._timings_s["rebuild"] += (took_s := time.perf_counter() - t0)
+        self._timings_s["rebuild_longest"] = max(self._timings_s["rebuild_longest"], took_s)
 
     def _admit_and_release(self, t: float) -> None:
         due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t))]

@@ -174,7 +174,8 @@ class PlantState:
     device_work_j: float = 0.0
     """Work the devices did on the fish during the step [J] (a source of their energy, like the belts)."""
     timings_s: dict[str, float] = field(default_factory=dict)
-    """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``)."""
+    """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``; the longest
+    rebuild: ``rebuild_longest``, a step's worth of time at once when serving in real time)."""
 
     def __post_init__(self) -> None:
         for name in _ARRAY_FIELDS:
