@@ -7,14 +7,19 @@ admitted before their drop or enough have left; served in real time it is that m
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from fishfmu.cosim.build import scenario_fish
-from fishfmu.scenario.schema import load_scenario
+from plant.errors import InputError
 from plant.sim import model
 from plant.sim.surfaces import line_surfaces
+
+from fishfmu import commands
+from fishfmu.cosim.build import scenario_fish
+from fishfmu.scenario.schema import load_scenario
 
 
 def best_ms(build, repeats: int) -> float:
@@ -33,6 +38,11 @@ def main() -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
+    try:
+        commands.check_targets(Path(args.json) if args.json else None)
+    except InputError as exc:  # a file fishfmu did not write: never replaced
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     sc = load_scenario(args.scenario)
     params, line, gravity = sc.plant, sc.line, np.array([0.0, 0.0, -sc.plant.gravity_mps2])
     fish = scenario_fish(sc)[:args.fish]
@@ -52,9 +62,8 @@ def main() -> int:
         solver.InitializeSolver(built.mbs, built.settings)
     figures["initialise_solver_ms"] = best_ms(initialise, args.repeats)
     print(json.dumps(figures))
-    if args.json:
-        with open(args.json, "w", encoding="utf-8") as f:
-            json.dump(figures, f, indent=2)
+    if args.json:  # replaced only if fishfmu wrote it, as every benchmark's file
+        commands.write_json(Path(args.json), figures)
     return 0
 
 
