@@ -184,6 +184,13 @@ def test_bad_override_names_it(override: str, expected, sandbox: Path, capsys, m
     assert_one_clear_line(code, err, *expected)
 
 
+def test_bench_serve_refuses_a_bad_override_before_serving(sandbox: Path, capsys, monkeypatch):
+    """Every served case gets the overrides: one no scenario takes is refused at once, nothing served or written."""
+    code, err = run_main(sandbox, capsys, monkeypatch, "bench", "serve", "--set", "plant.numerics.threads=0",
+                         "--json", "serve.json")
+    assert_one_clear_line(code, err, "plant.numerics.threads", "greater than or equal to 1")
+
+
 def test_algebraic_loop_cannot_be_ordered(faulty_fmu: Path, sandbox: Path, capsys, monkeypatch):
     # two drives whose belt speed follows their setpoint directly (declared direct feedthrough), each
     # setting the other's setpoint: no order of the two can give both their inputs of this step

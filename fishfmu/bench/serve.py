@@ -2,6 +2,7 @@
 
     fishfmu bench serve                               # paper test (controller FMU inside) and over OPC UA
     fishfmu bench serve --continuous-s 120            # also the first 120 s of the continuous line, both ways
+    fishfmu bench serve --set plant.numerics.threads=2   # every case with Exudyn on two threads
 
 Each case serves a scenario in a subprocess at real time x ``factor`` on a free loopback port and reads the
 lateness the server measured (``run_info.json``, ``served.pacing``: each step's start against its due time,
@@ -99,14 +100,21 @@ def serve_case(scenario: Path, factor: float, overrides: list[str], speeds: list
             "fish_in": kpis.get("fish_in"), "singulation_rate": kpis.get("singulation_rate")}
 
 
-def bench(factor: float = 1.0, continuous_s: float | None = None) -> dict[str, Any]:
-    scenarios = ROOT / "scenarios"
-    cases = [serve_case(scenarios / "paper_dump.toml", factor, [], None),
-             serve_case(scenarios / "paper_opcua.toml", factor, [], [0.25, 0.50, 0.80, 1.25])]
+SCENARIOS = tuple(ROOT / "scenarios" / f"{name}.toml" for name in ("paper_dump", "paper_opcua", "continuous",
+                                                                    "continuous_opcua"))
+"""The scenarios served, in order (the continuous ones only with ``continuous_s``)."""
+
+
+def bench(factor: float = 1.0, continuous_s: float | None = None, sets: list[str] | None = None) -> dict[str, Any]:
+    """Serve each case (``sets``: ``KEY=VALUE`` overrides for every one, as ``--set`` takes them)."""
+    extra = [a for s in sets or [] for a in ("--set", s)]
+    paper_dump, paper_opcua, continuous, continuous_opcua = SCENARIOS
+    cases = [serve_case(paper_dump, factor, extra, None),
+             serve_case(paper_opcua, factor, extra, [0.25, 0.50, 0.80, 1.25])]
     if continuous_s:
-        duration = ["--set", f"run.duration_s={continuous_s:g}"]
-        cases += [serve_case(scenarios / "continuous.toml", factor, duration, None),
-                  serve_case(scenarios / "continuous_opcua.toml", factor, duration, [0.50, 0.80, 1.25, 1.60])]
+        duration = ["--set", f"run.duration_s={continuous_s:g}", *extra]
+        cases += [serve_case(continuous, factor, duration, None),
+                  serve_case(continuous_opcua, factor, duration, [0.50, 0.80, 1.25, 1.60])]
     return {"benchmark": "serve", "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                                               "python": platform.python_version()},
             "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "cases": cases}

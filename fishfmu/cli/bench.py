@@ -88,14 +88,20 @@ def bench_serve(
     factor: float = typer.Option(1.0, "--factor", help="Real-time factor to serve at."),
     continuous_s: float | None = typer.Option(None, "--continuous-s", help="Also this many seconds of the "
                                               "continuous line, controller inside and a PLC over OPC UA."),
+    set_: list[str] = typer.Option([], "--set", help="Override in every served case: --set "
+                                   "plant.numerics.threads=2 (repeatable)."),
     json_file: Path = typer.Option(Path("bench-results/serve_bench.json"), "--json", help="Results (JSON)."),
 ) -> None:
     """Real-time serving: each step's lateness against the wall clock, paper test and (optionally) continuous line."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.bench.serve import bench, summary
+    from fishfmu.bench.serve import SCENARIOS, bench, summary
+    from fishfmu.scenario.schema import load_scenario
+    overrides = parse_assignments(set_)
+    for s in SCENARIOS:  # bad input before measuring
+        load_scenario(s, overrides)
     commands.check_targets(json_file)
-    doc = bench(factor, continuous_s)
+    doc = bench(factor, continuous_s, set_)
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
 

@@ -94,7 +94,10 @@ class NumericsParams(Strict):
     inertia_shaping: bool = Field(True, description=(
         "raise the rotational inertia of thin bodies (the tail fin) to what their contact spheres need for "
         "a stable step; adds inertia, never mass"))
-    threads: int = Field(1, ge=1, le=64, description="Exudyn worker threads")
+    threads: int = Field(1, ge=1, le=64, description=(
+        "Exudyn worker threads; with more than 1 a run is not reproducible (the contact forces are summed in an "
+        "order that changes from run to run, and a pile of fish makes the difference grow): for serving a PLC "
+        "in real time, not for results"))
 
 
 class PlantParams(Strict):
