@@ -312,7 +312,10 @@ def _analysis_into(command: str, dataset: Path, out: str | Path, scenario_file: 
                    analyse: Callable[[Any, Any], Any], write: Callable[[Any, Any, Path], dict[str, Path]]):
     """An analysis of ``dataset`` written into the folder ``out``: (result, base plant parameters, paths,
     folder).  A run the model cannot re-simulate is exit 3, with run_info.json saying why."""
+    # loaded by the commands that use it only (Exudyn behind it): `fishfmu run` starts sooner without it
+    from fishfmu.analysis.resim import refuse_unreplayed
     ds, params, _ = _dataset_and_params(dataset, scenario_file)
+    refuse_unreplayed(ds, command)  # before the output folder exists: bad input writes nothing
     with RunFolder.open(out, overwrite, [dataset, scenario_file], command, dataset=str(dataset)) as folder:
         result = analyse(ds, params)
         paths = write(result, params, folder.path)

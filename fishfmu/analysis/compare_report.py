@@ -117,6 +117,17 @@ def _run_figure(run_id: str, blob: str, page: Path | None, out: Path) -> str:
     return f'<a href="{html.escape(page.relative_to(out).as_posix())}" title="3D replay of run {html.escape(run_id)}">{img}</a>'
 
 
+def not_replayed_note(c) -> str:
+    """What the comparison leaves out because a run's devices could not be replayed (empty when none)."""
+    if not c.not_replayed:
+        return ""
+    items = "".join(f"<li>{html.escape(why)}</li>" for why in c.not_replayed.values())
+    return ("<h2>Not replayed: devices without a command log</h2><p>These runs' re-simulations kept the line's devices "
+            "home; the KPIs the devices change, and arrivals and tracks from the first device on, are left out "
+            "(kpis.csv: <i>not compared</i>), not reported as model error. Log the devices' commands "
+            f"(device_commands.csv) to compare them.</p><ul>{items}</ul>")
+
+
 def write_compare_report(c, out: Path, replays: dict[str, Path] | None = None) -> Path:
     """The report page; ``replays``: run id -> that run's 3D replay page, linked from the report."""
     figs = {"arrivals.png": arrivals_figure(c), "track_error.png": track_error_figure(c), "kpis.png": kpi_figure(c),
@@ -133,6 +144,7 @@ def write_compare_report(c, out: Path, replays: dict[str, Path] | None = None) -
 ul.replays{{columns:4}}</style>
 </head><body><h1>{html.escape(c.dataset.name)}: measured and simulated</h1>
 {replay_links(replays or {}, out)}
+{not_replayed_note(c)}
 <h2>Error measures across runs</h2>{summary}
 <h2>KPIs per run</h2><img src="data:image/png;base64,{blobs['kpis.png']}">{kpis.round(3).to_html()}
 <h2>Arrivals at the photo-eyes</h2><img src="data:image/png;base64,{blobs['arrivals.png']}">

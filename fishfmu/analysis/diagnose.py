@@ -36,7 +36,7 @@ from fishfmu.analysis.fitting import folds, gain_with_ci, vertex
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, ModelFit, Responses, fit_model, gain_over, run_levels
 from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
                                         drop_lags, pair_residuals, residuals_of)
-from fishfmu.analysis.resim import Resim, drive_check, pool_for, resimulate_many
+from fishfmu.analysis.resim import refuse_unreplayed, Resim, drive_check, pool_for, resimulate_many
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
 MIN_GAIN = 0.02
@@ -255,6 +255,7 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
     ``calibrate``: first fit the base model's constants to the dataset (:mod:`fishfmu.analysis.calibrate`); off
     when the base is known to be right (data made by this simulator)."""
+    refuse_unreplayed(dataset, "diagnose")  # devices it cannot fire: not a fit of the line
     with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
         return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate)
 

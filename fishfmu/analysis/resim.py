@@ -2,8 +2,10 @@
 
 A measured run (contracts/measured-data.md) says which fish were dropped where and when and how
 fast each belt ran; :func:`resimulate` runs the plant with exactly that (belt surfaces follow the
-logged ``speed_mps``), so that what differs between the simulated and the measured run is the
-fish physics.  The side a fish lands on is not measured: it is drawn from a seed made of the run
+logged ``speed_mps``, devices the logged commands of ``device_commands.csv``), so that what differs between the
+simulated and the measured run is the fish physics.  A line with devices whose run did not log their commands
+cannot be replayed as it ran: its devices stay home, and :func:`unreplayed_devices` says so for the analyses to
+leave out (compare) or refuse (calibrate, diagnose) what depends on them.  The side a fish lands on is not measured: it is drawn from a seed made of the run
 id, so every re-simulation of a run (with any model variant) uses the same draw.
 
 :func:`drive_check` runs the conveyor-drive FMU alone on the logged setpoints and the belt loads
@@ -32,6 +34,7 @@ from plant.contract.measured import Dataset, Run
 from plant.sim.params import PlantParams
 from plant.contract.plausibility import MAX_RESIM_S
 from plant.contract.measured import fish_from_frame
+from plant.contract.device_commands import command_schedule
 from plant.sim.simulate import SimulatedRun, simulate_plant
 
 from fishfmu.analysis.residuals import residuals_of
@@ -55,6 +58,10 @@ class Resim:
     computed them (``resimulate_many(..., residuals=True)``: in parallel, not one after the other in the parent)."""
 
 
+RESIM_STEP_S = 0.01
+"""The re-simulation's communication step (a run's, by default)."""
+
+
 def run_seed(run_id: str, seed: int = 0) -> int:
     return int.from_bytes(hashlib.sha256(f"{run_id}:{seed}".encode()).digest()[:4], "little")
 
@@ -73,6 +80,27 @@ def belt_speed_function(belts: pd.DataFrame, conveyor_ids: list[str]):
     return speeds
 
 
+def unreplayed_devices(line: Line, run: Run) -> str | None:
+    """Why the run's devices cannot be replayed (the line has devices, the run has no ``device_commands.csv``), in
+    words; None when they can (or there are none)."""
+    if not line.devices or run.device_commands is not None:
+        return None
+    names = ", ".join(f"'{d.id}'" for d in line.devices[:5]) + (" ..." if len(line.devices) > 5 else "")
+    return (f"run '{run.id}': the line's device{'s' if len(line.devices) > 1 else ''} {names} cannot be replayed: "
+            "the run has no device_commands.csv (rejections.csv says which fish left, not when the devices moved), "
+            f"so the re-simulation keeps {'them' if len(line.devices) > 1 else 'it'} home")
+
+
+def refuse_unreplayed(dataset: Dataset, command: str) -> None:
+    """A fit (calibrate, diagnose) on runs whose devices it cannot fire would fit a line whose devices never move:
+    refused, naming the first such run (docs/diagnosis.md)."""
+    for run in dataset.runs:
+        why = unreplayed_devices(dataset.line, run)
+        if why:
+            raise InputError(f"{command} refuses: {why}; add the run's device_commands.csv, or compare the dataset "
+                             "(which leaves out what the devices change)", file=run.path)
+
+
 def run_duration_s(run: Run) -> float:
     """Long enough for everything the run measured, plus a little."""
     ends = [float(run.fish["drop_t_s"].max())]
@@ -85,7 +113,8 @@ def run_duration_s(run: Run) -> float:
 
 def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: int = 0,
                duration_s: float | None = None, record_poses: bool = False) -> Resim:
-    """The plant with the run's fish, drops and logged belt speeds.  ``record_poses``: also keep every
+    """The plant with the run's fish, drops, logged belt speeds and logged device commands (devices home without a
+    command log: :func:`unreplayed_devices`).  ``record_poses``: also keep every
     body's pose at 25 Hz in ``sim.poses`` (for a 3D replay of the comparison; off by default, since
     diagnose re-simulates each run many times)."""
     params = params or PlantParams()
@@ -99,7 +128,11 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
                          "conveyor of the line must be in belts.csv")
     rng = np.random.default_rng(run_seed(run.id, seed))
     fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
-    speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
+    speeds_at = belt_speed_function(run.belts, [c.id for c in line.conveyors])
+    # the step from t takes the log's speed at its end, t + dt: a run's log stamps each step's speed with the step's
+    # end (read at its start it lagged a step: up to 3 cm of track and 0.01 s of throughput on a re-simulation of
+    # fishfmu's own reject_doubles run); a real log's instant sample there is as near the step's middle as at its start
+    speed_fn = lambda t: speeds_at(t + RESIM_STEP_S)  # noqa: E731
     loads: list[tuple] = []
 
     def log_loads(plant) -> None:
@@ -107,8 +140,10 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
         for cid, force_n in out.belt_load_force_n.items():
             loads.append((out.t_s, cid, force_n, out.belt_load_mass_kg[cid]))
 
-    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params,
-                         stop_when_clear=True, on_step=log_loads, record_poses=record_poses)
+    commands = (command_schedule(run.device_commands, tuple(d.id for d in line.devices))
+                if run.device_commands is not None else None)
+    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params, comm_step_s=RESIM_STEP_S,
+                         stop_when_clear=True, on_step=log_loads, record_poses=record_poses, device_commands=commands)
     return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
 
 

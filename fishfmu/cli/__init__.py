@@ -344,6 +344,9 @@ def compare(
     for row in done.comparison.summary().itertuples():
         table.add_row(row.measure, *[f"{getattr(row, k):.4g}" for k in ("mean", "sd", "min", "max")])
     literal_console().print(table)
+    for why in (done.comparison.not_replayed or {}).values():
+        err_console.print(labelled("not replayed:", f"{why}; the KPIs they change, and arrivals and tracks from the "
+                                   "first device on, are not compared (compare.json: not_replayed)", "bold yellow"))
     literal_console().print(f"report: {done.paths['report']}")
     if done.stopped_by is not None:
         err_console.print(labelled("stopped:", f"by {done.stopped_by}; runs not re-simulated are listed as "

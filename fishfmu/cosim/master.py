@@ -161,7 +161,7 @@ class CoSimulation:
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1
-        self._record(speeds, out)
+        self._record(speeds, out, commands)
         lap("record")
 
     def _step_fmu(self, name: str, held: dict[str, Any], t: float, dt: float) -> None:
@@ -221,7 +221,7 @@ class CoSimulation:
             self._next_event += 1
 
     # ---- recording ---------------------------------------------------------------------------
-    def _record(self, speeds: dict[str, float], out) -> None:
+    def _record(self, speeds: dict[str, float], out, commands: dict[str, bool]) -> None:
         """Inputs as they were sent this step, outputs as they are now (before any event on them)."""
         sent, values = self._sent, self.values
         self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
@@ -229,7 +229,7 @@ class CoSimulation:
             setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
             state = self.plant.state
             self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses,
-                                 state.detections, state.rejected_by, state.device_position)
+                                 state.detections, state.rejected_by, state.device_position, commands)
 
     def signal_frame(self) -> pd.DataFrame:
         """Every recorded signal per step (see the module's docstring for the types)."""

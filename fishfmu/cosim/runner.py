@@ -87,7 +87,7 @@ def collect(scenario: Scenario, fish: list[FishSpec], plant: Plant, recorder: Ru
     run = Run(id=scenario.run.name.replace(" ", "_"), hours_post_mortem=scenario.fish.hours_post_mortem,
               notes=f"simulated: seed {scenario.run.seed}", fish=fish_to_frame(fish), tracks=tables["tracks"],
               photoeyes=tables["photoeyes"], belts=tables["belts"], detections=tables["detections"],
-              rejections=tables["rejections"])
+              rejections=tables["rejections"], device_commands=tables["device_commands"])
     kpis = compute_kpis(run, scenario.line, scenario.kpi)
     if cosim is None:
         signals, t_end, worst = signal_frame([], signal_columns or []), 0.0, (0.0, 0.0)

@@ -35,6 +35,7 @@ import tomli_w
 from pydantic import Field
 
 from plant.contract import plausibility
+from plant.contract.device_commands import check_device_commands
 from plant.errors import InputError
 from plant.fish.fish_data import length_regressions
 from plant.fish.population import FishSpec
@@ -72,6 +73,9 @@ REJECTIONS = TableSpec("rejections", ("t_s", "device_id", "fish_id"), frozenset(
                        frozenset({"fish_id"}))
 """Optional: the line's devices' log, one row per fish a device took off the line (``fish_id`` empty where the log
 does not know which fish; absent: no device took any)."""
+DEVICE_COMMANDS = TableSpec("device_commands", ("t_s", "device_id", "command"), frozenset({"device_id"}))
+"""Optional: the line's PLC's log of its device commands, a row per change (:mod:`plant.contract.device_commands`;
+absent: the commands were not logged, and a re-simulation cannot fire the devices as the line did)."""
 POSITIVE = ("length_m", "weight_kg", "height_m", "width_m")
 
 
@@ -120,6 +124,8 @@ class Run:
     """The cameras' log (``detections.csv``; empty without one)."""
     rejections: pd.DataFrame = field(default_factory=lambda: empty_table(REJECTIONS))
     """The devices' log (``rejections.csv``; empty without one)."""
+    device_commands: pd.DataFrame | None = None
+    """The devices' command log (``device_commands.csv``); None without one: the commands were not logged."""
     extra: dict[str, Any] = field(default_factory=dict)
     """Keys of the ``[[runs]]`` entry beyond id, hours_post_mortem and notes."""
     filled: dict[str, list[str]] = field(default_factory=dict)
@@ -343,9 +349,22 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
     rejections = _read_log(folder, REJECTIONS, "device_id", [d.id for d in line.devices], "a device of the line")
     known = rejections["fish_id"].notna()
     _check_ids(rejections[known], "fish_id", list(fish["fish_id"]), folder / REJECTIONS.file, "a fish of fish.csv")
+    commands = _read_device_commands(folder, line, belts)
     tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections, rejections)]
-    return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables, extra=dict(entry.model_extra or {}),
-               filled=filled, path=folder)
+    return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables,
+               device_commands=None if commands is None else commands.reset_index(drop=True),
+               extra=dict(entry.model_extra or {}), filled=filled, path=folder)
+
+
+def _read_device_commands(folder: Path, line: Line, belts: pd.DataFrame) -> pd.DataFrame | None:
+    """The run's ``device_commands.csv``, checked (:func:`~plant.contract.device_commands.check_device_commands`);
+    None without the file."""
+    path = folder / DEVICE_COMMANDS.file
+    if not path.exists():
+        return None
+    log = read_table(path, DEVICE_COMMANDS)
+    check_device_commands(log, path, line, float(belts["t_s"].max()) if len(belts) else 0.0)
+    return log
 
 
 def _read_log(folder: Path, spec: TableSpec, column: str, allowed: list[str], what: str) -> pd.DataFrame:
@@ -411,6 +430,8 @@ def write_run(run: Run, folder: str | Path) -> None:
     for spec, df in ((DETECTIONS, run.detections), (REJECTIONS, run.rejections)):
         if len(df):
             _ordered(df, spec).to_csv(folder / spec.file, index=False, na_rep="")
+    if run.device_commands is not None:  # a logged table, even of no rows (a line whose log is empty)
+        _ordered(run.device_commands, DEVICE_COMMANDS).to_csv(folder / DEVICE_COMMANDS.file, index=False, na_rep="")
 
 
 def run_entry(run: Run) -> dict[str, Any]:

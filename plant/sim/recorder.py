@@ -3,7 +3,8 @@
 The same four tables a line's instruments give: fish tracks at 25 Hz (mid-length point and heading, like the
 overhead camera), photo-eye blocked intervals, and belt setpoints and speeds at 100 Hz; and the logs a line with
 cameras and devices gives: the cameras' detections, the devices' rejections (one row per fish a device took off, at
-the end of the step in which the plant found it gone).  A simulated run written this way goes through exactly the
+the end of the step in which the plant found it gone) and their commands (every device's at the start, then a row at
+each change, at the start of the step that took it: :mod:`plant.contract.device_commands`).  A simulated run written this way goes through exactly the
 readers and KPI code that a measured one does.
 
 Photo-eye interval times are the ends of the communication steps at which the beam was first
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.contract.measured import BELTS, DETECTIONS, PHOTOEYES, REJECTIONS, TRACKS
+from plant.contract.measured import BELTS, DETECTIONS, DEVICE_COMMANDS, PHOTOEYES, REJECTIONS, TRACKS
 from plant.sim.rotations import matrix_to_quaternion
 from plant.sim.state import FishState, FishStatus, PlantState
 
@@ -38,6 +39,8 @@ class RunRecorder:
     _tracks: list[tuple] = field(default_factory=list)
     _rejections: list[tuple] = field(default_factory=list)
     _rejected_by: np.ndarray | None = None
+    _commands: list[tuple] = field(default_factory=list)
+    _last_command: dict[str, bool] = field(default_factory=dict)
     _device_position: list[np.ndarray] = field(default_factory=list)
     _belts: list[tuple] = field(default_factory=list)
     _intervals: list[tuple[str, float, float]] = field(default_factory=list)
@@ -60,11 +63,16 @@ class RunRecorder:
                belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
                body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
                detections: tuple[tuple, ...] = (), rejected_by: np.ndarray | None = None,
-               device_position: np.ndarray | None = None) -> None:
-        """One communication step; ``fish`` and ``body_poses`` are called only when a sample is due;
+               device_position: np.ndarray | None = None, device_commands: dict[str, bool] | None = None) -> None:
+        """One communication step, ending at ``t_s``; ``fish`` and ``body_poses`` are called only when a sample is due;
         ``detections`` the cameras' rows of the step (:attr:`plant.sim.state.PlantState.detections`), ``rejected_by``
-        and ``device_position`` the state's (with devices on the line)."""
+        and ``device_position`` the state's, ``device_commands`` what the step's devices were commanded (by device
+        id: logged where it changed, at the step's start)."""
         self._detections.extend(detections)
+        for d, on in (device_commands or {}).items():
+            if self._last_command.get(d) != bool(on):
+                self._commands.append((self._t_last, d, int(bool(on))))
+                self._last_command[d] = bool(on)
         if rejected_by is not None and self.device_ids:
             before = self._rejected_by if self._rejected_by is not None else np.full(len(rejected_by), -1)
             for k in np.flatnonzero(rejected_by != before):
@@ -113,11 +121,13 @@ class RunRecorder:
                 "status": np.array(self._pose_status, dtype=np.int8).reshape(-1, len(self.fish_ids))}
 
     def tables(self) -> dict[str, pd.DataFrame]:
-        """tracks, photoeyes, belts, detections and rejections tables; a beam still blocked at the end closes at the
-        last time."""
+        """tracks, photoeyes, belts, detections, rejections and device_commands tables (the last None on a line without
+        devices); a beam still blocked at the end closes at the last time."""
         intervals = list(self._intervals) + [(p, s, self._t_last) for p, s in self._blocked_since.items()
                                              if s is not None]
         intervals.sort(key=lambda r: (r[1], r[0]))
+        # a device never commanded in a recorded step (a run that failed before its first) was home from the start
+        commands = [(0.0, d, 0) for d in self.device_ids if d not in self._last_command] + self._commands
         return {
             "tracks": pd.DataFrame(self._tracks, columns=list(TRACKS.columns)),
             "photoeyes": pd.DataFrame(intervals, columns=list(PHOTOEYES.columns)),
@@ -125,6 +135,8 @@ class RunRecorder:
             "detections": pd.DataFrame([(*r[:-1], int(r[-1])) for r in self._detections],
                                        columns=list(DETECTIONS.columns)),
             "rejections": pd.DataFrame(self._rejections, columns=list(REJECTIONS.columns)),
+            "device_commands": pd.DataFrame(commands, columns=list(DEVICE_COMMANDS.columns))
+            if self.device_ids else None,
         }
 
 

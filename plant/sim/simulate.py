@@ -25,6 +25,8 @@ from plant.sim.ports import PlantPorts
 from plant.sim.state import DropAdjustment, FishStatus
 
 BeltSpeeds = dict[str, float] | Callable[[float], dict[str, float]]
+DeviceCommands = Callable[[float], dict[str, bool]]
+"""Each device's command (by id) for the step starting at t (e.g. :func:`plant.contract.device_commands.command_schedule`)."""
 
 
 @dataclass
@@ -39,6 +41,10 @@ class SimulatedRun:
     wall_s: float
     drop_adjustments: list[DropAdjustment] = field(default_factory=list)
     fish_status: np.ndarray | None = None
+    rejections: pd.DataFrame | None = None
+    """The devices' rejections (rejections.csv); None from code that did not record them."""
+    device_commands: pd.DataFrame | None = None
+    """The devices' commands as the plant took them (device_commands.csv); None on a line without devices."""
     poses: dict[str, np.ndarray] | None = None
     """Every body's pose at 25 Hz and the bodies' outlines (:func:`plant.sim.recorder.pose_record`, the
     arrays of a run's poses.npz), when asked for with ``record_poses``."""
@@ -114,9 +120,11 @@ def run_loop(step: Callable[[], None], t_s: Callable[[], float], status: Callabl
 def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, duration_s: float,
                    params: PlantParams | None = None, comm_step_s: float = 0.01, stop_when_clear: bool = True,
                    clear_margin_s: float = 1.0, joint_factors: list[tuple[float, float]] | None = None,
-                   on_step: Callable[[Plant], None] | None = None, record_poses: bool = False) -> SimulatedRun:
+                   on_step: Callable[[Plant], None] | None = None, record_poses: bool = False,
+                   device_commands: DeviceCommands | None = None) -> SimulatedRun:
     """Simulate up to ``duration_s``; with ``stop_when_clear`` stop ``clear_margin_s`` after every
-    fish has been dropped and has left the line.  ``record_poses``: also keep every body's pose at
+    fish has been dropped and has left the line.  ``device_commands``: the devices' commands at each step's start
+    (None: every device stays home).  ``record_poses``: also keep every body's pose at
     25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory)."""
     plant = Plant(line, fish, params, comm_step_s, joint_factors)
     energy = EnergyWatch()
@@ -127,12 +135,14 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
 
     def step() -> None:
         speeds = speed_fn(plant.state.t_s)
-        out = plant.step(speeds)
+        commands = device_commands(plant.state.t_s) if device_commands is not None else dict.fromkeys(ports.device_ids,
+                                                                                                       False)
+        out = plant.step(speeds, commands)
         state = plant.state
         energy.check(state, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
                    state.body_poses if record_poses else None, state.detections, state.rejected_by,
-                   state.device_position)
+                   state.device_position, commands)
         if on_step is not None:
             on_step(plant)
 
@@ -143,5 +153,5 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     tables = rec.tables()
     state = plant.state
     return SimulatedRun(fish_to_frame(fish), tables["tracks"], tables["photoeyes"], tables["belts"],
-                        state.t_s, wall, list(state.drop_adjustments), state.status.copy(),
-                        pose_record(rec, state))
+                        state.t_s, wall, list(state.drop_adjustments), state.status.copy(), tables["rejections"],
+                        tables["device_commands"], pose_record(rec, state))
