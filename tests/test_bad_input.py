@@ -152,6 +152,17 @@ SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
                             ("expect.lost.max", "finite number")),
     "infinite bound in expect": (_replace(("fpm_in = { min = 30.0 }", "fpm_in = { min = -inf }")),
                                  ("expect.fpm_in.min", "finite number")),
+    # no float anywhere in the line table may be NaN or infinite (issue 39: a NaN guide point ended as a blow-up
+    # blamed on a fish)
+    "NaN in a guide point": (_replace(("[[line.conveyors]]", "[line.guides]\nleft = [[0.0, 0.25], [nan, 0.2]]\n"
+                                                             "right = [[0.0, -0.25]]\n\n[[line.conveyors]]")),
+                             ("line.guides.left[1][0]", "finite number", "nan")),
+    "infinite guide point": (_replace(("[[line.conveyors]]", "[line.guides]\nleft = [[0.0, 0.25]]\n"
+                                                             "right = [[0.0, -inf]]\n\n[[line.conveyors]]")),
+                             ("line.guides.right[0][1]", "finite number", "inf")),
+    "infinite belt length": (_replace((LAST_BELT, "x_start_m = 5.03\nlength_m = inf")),
+                             ("line.conveyors[3].length_m", "finite number")),
+    "NaN fish length": (_replace(("length_mean_m = 0.60", "length_mean_m = nan")), ("fish.length_mean_m", "finite")),
 }
 
 

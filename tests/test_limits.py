@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from plant.errors import InputError
-from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, file_size_checked, read_toml
+from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, read_regular_file, read_toml
 
 from fishfmu.scenario.schema import load_scenario
 from fishfmu.batch.sweep_spec import MAX_RUNS, check_size, make_spec, parse_param
@@ -58,7 +58,7 @@ def test_a_dataset_csv_over_the_limit_is_refused_before_it_is_read(tmp_path):
     with open(path, "wb") as fh:
         fh.truncate(MAX_CSV_BYTES + 1)
     with pytest.raises(InputError, match="at most 512 MB"):
-        file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")
+        read_regular_file(path, MAX_CSV_BYTES, "dataset CSV file")
     from plant.contract.measured import _read_text
     with pytest.raises(InputError, match="at most 512 MB"):
         _read_text(path)

@@ -110,7 +110,8 @@ class Part(Strict):
 
     id: Id = Field(description="unique among the line's items")
     stl: str = Field(min_length=1, description=(
-        "the STL file (ASCII or binary); relative to the scenario or dataset file that names it"))
+        "the STL file (ASCII or binary, a regular file of at most 64 MB); relative to the scenario or dataset file "
+        "that names it; all parts of a line together at most 100 000 triangles"))
     scale: float = Field(1.0, gt=0.0, le=1.0, description="metres per STL unit (0.001 for a file in millimetres)")
     offset_m: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description=(
         "where the STL's origin sits in the line frame (x, y, z)"))
