@@ -35,6 +35,7 @@ from (:mod:`fishfmu.scenario.reference`).
 from __future__ import annotations
 
 import copy
+import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -47,10 +48,11 @@ from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_
 
 from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
+from plant.contract.log_values import detections_bytes_bound
 from plant.contract.line import KpiSettings, Line
 from plant.sim.params import PlantParams
 from plant.fish.population import PopulationSpec
-from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
+from plant.validation import MAX_CSV_BYTES, Strict, ValueAtKey, read_toml, suggest, validate
 
 from fishfmu.scenario.keys import set_dotted
 from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem
@@ -336,6 +338,14 @@ class Scenario(Strict):
             if c.length_m < longest:
                 raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
                                  f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
+        logged = detections_bytes_bound(self.line.cameras, self.run.duration_s, self.fish.count)
+        if logged > MAX_CSV_BYTES:  # what fishfmu writes it must read back (compare, diagnose)
+            frames = sum(math.floor(c.rate_hz * self.run.duration_s) + 1 for c in self.line.cameras)
+            raise ValueAtKey("line.cameras", f"{len(self.line.cameras)} camera(s) take {frames} frames in run.duration_s "
+                             f"= {self.run.duration_s:g} s, each frame a row per fish in view (up to fish.count = "
+                             f"{self.fish.count}): detections.csv could reach {logged / 1024**2:.0f} MB, and fishfmu "
+                             f"reads a CSV of at most {MAX_CSV_BYTES / 1024**2:.0f} MB; use fewer cameras, a lower "
+                             "rate_hz, a shorter run or fewer fish")
         return self
 
     def connection_specs(self) -> list[ConnectionSpec]:

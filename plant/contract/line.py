@@ -162,7 +162,8 @@ class Line(Strict):
     conveyors: list[Conveyor] = Field(min_length=1, max_length=64, description="the belts, in flow order")
     photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
     cameras: list[Camera] = Field(default_factory=list, max_length=64, description=(
-        "vision systems over the line (none in a file without the key)"))
+        "vision systems over the line (none in a file without the key); a scenario's cameras must not be able to log "
+        "more than fishfmu reads back (detections.csv of at most 512 MB: frames x fish.count rows of ~200 bytes)"))
     parts: list[Part] = Field(default_factory=list, max_length=64, description=(
         "fixed parts from STL files (none in a file without the key)"))
     devices: list[Device] = Field(default_factory=list, max_length=32, description=(

@@ -345,7 +345,7 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
     known = rejections["fish_id"].notna()
     _check_ids(rejections[known], "fish_id", list(fish["fish_id"]), folder / REJECTIONS.file, "a fish of fish.csv")
     check_rejections(rejections, len(fish), folder / REJECTIONS.file)
-    check_detections(detections, folder / DETECTIONS.file)
+    check_detections(detections, folder / DETECTIONS.file, {c.id: c.position_noise_m for c in line.cameras})
     tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections, rejections)]
     return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables, extra=dict(entry.model_extra or {}),
                filled=filled, path=folder)
