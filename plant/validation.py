@@ -19,7 +19,7 @@ from typing import Any, TypeVar
 
 import pydantic
 
-from plant.errors import InputError
+from plant.errors import InputError, echo
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 
@@ -124,7 +124,7 @@ def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix:
     if kind in ("value_error", "assertion_error"):  # our validators' own text, without pydantic's "Value error, "
         msg = str(err.get("ctx", {}).get("error", msg))
     if "input" in err and kind not in ("model_type", "dict_type") and not isinstance(err["input"], dict):
-        msg = f"{msg} (got {err['input']!r})"
+        msg = f"{msg} (got {echo(err['input'])})"
     return key, msg
 
 
@@ -142,7 +142,9 @@ def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: 
         errors.sort(key=lambda e: e.get("type") != "extra_forbidden")
         problems = [describe_error(model, e, prefix) for e in errors]
         first_key, first_msg = problems[0]
-        more = "; ".join(f"{k}: {m}" for k, m in problems[1:])
+        more = "; ".join(f"{k}: {m}" for k, m in problems[1:4])
+        if len(problems) > 4:
+            more += f"; and {len(problems) - 4} more"
         raise InputError(first_msg + (f" (also {more})" if more else ""), file=file, where=first_key or None) from None
 
 

@@ -262,7 +262,8 @@ class PlantInFmu:
 
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
     """Build the plant FMU of ``scenario`` with pythonfmu into ``folder`` (a temporary one: the caller moves it);
-    the scenario inside keeps what the plant needs (run, line, fish, plant, kpi), not the FMUs and wiring."""
+    the scenario inside keeps what the plant needs (run, line, fish, plant, kpi), not the FMUs, wiring, events and
+    ``[opcua]`` inputs: a served scenario exports its plant, whose belt speeds and device commands the host sets."""
     try:  # pythonfmu: only to export, and optional (a test extra, not one of fishfmu's dependencies)
         from pythonfmu.builder import FmuBuilder
     except ImportError:
