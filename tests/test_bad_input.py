@@ -365,6 +365,17 @@ def test_bad_dataset_gives_exit_2_naming_file_and_row(case: str, small_dataset: 
     assert_one_clear_line(code, err.replace("\\", "/"), *expected)
 
 
+@pytest.mark.timeout(120)  # the old reader waited on the FIFO for ever
+@pytest.mark.parametrize("name", ["dataset.toml", "runs/r1/tracks.csv"])
+def test_compare_refuses_a_fifo_in_a_dataset_before_it_writes(name: str, small_dataset: Path,  # noqa: F811
+                                                              sandbox: Path, capsys, monkeypatch):
+    """Issue 39: a FIFO as dataset.toml or tracks.csv hung compare; it is exit 2 naming the file, nothing written."""
+    (small_dataset / name).unlink()
+    os.mkfifo(small_dataset / name)
+    code, err = run_main(sandbox, capsys, monkeypatch, "compare", str(small_dataset), "--out", str(sandbox / "out"))
+    assert_one_clear_line(code, err, name.split("/")[-1], "a FIFO")
+
+
 # ---------------------------------------------------------------- as a real process
 
 @pytest.mark.parametrize("args, expected", [
