@@ -171,6 +171,8 @@ def read_regular_file(path: str | Path, limit: int, what: str, where: str | None
         raise InputError(missing, file=path, where=where) from None
     except OSError as exc:  # no permission, a symbolic link loop (ELOOP), ...
         raise InputError(f"cannot read: {exc.strerror or exc}", file=path, where=where) from None
+    except ValueError as exc:  # a NUL in the path
+        raise InputError(f"not a path: {exc}", file=repr(str(path)), where=where) from None
     _check_regular(fd, path, what, where, limit)
     with os.fdopen(fd, "rb") as fh:
         data = fh.read(limit + 1)

@@ -191,3 +191,9 @@ def test_a_part_offset_that_is_not_finite_is_refused_naming_the_key(value, sandb
     code, err = run_main(sandbox, capsys, monkeypatch, "check", str(scenario))
     line = assert_one_clear_line(code, err, "with_part.toml", "line.parts[0].offset_m[1]", "finite number")
     assert "plate.stl" not in line
+
+
+def test_a_nul_in_a_parts_path_is_bad_input_not_a_bug(sandbox, capsys, monkeypatch):
+    scenario = scenario_naming(sandbox, "sh\\u0000elf.stl")  # TOML's escape: a NUL in the path
+    code, err = run_main(sandbox, capsys, monkeypatch, "check", str(scenario))
+    assert_one_clear_line(code, err, "with_part.toml", "line.parts[0].stl", "not a usable path")

@@ -372,6 +372,14 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
     return ScenarioLoader(path).load(overrides)
 
 
+def _absolute(scenario_file: Path, name: str, key: str) -> str:
+    """``name``, a path the scenario at ``key`` gives relative to itself, made absolute; a NUL in it is bad input."""
+    try:
+        return str((scenario_file.parent / name).resolve())
+    except (ValueError, OSError) as exc:  # "embedded null byte"
+        raise InputError(f"not a usable path: {exc}", file=scenario_file, where=key) from None
+
+
 class ScenarioLoader:
     """One scenario file loaded with overrides, as often as asked (a sweep's points): the file is read once,
     each parameter file and SSP once (as they were when first read); every load validates the whole scenario."""
@@ -391,15 +399,15 @@ class ScenarioLoader:
         for i, f in enumerate(data.get("fmu", []) or []):
             for key in ("path", "parameter_file"):
                 if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
-                    data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
+                    data["fmu"][i] = f = dict(f, **{key: _absolute(path, f[key], f"fmu[{i}].{key}")})
         line = data.get("line")
         for i, part in enumerate(line.get("parts", []) if isinstance(line, dict) and isinstance(line.get("parts"), list)
                                  else []):
             if isinstance(part, dict) and isinstance(part.get("stl"), str) and not Path(part["stl"]).is_absolute():
-                line["parts"][i] = dict(part, stl=str((path.parent / part["stl"]).resolve()))
+                line["parts"][i] = dict(part, stl=_absolute(path, part["stl"], f"line.parts[{i}].stl"))
         system = data.get("system")
         if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
-            data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))
+            data["system"] = dict(system, ssp=_absolute(path, system["ssp"], "system.ssp"))
         scenario = validate(Scenario, data, file=path, strict=True)
         for i, f in enumerate(scenario.fmu):
             if f.parameter_file is not None:
