@@ -26,6 +26,38 @@ def one_line(text: str) -> str:
     return text.translate(_LINE_BREAKING)
 
 
+MAX_MESSAGE_CHARS = 1000
+"""An error's message (and its key, row or column) is cut to this many characters: a value echoed from a file (a
+list of 10 001 events, a 100 000-character id) must not make a message of megabytes."""
+MAX_ECHO_CHARS = 80
+"""A value a message echoes (``got ...``) is cut to this many characters."""
+
+
+def capped(text: str, limit: int = MAX_MESSAGE_CHARS) -> str:
+    """``text``, or its first ``limit`` characters and how many there were.
+
+    >>> capped("x" * 60, 40)
+    'xxxxxxxxxxxxxxxxxxxxx... (60 characters)'
+    """
+    if len(text) <= limit:
+        return text
+    tail = f"... ({len(text)} characters)"
+    return text[:max(limit - len(tail), 0)] + tail
+
+
+def echo(value: object) -> str:
+    """``repr(value)`` for a message, at most :data:`MAX_ECHO_CHARS` long (a long list says how many items it has).
+
+    >>> echo(list(range(10001)))
+    '[0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, ... (10001 items)'
+    """
+    text = repr(value)
+    if len(text) <= MAX_ECHO_CHARS:
+        return text
+    count = f" ({len(value)} items)" if isinstance(value, (list, tuple, dict, set)) else f" ({len(text)} characters)"
+    return text[:MAX_ECHO_CHARS - len(count) - 3] + "..." + count
+
+
 @dataclass
 class InputError(Exception):
     """Bad input: names the file (if any), the location inside it (key, row, column) and what is wrong."""
@@ -39,9 +71,10 @@ class InputError(Exception):
         if self.file is not None:
             parts.append(str(self.file))
         if self.where:
-            parts.append(self.where)
+            parts.append(capped(self.where, MAX_ECHO_CHARS * 2))
         prefix = ": ".join(parts)
-        return one_line(f"{prefix}: {self.message}" if prefix else self.message)
+        message = capped(self.message)
+        return one_line(f"{prefix}: {message}" if prefix else message)
 
 
 @dataclass

@@ -10,6 +10,8 @@ unknown key), the others after it in parentheses.
 from __future__ import annotations
 
 import difflib
+import os
+import stat
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
@@ -17,20 +19,21 @@ from typing import Any, TypeVar
 
 import pydantic
 
-from plant.errors import InputError
+from plant.errors import InputError, echo
 
 M = TypeVar("M", bound=pydantic.BaseModel)
 
 
 class Strict(pydantic.BaseModel):
-    """Base for every user-facing table: unknown keys are errors, values are checked on assignment.
+    """Base for every user-facing table: unknown keys are errors, values are checked on assignment, and no float
+    anywhere in it (a guide's point, a part's offset, a value in a list) may be NaN or infinite.
 
     A field is documented by ``Field(description=...)`` or by a docstring line under it
     (``use_attribute_docstrings``; a description given in ``Field`` wins); either way it shows in
     docs/scenario-reference.md (:mod:`fishfmu.scenario.reference`).  Validation is the same."""
 
     model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
-                                       use_attribute_docstrings=True)
+                                       use_attribute_docstrings=True, allow_inf_nan=False)
 
 
 def suggest(name: str, known: Iterable[str], *, prefix: str = "", cutoff: float = 0.6, allowed: str | None = None,
@@ -121,7 +124,7 @@ def describe_error(model: type[pydantic.BaseModel], err: dict[str, Any], prefix:
     if kind in ("value_error", "assertion_error"):  # our validators' own text, without pydantic's "Value error, "
         msg = str(err.get("ctx", {}).get("error", msg))
     if "input" in err and kind not in ("model_type", "dict_type") and not isinstance(err["input"], dict):
-        msg = f"{msg} (got {err['input']!r})"
+        msg = f"{msg} (got {echo(err['input'])})"
     return key, msg
 
 
@@ -139,7 +142,9 @@ def validate(model: type[M], data: Any, file: str | Path | None = None, prefix: 
         errors.sort(key=lambda e: e.get("type") != "extra_forbidden")
         problems = [describe_error(model, e, prefix) for e in errors]
         first_key, first_msg = problems[0]
-        more = "; ".join(f"{k}: {m}" for k, m in problems[1:])
+        more = "; ".join(f"{k}: {m}" for k, m in problems[1:4])
+        if len(problems) > 4:
+            more += f"; and {len(problems) - 4} more"
         raise InputError(first_msg + (f" (also {more})" if more else ""), file=file, where=first_key or None) from None
 
 
@@ -154,18 +159,42 @@ MAX_CSV_BYTES = 512 * 1024 * 1024
 over ten minutes is about 200 MB); pandas needs a few times the file's size in memory."""
 
 
-def file_size_checked(path: Path, limit: int, what: str) -> int:
-    """The file's size, or an InputError naming the limit if it is larger (a symbolic link loop or an
-    unreadable path is an InputError too)."""
+def read_regular_file(path: str | Path, limit: int, what: str, where: str | None = None,
+                      missing: str = "file not found") -> bytes:
+    """The bytes of the file at ``path``, a regular file of at most ``limit`` bytes; else an InputError naming it
+    (and ``where``, the key that names it).  Opened without blocking (``O_NONBLOCK``) and checked on the open file:
+    a FIFO, a device or a folder is refused, never read (a FIFO would block the reader for ever, a device never
+    ends)."""
     try:
-        size = path.stat().st_size
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
-        raise InputError("file not found", file=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror or exc}", file=path) from None  # ELOOP: a symbolic link loop
-    if size > limit:
-        raise InputError(f"is {size / 1024**2:.1f} MB; a {what} may be at most {limit / 1024**2:.0f} MB", file=path)
-    return size
+        raise InputError(missing, file=path, where=where) from None
+    except OSError as exc:  # no permission, a symbolic link loop (ELOOP), ...
+        raise InputError(f"cannot read: {exc.strerror or exc}", file=path, where=where) from None
+    except ValueError as exc:  # a NUL in the path
+        raise InputError(f"not a path: {exc}", file=repr(str(path)), where=where) from None
+    _check_regular(fd, path, what, where, limit)
+    with os.fdopen(fd, "rb") as fh:
+        data = fh.read(limit + 1)
+    if len(data) > limit:  # it grew while read
+        raise InputError(f"is larger than {limit / 1024**2:.0f} MB, the limit for a {what}", file=path, where=where)
+    return data
+
+
+def _check_regular(fd: int, path: str | Path, what: str, where: str | None, limit: int) -> None:
+    """Nothing for a regular file within ``limit``; else ``fd`` is closed and an InputError raised."""
+    info = os.fstat(fd)
+    problem = None
+    if stat.S_ISDIR(info.st_mode):
+        problem = f"is a folder, expected a {what}"
+    elif not stat.S_ISREG(info.st_mode):
+        kind = "a FIFO (named pipe)" if stat.S_ISFIFO(info.st_mode) else "a device or socket"
+        problem = f"is {kind}, not a {what} (a regular file): refused without reading it"
+    elif info.st_size > limit:
+        problem = f"is {info.st_size / 1024**2:.1f} MB; a {what} may be at most {limit / 1024**2:.0f} MB"
+    if problem:
+        os.close(fd)
+        raise InputError(problem, file=path, where=where)
 
 
 def toml_depth(doc: Any) -> int:
@@ -192,12 +221,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
     Limits: :data:`MAX_TOML_BYTES` and :data:`MAX_TOML_DEPTH`."""
     path = Path(path)
     try:
-        if path.is_file():
-            file_size_checked(path, MAX_TOML_BYTES, "TOML file")
-        with path.open("rb") as fh:
-            data = fh.read(MAX_TOML_BYTES + 1)
-        if len(data) > MAX_TOML_BYTES:  # not a regular file (a pipe), or it grew
-            raise InputError(f"is larger than {MAX_TOML_BYTES / 1024**2:.0f} MB, the limit for a TOML file", file=path)
+        data = read_regular_file(path, MAX_TOML_BYTES, "TOML file")
         doc = _parse_toml(path, data)
         if toml_depth(doc) > MAX_TOML_DEPTH:
             raise InputError(f"tables and arrays nest more than {MAX_TOML_DEPTH} levels deep (the limit)", file=path)

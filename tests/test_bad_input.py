@@ -152,6 +152,24 @@ SCENARIOS: dict[str, tuple[Callable[[str], str], tuple[str, ...]]] = {
                             ("expect.lost.max", "finite number")),
     "infinite bound in expect": (_replace(("fpm_in = { min = 30.0 }", "fpm_in = { min = -inf }")),
                                  ("expect.fpm_in.min", "finite number")),
+    # no float anywhere in the line table may be NaN or infinite (issue 39: a NaN guide point ended as a blow-up
+    # blamed on a fish)
+    "NaN in a guide point": (_replace(("[[line.conveyors]]", "[line.guides]\nleft = [[0.0, 0.25], [nan, 0.2]]\n"
+                                                             "right = [[0.0, -0.25]]\n\n[[line.conveyors]]")),
+                             ("line.guides.left[1][0]", "finite number", "nan")),
+    "infinite guide point": (_replace(("[[line.conveyors]]", "[line.guides]\nleft = [[0.0, 0.25]]\n"
+                                                             "right = [[0.0, -inf]]\n\n[[line.conveyors]]")),
+                             ("line.guides.right[0][1]", "finite number", "inf")),
+    "infinite belt length": (_replace((LAST_BELT, "x_start_m = 5.03\nlength_m = inf")),
+                             ("line.conveyors[3].length_m", "finite number")),
+    # a Boolean takes true/false or 1/0 (issue 39: 0.5 was taken and logged as 0.5)
+    "event of 0.5 on a Boolean": (_replace(("[kpi]", '[[event]]\nt_s = 5.0\ntarget = "controller.pe_1"\n'
+                                                     'action = "override"\nvalue = 0.5\n\n[kpi]')),
+                                  ("event[0].value", "'controller.pe_1' is a Boolean", "not 0.5")),
+    "event of 2 on a Boolean": (_replace(("[kpi]", '[[event]]\nt_s = 5.0\ntarget = "plant.pe_c1.blocked"\n'
+                                                   'action = "override"\nvalue = 2.0\n\n[kpi]')),
+                                ("event[0].value", "is a Boolean", "not 2.0")),
+    "NaN fish length": (_replace(("length_mean_m = 0.60", "length_mean_m = nan")), ("fish.length_mean_m", "finite")),
 }
 
 
@@ -347,6 +365,17 @@ def test_bad_dataset_gives_exit_2_naming_file_and_row(case: str, small_dataset: 
     assert_one_clear_line(code, err.replace("\\", "/"), *expected)
 
 
+@pytest.mark.timeout(120)  # the old reader waited on the FIFO for ever
+@pytest.mark.parametrize("name", ["dataset.toml", "runs/r1/tracks.csv"])
+def test_compare_refuses_a_fifo_in_a_dataset_before_it_writes(name: str, small_dataset: Path,  # noqa: F811
+                                                              sandbox: Path, capsys, monkeypatch):
+    """Issue 39: a FIFO as dataset.toml or tracks.csv hung compare; it is exit 2 naming the file, nothing written."""
+    (small_dataset / name).unlink()
+    os.mkfifo(small_dataset / name)
+    code, err = run_main(sandbox, capsys, monkeypatch, "compare", str(small_dataset), "--out", str(sandbox / "out"))
+    assert_one_clear_line(code, err, name.split("/")[-1], "a FIFO")
+
+
 # ---------------------------------------------------------------- as a real process
 
 @pytest.mark.parametrize("args, expected", [
@@ -382,3 +411,34 @@ def test_a_bug_is_reported_in_one_line_with_exit_4(sandbox: Path, capsys, monkey
     from fishfmu.cli import main
     with pytest.raises(ZeroDivisionError):
         main()
+
+
+@pytest.mark.parametrize("value", ["0.5", "2"])
+def test_a_device_command_constant_that_is_not_a_boolean_is_refused(value, sandbox: Path, capsys, monkeypatch):
+    """A device's command given as a constant of 0.5 or 2 (issue 39) is refused naming the key; 1 is taken."""
+    text = (ROOT / "scenarios" / "reject_doubles.toml").read_text()
+    assert '    "controller.reject -> plant.gate.command",\n' in text
+    text = text.replace('    "controller.reject -> plant.gate.command",\n', "")
+    text = text.replace("[wiring]\n", f'[wiring]\ninputs = {{ "plant.gate.command" = {value} }}\n', 1)
+    (sandbox / "bad.toml").write_text(text)
+    code, err = run_main(sandbox, capsys, monkeypatch, "check", str(sandbox / "bad.toml"))
+    assert_one_clear_line(code, err, "bad.toml", "wiring.inputs.plant.gate.command", "Boolean", f"not {value}")
+
+
+@pytest.mark.parametrize("override", [
+    {"event": [{"t_s": 1.0, "target": "controller.pe_1", "action": "override", "value": True}] * 10001},
+    {"line.devices": [{"id": f"d{i}", "kind": "pusher", "x_m": 1.0, "length_m": 0.5} for i in range(1000)]},
+    {"line.devices": [{"id": "x" * 100_000, "kind": "pusher", "x_m": 1.0, "length_m": 0.5}]},
+    {"line.photoeyes": [{"id": f"pe{i}", "x_m": "far", "z_m": -5.0} for i in range(200)]},  # 400 problems
+    {"run": {"x" * 100_000: 1}},  # a 100 000-character unknown key
+], ids=["10 001 events", "1000 devices", "a 100 000-character id", "400 problems", "a 100 000-character key"])
+def test_an_error_echoes_a_huge_value_in_one_bounded_line(override):
+    """Issue 39: errors echoed 10 001 events or 1000 devices in an 853 KB line.  The value is cut (saying how many
+    items or characters it had), the message too, so an error is one line of at most a few hundred characters."""
+    from fishfmu.scenario.schema import load_scenario
+    from plant.errors import InputError
+    with pytest.raises(InputError) as info:
+        load_scenario(PAPER, override)
+    text = str(info.value)
+    assert "\n" not in text and len(text) < 1500, len(text)
+    assert str(PAPER) in text

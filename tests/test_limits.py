@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from plant.errors import InputError
-from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, file_size_checked, read_toml
+from plant.validation import MAX_CSV_BYTES, MAX_TOML_BYTES, MAX_TOML_DEPTH, read_regular_file, read_toml
 
 from fishfmu.scenario.schema import load_scenario
 from fishfmu.batch.sweep_spec import MAX_RUNS, check_size, make_spec, parse_param
@@ -58,7 +58,7 @@ def test_a_dataset_csv_over_the_limit_is_refused_before_it_is_read(tmp_path):
     with open(path, "wb") as fh:
         fh.truncate(MAX_CSV_BYTES + 1)
     with pytest.raises(InputError, match="at most 512 MB"):
-        file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")
+        read_regular_file(path, MAX_CSV_BYTES, "dataset CSV file")
     from plant.contract.measured import _read_text
     with pytest.raises(InputError, match="at most 512 MB"):
         _read_text(path)
@@ -121,3 +121,49 @@ def test_the_sweep_command_refuses_a_billion_points_quickly_and_writes_nothing(t
 def test_simulated_time_is_bounded_to_a_day():
     with pytest.raises(InputError, match="86400"):
         load_scenario(SCENARIO, {"run.duration_s": 1e9})
+
+
+# ---------------------------------------------------------------- camera logs: what fishfmu writes it reads back
+
+REJECT_DOUBLES = Path(__file__).parents[1] / "scenarios" / "reject_doubles.toml"
+
+
+def cameras(n: int, rate_hz: float) -> list[dict]:
+    return [{"id": f"cam{i}", "x_start_m": 1.0, "x_end_m": 3.0, "rate_hz": rate_hz} for i in range(n)]
+
+
+def test_64_cameras_at_200_hz_are_refused_before_the_run_naming_the_key():
+    """Issue 39: 64 cameras at 200 Hz logged a 557 MB detections.csv in 55 s that fishfmu's own compare refused."""
+    with pytest.raises(InputError) as info:
+        load_scenario(REJECT_DOUBLES, {"line.cameras": cameras(64, 200.0), "run.duration_s": 55.0})
+    assert info.value.where == "line.cameras"
+    assert "detections.csv" in str(info.value) and "at most 512 MB" in str(info.value)
+
+
+def test_the_largest_camera_log_a_scenario_may_ask_for_is_one_fishfmu_reads():
+    """By arithmetic on the limits: the most fish one 200 Hz camera may log over ten minutes is loaded, one more is
+    refused, and the bound on its file (every fish in view in every frame, every number as long as pandas writes
+    one) is within the reader's limit."""
+    from plant.contract.log_values import detections_bytes_bound, detection_row_bytes
+    cam = cameras(1, 200.0)
+    frames = 200 * 600 + 1
+    most = (MAX_CSV_BYTES - 100) // (frames * detection_row_bytes("cam0"))
+    sc = load_scenario(REJECT_DOUBLES, {"line.cameras": cam, "run.duration_s": 600.0, "fish.count": int(most)})
+    assert detections_bytes_bound(sc.line.cameras, 600.0, int(most)) <= MAX_CSV_BYTES
+    with pytest.raises(InputError, match="detections.csv"):
+        load_scenario(REJECT_DOUBLES, {"line.cameras": cam, "run.duration_s": 600.0, "fish.count": int(most) + 1})
+    assert most == 21  # 120 001 frames x 21 fish x 205 bytes = 493 MiB (at 30 Hz: 145 fish)
+
+
+def test_no_written_detection_row_is_longer_than_the_bound_assumes():
+    """The bound's row: eight numbers of at most 24 characters each as the writer (pandas' to_csv, as
+    plant.contract.measured.write_run calls it) writes the longest floats, the longest id, a huge track number."""
+    import pandas as pd
+    from plant.contract.log_values import detection_row_bytes
+    camera_id = "c" * 64
+    worst = -1.2345678901234567e-308
+    df = pd.DataFrame({"t_s": [worst], "camera_id": [camera_id], "track": [2**62], "x_back_m": [worst],
+                       "x_front_m": [worst], "y_m": [worst], "length_m": [worst], "heading": [-1.0], "double": [1.0]})
+    df = pd.concat([df, df.assign(track=[-(2**63)], heading=[-1], double=[1])])
+    rows = df.to_csv(index=False, na_rep="").encode().splitlines(keepends=True)[1:]
+    assert max(len(r) for r in rows) <= detection_row_bytes(camera_id)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 from pathlib import Path
@@ -324,6 +325,79 @@ BAD_INPUTS = {
     "trailing comma in the header too": (lambda r: _edit_bytes(r, "r1", "fish", _trailing_comma(lines=range(1, 5))),
                                          ["r1/fish.csv", "line 1 (header)", "no column name", "trailing comma"]),
 }
+
+# the line's own logs: a camera's detections.csv, a pusher's rejections.csv (issue 39, item 10)
+WITH_LOGS = ("[kpi]", '[[line.cameras]]\nid = "cam"\nx_start_m = 0.5\nx_end_m = 3.5\n\n[[line.devices]]\nid = "push"\n'
+                      'kind = "pusher"\nx_m = 2.5\nlength_m = 0.6\n\n[kpi]')
+REJECTIONS_HEADER = "t_s,device_id,fish_id\n"
+DETECTIONS_HEADER = "t_s,camera_id,track,x_back_m,x_front_m,y_m,length_m,heading,double\n"
+
+
+def _with_log(name: str, text: str) -> callable:
+    def mutate(root: Path) -> None:
+        _edit_toml(root, *WITH_LOGS)
+        _csv(root, "r1", name).write_text(text)
+    return mutate
+
+
+def _duplicated_column(name: str, column: str) -> callable:
+    """``name``.csv of r1 with ``column`` repeated at the end of every line (pandas would read it as ``column.1``)."""
+    def mutate(root: Path) -> None:
+        df = pd.read_csv(_csv(root, "r1", name), dtype=str, keep_default_na=False)
+        lines = [",".join([*df.columns, column])] + [",".join([*row, row[df.columns.get_loc(column)]])
+                                                      for row in df.itertuples(index=False)]
+        _csv(root, "r1", name).write_text("\n".join(lines) + "\n")
+    return mutate
+
+
+BAD_INPUTS.update({
+    "rejections without a fish_id column": (_with_log("rejections", "t_s,device_id\n3.0,push\n"),
+                                            ["r1/rejections.csv", "line 1 (header)", "missing required column fish_id"]),
+    "a fish rejected twice": (_with_log("rejections", REJECTIONS_HEADER + "3.0,push,f01\n4.0,push,f02\n5.0,push,f01\n"),
+                              ["r1/rejections.csv", "row 4, column fish_id", "'f01' is rejected twice", "row 2"]),
+    "more rejections than fish": (_with_log("rejections", REJECTIONS_HEADER + "".join(f"{t}.0,push,\n" for t in range(4))),
+                                  ["r1/rejections.csv", "row 5", "4 rejections but the run has 3 fish"]),
+    "heading 2": (_with_log("detections", DETECTIONS_HEADER + "1.0,cam,1,0.5,1.1,0.0,0.6,1,0\n1.1,cam,1,0.6,1.2,0.0,0.6,2,0\n"),
+                  ["r1/detections.csv", "row 3, column heading", "heading = 2", "-1 (tail first), 0 (not known) or 1"]),
+    "double 5": (_with_log("detections", DETECTIONS_HEADER + "1.0,cam,1,0.5,1.1,0.0,0.6,1,5\n"),
+                 ["r1/detections.csv", "row 2, column double", "double = 5", "0 or 1"]),
+    "track 1.5": (_with_log("detections", DETECTIONS_HEADER + "1.0,cam,1.5,0.5,1.1,0.0,0.6,1,0\n"),
+                  ["r1/detections.csv", "row 2, column track", "track = 1.5", "a whole number from 1"]),
+    "back ahead of the front": (_with_log("detections", DETECTIONS_HEADER + "1.0,cam,1,1.2,1.1,0.0,0.6,1,0\n"),
+                                ["r1/detections.csv", "row 2, column x_back_m", "x_back_m = 1.2", "at most x_front_m"]),
+    "duplicate column in tracks": (_duplicated_column("tracks", "x_m"),
+                                   ["r1/tracks.csv", "line 1 (header), column x_m", "'x_m' appears twice"]),
+    "duplicate column in fish": (_duplicated_column("fish", "length_m"),
+                                 ["r1/fish.csv", "line 1 (header), column length_m", "appears twice"]),
+    "duplicate column in detections": (_with_log("detections", DETECTIONS_HEADER.replace("\n", ",y_m\n")
+                                                 + "1.0,cam,1,0.5,1.1,0.0,0.6,1,0,0.3\n"),
+                                       ["r1/detections.csv", "column y_m", "appears twice"]),
+    "duplicate column in rejections": (_with_log("rejections", "t_s,device_id,fish_id,device_id\n3.0,push,f01,push\n"),
+                                       ["r1/rejections.csv", "column device_id", "appears twice"]),
+})
+
+
+def test_a_rejection_of_an_unknown_fish_is_read_as_such(small_dataset: Path) -> None:
+    """docs/measured-data.md: ``fish_id`` may be empty where the log does not know the fish; two such rows may be
+    the same fish or two, and the KPIs leave good_rejected undefined."""
+    _with_log("rejections", REJECTIONS_HEADER + "3.0,push,\n4.0,push,f02\n5.0,push, \n")(small_dataset)
+    ds = read_dataset(small_dataset)
+    rej = ds.run("r1").rejections
+    assert rej["fish_id"].isna().tolist() == [True, False, True] and rej["fish_id"][1] == "f02"
+    k = compute_kpis(ds.run("r1"), ds.line, ds.kpi)
+    assert k["rejected"] == 3 and k["good_rejected"] is None and k["rejected_by"] == {"push": 3}
+
+
+@pytest.mark.timeout(60)  # the old reader waited on a FIFO for ever
+@pytest.mark.parametrize("name", ["dataset.toml", "runs/r1/tracks.csv", "runs/r1/fish.csv", "runs/r1/rejections.csv"])
+def test_a_fifo_in_a_dataset_is_refused_without_opening_it_for_reading(small_dataset: Path, name: str) -> None:
+    _edit_toml(small_dataset, *WITH_LOGS)
+    path = small_dataset / name
+    path.unlink(missing_ok=True)
+    os.mkfifo(path)
+    with pytest.raises(InputError, match="a FIFO") as info:
+        read_dataset(small_dataset)
+    assert Path(info.value.file) == path
 
 
 @pytest.mark.parametrize("case", list(BAD_INPUTS))

@@ -143,3 +143,21 @@ def test_a_plant_fmu_with_a_gate_takes_its_command_and_reports_what_it_rejected(
     assert res["gate.position"][-1] == 1.0 and res["gate.at_end"][-1]
     assert res["fish_rejected"][-1] == 2 and res["fish_left"][-1] == 0  # both through the open gate, none past it
     assert np.array_equal(res["gate.rejected"][1:], np.array(ours))
+
+
+def test_a_served_scenario_exports_its_plant_whose_inputs_the_host_sets(tmp_path):
+    """scenarios/paper_opcua.toml has its drives' setpoints written by a PLC over OPC UA ([opcua] inputs): the plant
+    FMU is the plant alone, as for any scenario (no FMU, wiring, event or OPC UA table goes in); its inputs are the
+    belt speeds, which the host's master sets (from its own drives, or whatever a PLC drives)."""
+    import tomllib
+    import zipfile
+    from fmpy import read_model_description
+    out = tmp_path / "served.fmu"
+    cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "export-fmu", str(ROOT / "scenarios" / "paper_opcua.toml"),
+                          "--out", str(out)], capture_output=True, text=True)
+    assert cli.returncode == 0, cli.stderr
+    inputs = sorted(v.name for v in read_model_description(str(out)).modelVariables if v.causality == "input")
+    assert inputs == ["c1.speed", "c2.speed", "c3.speed", "c4.speed"]
+    with zipfile.ZipFile(out) as z:
+        inside = tomllib.loads(z.read("resources/scenario.toml").decode())
+    assert set(inside) == {"run", "line", "fish", "plant", "kpi"}

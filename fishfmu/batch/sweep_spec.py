@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from plant.contract.parts import part_triangles
 from plant.errors import InputError
 from plant.validation import read_toml
 
@@ -95,6 +96,7 @@ def make_spec(scenario: str | Path, parameters: dict[str, list[Any]], n_seeds: i
         if key in fixed:
             raise InputError(f"'{key}' is both swept and fixed (--set)")
     base = load_scenario(scenario, fixed)
+    part_triangles(base.line)  # a part's STL file refused before the sweep's folder is made, not in every run
     first = base.run.seed
     if first + n_seeds - 1 > MAX_SEED:
         raise InputError(f"--seeds {n_seeds}: the seeds run from run.seed = {first} to {first + n_seeds - 1}, past "

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from plant.contract.parts import part_triangles
 from plant.errors import InputError, SimulationError
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
@@ -93,6 +94,7 @@ def checked(scenario: Scenario, scenario_file: str | Path | None = None) -> Iter
     """Open every FMU once and check everything a run checks before it starts (raises InputError);
     the unpacked FMUs are removed when the ``with`` ends."""
     sfile = str(scenario_file) if scenario_file else None
+    part_triangles(scenario.line)  # the parts' STL files are read as the plant will read them
     with contextlib.ExitStack() as stack:
         opened = {f.name: stack.enter_context(opened_fmu(f)) for f in scenario.fmu}
         described = {n: describe(o.path, o.model_description, o.variables) for n, o in opened.items()}

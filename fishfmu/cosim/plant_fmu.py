@@ -47,6 +47,7 @@ import numpy as np
 import tomli_w
 from pydantic import BaseModel
 
+from plant.contract.parts import part_triangles, read_stl_bytes
 from plant.errors import InputError, SimulationError, one_line
 from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING, Plant
 from plant.sim.ports import PlantPorts, signal_of
@@ -60,6 +61,8 @@ SLAVE_SOURCE = Path(__file__).with_name("plant_fmu_slave.py")
 """The pythonfmu slave script the FMU carries (:mod:`fishfmu.cosim.plant_fmu_slave`)."""
 
 SCENARIO_RESOURCE = "scenario.toml"
+PARTS_RESOURCE = "parts"
+"""The folder of ``resources/`` that holds the line's STL parts (named relative to ``scenario.toml``)."""
 BUG = "a bug in fishfmu; please report it"
 FMI_INTEGER_MAX = 2**31 - 1
 """fmi2Integer is a C int: a larger seed cannot be set through FMI."""
@@ -259,7 +262,8 @@ class PlantInFmu:
 
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
     """Build the plant FMU of ``scenario`` with pythonfmu into ``folder`` (a temporary one: the caller moves it);
-    the scenario inside keeps what the plant needs (run, line, fish, plant, kpi), not the FMUs and wiring."""
+    the scenario inside keeps what the plant needs (run, line, fish, plant, kpi), not the FMUs, wiring, events and
+    ``[opcua]`` inputs: a served scenario exports its plant, whose belt speeds and device commands the host sets."""
     try:  # pythonfmu: only to export, and optional (a test extra, not one of fishfmu's dependencies)
         from pythonfmu.builder import FmuBuilder
     except ImportError:
@@ -274,5 +278,21 @@ def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:
     script.write_text(SLAVE_SOURCE.read_text(encoding="utf-8"), encoding="utf-8")
     resource = folder / "res" / SCENARIO_RESOURCE
     resource.parent.mkdir()
+    parts = carry_parts(scenario, plant_only, folder / "res" / PARTS_RESOURCE)
     resource.write_text(tomli_w.dumps(plant_only), encoding="utf-8")
-    return Path(FmuBuilder.build_FMU(script, dest=folder / "built", project_files=[resource]))
+    return Path(FmuBuilder.build_FMU(script, dest=folder / "built", project_files=[resource, *parts]))
+
+
+def carry_parts(scenario: Scenario, plant_only: dict[str, Any], folder: Path) -> list[Path]:
+    """Copy the line's STL parts (checked as a run checks them) into ``folder`` (``resources/parts/`` of the FMU) and
+    name them relative to the FMU's scenario in ``plant_only``: the FMU runs with its parts wherever it is moved, and
+    carries no path of the exporting machine.  Returns ``[folder]``, or ``[]`` for a line without parts."""
+    part_triangles(scenario.line)  # every file readable, within the limits and over the line
+    if not scenario.line.parts:
+        return []
+    folder.mkdir()
+    for i, part in enumerate(scenario.line.parts):
+        name = f"{i}_{part.id}.stl"  # ids are unique and safe as file names (the schema's Id pattern)
+        (folder / name).write_bytes(read_stl_bytes(part.stl, f"line.parts[{i}].stl"))
+        plant_only["line"]["parts"][i]["stl"] = f"{PARTS_RESOURCE}/{name}"
+    return [folder]

@@ -35,6 +35,7 @@ from (:mod:`fishfmu.scenario.reference`).
 from __future__ import annotations
 
 import copy
+import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -47,10 +48,11 @@ from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_
 
 from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
+from plant.contract.log_values import detections_bytes_bound
 from plant.contract.line import KpiSettings, Line
 from plant.sim.params import PlantParams
 from plant.fish.population import PopulationSpec
-from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
+from plant.validation import MAX_CSV_BYTES, Strict, ValueAtKey, read_toml, suggest, validate
 
 from fishfmu.scenario.keys import set_dotted
 from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem
@@ -336,6 +338,14 @@ class Scenario(Strict):
             if c.length_m < longest:
                 raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
                                  f"longest fish (fish.length_max_m = {longest} m): a fish must fit on every belt")
+        logged = detections_bytes_bound(self.line.cameras, self.run.duration_s, self.fish.count)
+        if logged > MAX_CSV_BYTES:  # what fishfmu writes it must read back (compare, diagnose)
+            frames = sum(math.floor(c.rate_hz * self.run.duration_s) + 1 for c in self.line.cameras)
+            raise ValueAtKey("line.cameras", f"{len(self.line.cameras)} camera(s) take {frames} frames in run.duration_s "
+                             f"= {self.run.duration_s:g} s, each frame a row per fish in view (up to fish.count = "
+                             f"{self.fish.count}): detections.csv could reach {logged / 1024**2:.0f} MB, and fishfmu "
+                             f"reads a CSV of at most {MAX_CSV_BYTES / 1024**2:.0f} MB; use fewer cameras, a lower "
+                             "rate_hz, a shorter run or fewer fish")
         return self
 
     def connection_specs(self) -> list[ConnectionSpec]:
@@ -362,6 +372,14 @@ def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> 
     return ScenarioLoader(path).load(overrides)
 
 
+def _absolute(scenario_file: Path, name: str, key: str) -> str:
+    """``name``, a path the scenario at ``key`` gives relative to itself, made absolute; a NUL in it is bad input."""
+    try:
+        return str((scenario_file.parent / name).resolve())
+    except (ValueError, OSError) as exc:  # "embedded null byte"
+        raise InputError(f"not a usable path: {exc}", file=scenario_file, where=key) from None
+
+
 class ScenarioLoader:
     """One scenario file loaded with overrides, as often as asked (a sweep's points): the file is read once,
     each parameter file and SSP once (as they were when first read); every load validates the whole scenario."""
@@ -381,15 +399,15 @@ class ScenarioLoader:
         for i, f in enumerate(data.get("fmu", []) or []):
             for key in ("path", "parameter_file"):
                 if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
-                    data["fmu"][i] = f = dict(f, **{key: str((path.parent / f[key]).resolve())})
+                    data["fmu"][i] = f = dict(f, **{key: _absolute(path, f[key], f"fmu[{i}].{key}")})
         line = data.get("line")
         for i, part in enumerate(line.get("parts", []) if isinstance(line, dict) and isinstance(line.get("parts"), list)
                                  else []):
             if isinstance(part, dict) and isinstance(part.get("stl"), str) and not Path(part["stl"]).is_absolute():
-                line["parts"][i] = dict(part, stl=str((path.parent / part["stl"]).resolve()))
+                line["parts"][i] = dict(part, stl=_absolute(path, part["stl"], f"line.parts[{i}].stl"))
         system = data.get("system")
         if isinstance(system, dict) and isinstance(system.get("ssp"), str) and not Path(system["ssp"]).is_absolute():
-            data["system"] = dict(system, ssp=str((path.parent / system["ssp"]).resolve()))
+            data["system"] = dict(system, ssp=_absolute(path, system["ssp"], "system.ssp"))
         scenario = validate(Scenario, data, file=path, strict=True)
         for i, f in enumerate(scenario.fmu):
             if f.parameter_file is not None:

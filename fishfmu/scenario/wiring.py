@@ -233,6 +233,9 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
             raise InputError(f"'{key}' is a String input; constants in wiring.inputs are numbers or booleans "
                              "(give it as a parameter start value instead)", file=scenario_file,
                              where=f"wiring.inputs.{key}")
+        if port.type == "Boolean" and value not in (0, 1):  # true and false are 1 and 0; 0.5 and 2 are not
+            raise InputError(f"'{key}' is a Boolean input: its constant must be true or false (or 1 or 0), not "
+                             f"{value!r}", file=scenario_file, where=f"wiring.inputs.{key}")
         constants[port.key] = value
     external = []
     for i, key in enumerate(scenario.opcua.inputs):
@@ -281,6 +284,9 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
         if vtype == "Boolean" and ev.action == "bias":
             raise InputError(f"event target '{ev.target}' is a Boolean; it can be overridden or reset, not biased",
                              file=scenario_file, where=f"event[{i}].action")
+        if vtype == "Boolean" and ev.action == "override" and ev.value not in (0, 1):
+            raise InputError(f"event target '{ev.target}' is a Boolean: the value must be true or false (or 1 or 0), "
+                             f"not {ev.value!r}", file=scenario_file, where=f"event[{i}].value")
 
     names = [f.name for f in scenario.fmu]
     if scenario.run.coupling == "jacobi":

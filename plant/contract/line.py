@@ -110,7 +110,8 @@ class Part(Strict):
 
     id: Id = Field(description="unique among the line's items")
     stl: str = Field(min_length=1, description=(
-        "the STL file (ASCII or binary); relative to the scenario or dataset file that names it"))
+        "the STL file (ASCII or binary, a regular file of at most 64 MB); relative to the scenario or dataset file "
+        "that names it; all parts of a line together at most 100 000 triangles"))
     scale: float = Field(1.0, gt=0.0, le=1.0, description="metres per STL unit (0.001 for a file in millimetres)")
     offset_m: list[float] = Field(default_factory=lambda: [0.0, 0.0, 0.0], min_length=3, max_length=3, description=(
         "where the STL's origin sits in the line frame (x, y, z)"))
@@ -161,7 +162,8 @@ class Line(Strict):
     conveyors: list[Conveyor] = Field(min_length=1, max_length=64, description="the belts, in flow order")
     photoeyes: list[PhotoEye] = Field(default_factory=list, max_length=256, description="light beams across the line")
     cameras: list[Camera] = Field(default_factory=list, max_length=64, description=(
-        "vision systems over the line (none in a file without the key)"))
+        "vision systems over the line (none in a file without the key); a scenario's cameras must not be able to log "
+        "more than fishfmu reads back (detections.csv of at most 512 MB: frames x fish.count rows of ~200 bytes)"))
     parts: list[Part] = Field(default_factory=list, max_length=64, description=(
         "fixed parts from STL files (none in a file without the key)"))
     devices: list[Device] = Field(default_factory=list, max_length=32, description=(

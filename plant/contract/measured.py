@@ -40,9 +40,11 @@ from plant.errors import InputError
 from plant.fish.fish_data import length_regressions
 from plant.fish.population import FishSpec
 from plant.contract.line import Id, KpiSettings, Line
+from plant.contract.log_values import check_detections, check_rejections
+from plant.contract.parts import part_triangles
 from plant.contract.plausibility import MAX_HOURS_POST_MORTEM
 from plant.contract.row_errors import fail_first, row_number
-from plant.validation import MAX_CSV_BYTES, Strict, file_size_checked, read_toml, suggest, validate
+from plant.validation import MAX_CSV_BYTES, Strict, read_regular_file, read_toml, suggest, validate
 
 
 @dataclass(frozen=True)
@@ -53,6 +55,8 @@ class TableSpec:
     columns: tuple[str, ...]
     text: frozenset[str]
     may_be_empty: frozenset[str] = frozenset()
+    may_be_absent: frozenset[str] = frozenset()
+    """Columns a file may leave out (read as empty); every other column of ``columns`` is required in the header."""
 
     @property
     def file(self) -> str:
@@ -61,7 +65,8 @@ class TableSpec:
 
 FISH = TableSpec("fish", ("fish_id", "length_m", "weight_kg", "height_m", "width_m", "hours_post_mortem",
                           "drop_t_s", "drop_x_m", "drop_y_m", "drop_yaw_rad", "drop_z_m"),
-                 frozenset({"fish_id"}), frozenset({"height_m", "width_m", "hours_post_mortem"}))
+                 frozenset({"fish_id"}), may_be_empty=frozenset({"height_m", "width_m", "hours_post_mortem"}),
+                 may_be_absent=frozenset({"height_m", "width_m", "hours_post_mortem"}))
 TRACKS = TableSpec("tracks", ("t_s", "fish_id", "x_m", "y_m", "yaw_rad"), frozenset({"fish_id"}))
 PHOTOEYES = TableSpec("photoeyes", ("sensor_id", "t_on_s", "t_off_s"), frozenset({"sensor_id"}))
 BELTS = TableSpec("belts", ("t_s", "conveyor_id", "setpoint_mps", "speed_mps"), frozenset({"conveyor_id"}))
@@ -175,19 +180,19 @@ def read_table(path: Path, spec: TableSpec) -> pd.DataFrame:
         raise InputError(f"not a readable CSV file: {str(exc).strip()}", file=path) from None
     df.columns = [str(c).strip() for c in df.columns]
     df = df.dropna(how="all")  # blank lines
-    required = [c for c in spec.columns if c not in spec.may_be_empty]
-    missing = [c for c in required if c not in df.columns]
+    missing = [c for c in spec.columns if c not in df.columns and c not in spec.may_be_absent]
     if missing:
         raise InputError(f"missing required column{'s' if len(missing) > 1 else ''} {', '.join(missing)} "
                          f"(found: {', '.join(df.columns)}; expected: {', '.join(spec.columns)})",
                          file=path, where="line 1 (header)")
-    for c in spec.may_be_empty:
+    for c in spec.may_be_absent:
         if c not in df.columns:
             df[c] = np.nan
     for c in spec.columns:
         if c in spec.text:
-            df[c] = df[c].str.strip()
-            fail_first(df[c].isna() | (df[c] == ""), path, c, "empty, a value is required")
+            df[c] = df[c].astype(object).str.strip().replace("", np.nan)
+            if c not in spec.may_be_empty:
+                fail_first(df[c].isna(), path, c, "empty, a value is required")
             continue
         if not pd.api.types.is_numeric_dtype(df[c]):
             num = pd.to_numeric(df[c], errors="coerce")
@@ -207,16 +212,7 @@ def read_table(path: Path, spec: TableSpec) -> pd.DataFrame:
 def _read_text(path: Path) -> str:
     """The file as text: UTF-8 (a byte-order mark is dropped).  Anything else names the line and column
     of the first byte that is not UTF-8 (a Latin-1 or Windows-1252 export, typically)."""
-    if path.is_file():
-        file_size_checked(path, MAX_CSV_BYTES, "dataset CSV file")  # before reading it into memory
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise InputError("file not found", file=path) from None
-    except IsADirectoryError:
-        raise InputError("is a folder, expected a CSV file", file=path) from None
-    except OSError as exc:
-        raise InputError(f"cannot be read: {exc.strerror or exc}", file=path) from None
+    data = read_regular_file(path, MAX_CSV_BYTES, "dataset CSV file")
     data = data.removeprefix(b"\xef\xbb\xbf")
     try:
         return data.decode("utf-8")
@@ -243,6 +239,11 @@ def _check_field_counts(text: str, path: Path) -> None:
         header = next(reader, None)
         if header is None:
             return
+        names = [name.strip() for name in header]
+        twice = next((n for i, n in enumerate(names) if n and n in names[:i]), None)
+        if twice is not None:
+            raise InputError(f"column '{twice}' appears twice in the header: which one holds the values is unclear",
+                             file=path, where=f"line 1 (header), column {twice}")
         unnamed = [i for i, name in enumerate(header) if not name.strip()]
         if unnamed and len(header) > 1:
             trailing = " (a trailing comma?)" if unnamed == [len(header) - 1] else ""
@@ -349,6 +350,8 @@ def read_run(dataset_path: str | Path, run_entry: RunEntry | Mapping[str, Any], 
     rejections = _read_log(folder, REJECTIONS, "device_id", [d.id for d in line.devices], "a device of the line")
     known = rejections["fish_id"].notna()
     _check_ids(rejections[known], "fish_id", list(fish["fish_id"]), folder / REJECTIONS.file, "a fish of fish.csv")
+    check_rejections(rejections, len(fish), folder / REJECTIONS.file)
+    check_detections(detections, folder / DETECTIONS.file, {c.id: c.position_noise_m for c in line.cameras})
     commands = _read_device_commands(folder, line, belts)
     tables = [df.reset_index(drop=True) for df in (fish, tracks, pe, belts, detections, rejections)]
     return Run(entry.id, entry.hours_post_mortem, entry.notes, *tables,
@@ -399,6 +402,7 @@ def read_dataset(path: str | Path, check_physics: bool = True) -> Dataset:
     toml = path / "dataset.toml" if path.is_dir() else path
     doc = validate(DatasetFile, read_toml(toml), file=toml)
     doc.line = doc.line.with_parts_relative_to(toml.parent)
+    part_triangles(doc.line)  # the parts' STL files as the re-simulation will read them
     try:
         doc.kpi.check_against(doc.line)
     except ValueError as exc:
