@@ -221,12 +221,12 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
 
 
 def _refuse_fmi3_features(md: Any, path: Path) -> None:
-    """What fishfmu's master does not do with an FMI 3.0 FMU, refused with the reason: clocks (they need event
-    mode, which fishfmu does not enter) and a co-simulation that cannot run without event mode."""
+    """What fishfmu's master does not do with an FMI 3.0 FMU, refused with the reason: clocks (fishfmu enters event
+    mode at an FMU's events, but does not activate clocks or their model partitions)."""
     clocks = [v.name for v in md.modelVariables if v.type == "Clock"]
     if clocks:
-        raise InputError(f"the FMU has clocks ({', '.join(clocks[:3])}{', ...' if len(clocks) > 3 else ''}): clocked "
-                         "co-simulation needs event mode, which fishfmu does not use; export it without clocks",
+        raise InputError(f"the FMU has clocks ({', '.join(clocks[:3])}{', ...' if len(clocks) > 3 else ''}): fishfmu "
+                         "handles an FMU's events in event mode but does not tick clocks; export it without clocks",
                          file=path)
 
 
