@@ -30,7 +30,8 @@ G, E, H0, V_MIN = 9.81, 0.7, 1.0, 0.1  # the ball's defaults (events.c)
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("fmi3_events")
-    return {f"{m}{'' if e else 'NoEventMode'}": build(m, out, e) for m in ("Stair", "BouncingBall") for e in (True, False)}
+    return {f"{m}{'' if e else 'NoEventMode'}": build(m, out, e) for m in ("Stair", "BouncingBall", "Task")
+            for e in (True, False)}
 
 
 def stepped(fmu: Path, parameters: dict, outputs: list[str], n: int) -> tuple[InProcessFmu, list[dict]]:
@@ -101,6 +102,24 @@ def test_an_fmu_without_event_mode_is_stepped_over_its_events_as_before(fmus):
     assert not stair.event_mode and counts[-1]["counter"] == 8
 
 
+def test_a_periodic_input_clock_ticks_at_its_interval_inside_the_steps(fmus):
+    """A PLC task as a clock: the master ticks it every 0.025 s (its intervalDecimal), from t = 0."""
+    inst, rows = stepped(fmus["Task"], {}, ["count", "last_tick"], 10)
+    for k, row in enumerate(rows):
+        end = k * DT_S + DT_S  # the step's end as the master computes it; a tick is at j x 0.025
+        ticks = [j * 0.025 for j in range(60) if j * 0.025 <= end]
+        assert (row["count"], row["last_tick"]) == (len(ticks), ticks[-1]), end
+    assert rows[-1]["count"] == 41  # t = 0, 0.025, ..., 1.0
+    assert list(inst.event_times_s)[:4] == [0.025, 0.05, 0.07500000000000001, 0.1]
+
+
+def test_a_clock_fishfmu_cannot_tick_is_refused_naming_it(fmus):
+    from plant.errors import InputError
+    with pytest.raises(InputError, match="TaskNoEventMode.fmu: clock 'tick' is a clock of an FMU without event mode"):
+        with open_fmu(fmus["TaskNoEventMode"]):
+            pass
+
+
 @pytest.mark.parametrize("process", ["in-process", "worker"])
 def test_in_a_run_the_stair_in_event_mode_sets_a_drives_setpoint(tmp_path, fmus, process):
     doc = tomllib.loads((ROOT / "scenarios" / "paper_test.toml").read_text())
@@ -120,3 +139,14 @@ def test_in_a_run_the_stair_in_event_mode_sets_a_drives_setpoint(tmp_path, fmus,
     assert s["stair.counter"].to_numpy() == pytest.approx(counts)
     # the stair steps before the drive (Gauss-Seidel): the drive gets each event's count in the step it fell in
     assert s["drive_c1.speed_setpoint"].to_numpy() == pytest.approx(0.01 * counts)
+
+
+def test_only_periodic_input_clocks_with_a_given_interval_are_ticked():
+    from fishfmu.fmu.clocks import clock_problem
+    periodic = {"causality": "input", "intervalVariability": "constant", "intervalDecimal": "0.01"}
+    assert clock_problem(periodic, True) is None
+    assert clock_problem({**periodic, "intervalVariability": "fixed"}, True) is None
+    assert "output clock" in clock_problem({**periodic, "causality": "output"}, True)
+    assert "triggered" in clock_problem({"causality": "input", "intervalVariability": "triggered"}, True)
+    assert "without event mode" in clock_problem(periodic, False)
+    assert "interval 0" in clock_problem({**periodic, "intervalDecimal": "0"}, True)

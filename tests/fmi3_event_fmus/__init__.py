@@ -19,6 +19,11 @@ VARIABLES = {
     <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
     <Int32 name="counter" valueReference="1" causality="output" variability="discrete" initial="exact" start="0"/>
     <Float64 name="period" valueReference="2" causality="parameter" variability="fixed" start="1" unit="s"/>""",
+    "Task": """
+    <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
+    <Int32 name="count" valueReference="1" causality="output" variability="discrete" clocks="3" initial="exact" start="0"/>
+    <Float64 name="last_tick" valueReference="2" causality="output" variability="discrete" clocks="3" initial="exact" start="0" unit="s"/>
+    <Clock name="tick" valueReference="3" causality="input" variability="discrete" intervalVariability="constant" intervalDecimal="0.025"/>""",
     "BouncingBall": """
     <Float64 name="time" valueReference="0" causality="independent" variability="continuous"/>
     <Float64 name="h" valueReference="1" causality="output" variability="continuous" initial="exact" start="1" unit="m"/>
@@ -27,11 +32,11 @@ VARIABLES = {
     <Float64 name="e" valueReference="4" causality="parameter" variability="fixed" start="0.7"/>
     <Float64 name="h0" valueReference="5" causality="parameter" variability="fixed" start="1" unit="m"/>""",
 }
-OUTPUTS = {"Stair": [1], "BouncingBall": [1, 2]}
-UNITS = {"Stair": '<Unit name="s"><BaseUnit s="1"/></Unit>',
+OUTPUTS = {"Stair": [1], "Task": [1, 2], "BouncingBall": [1, 2]}
+UNITS = {"Stair": '<Unit name="s"><BaseUnit s="1"/></Unit>', "Task": '<Unit name="s"><BaseUnit s="1"/></Unit>',
          "BouncingBall": '<Unit name="m"><BaseUnit m="1"/></Unit><Unit name="m/s"><BaseUnit m="1" s="-1"/></Unit>'
                          '<Unit name="m/s2"><BaseUnit m="1" s="-2"/></Unit>'}
-DEFINE = {"Stair": "MODEL_STAIR", "BouncingBall": "MODEL_BALL"}
+DEFINE = {"Stair": "MODEL_STAIR", "Task": "MODEL_TASK", "BouncingBall": "MODEL_BALL"}
 
 
 def model_description(model: str, event_mode: bool) -> str:
@@ -54,7 +59,7 @@ def build_description(model: str) -> str:
 
 
 def build(model: str, out_dir: Path, event_mode: bool = True) -> Path:
-    """``<out_dir>/<model>[NoEventMode].fmu``: ``Stair`` or ``BouncingBall``, declaring event mode and early return
+    """``<out_dir>/<model>[NoEventMode].fmu``: ``Stair``, ``Task`` (a periodic input clock) or ``BouncingBall``, declaring event mode and early return
     (``event_mode``) or neither (the same C code; it then handles its events inside doStep)."""
     ident = model + ("" if event_mode else "NoEventMode")
     tree = out_dir / ident

@@ -2,6 +2,8 @@
  * Reference FMUs' Stair and BouncingBall could not be had from a package registry, so these stand in for them.
  *
  * MODEL_STAIR  (time events): Int32 output counter, 0 at the start, +1 at every t = k * period (k = 1, 2, ...).
+ * MODEL_TASK   (a periodic input clock, a PLC task): Int32 output count, +1 at each tick of the input clock tick
+ *              (every 0.025 s from t = 0, the master ticks it), Float64 output last_tick, the time of the last tick.
  * MODEL_BALL   (state events): a ball dropped from h0, Float64 outputs h and v; at h = 0 it bounces, v -> -e * v.
  *              Between bounces it moves on its exact parabola, so a bounce is found where the event indicator h
  *              crosses zero to rounding (t1 = sqrt(2 h0 / g), then each flight is 2 e^k v1 / g); below v_min it rests.
@@ -23,11 +25,17 @@ typedef struct {
     fmi3Int32 counter;
     fmi3Float64 g, e, h0, v_min, h, v;  /* ball: the arc starts at (time of h, v) */
     fmi3Boolean resting;
+    fmi3Boolean tick;         /* task: the clock is active (set by the master in event mode) */
+    fmi3Float64 last_tick;
 } Model;
 
 enum { VR_TIME = 0, VR_A = 1, VR_B = 2, VR_C = 3, VR_D = 4, VR_E = 5 };
 
-#ifdef MODEL_STAIR
+#if defined(MODEL_TASK)
+static fmi3Float64 next_event(const Model *m) { (void)m; return INFINITY; }  /* its events are the clock's ticks */
+static void advance(Model *m, fmi3Float64 t) { m->time = t; }
+static void handle(Model *m) { (void)m; }
+#elif defined(MODEL_STAIR)
 static fmi3Float64 next_event(const Model *m) { return (floor(m->time / m->period + 1e-9) + 1.0) * m->period; }
 static void advance(Model *m, fmi3Float64 t) { m->time = t; }
 static void handle(Model *m) { m->counter += 1; }
@@ -96,9 +104,10 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance instance, fmi3Boolean *discrete
                                     fmi3Float64 *nextEventTime) {
     Model *m = instance;
     if (m->pending) { handle(m); m->pending = fmi3False; }
+    if (m->tick) { m->counter += 1; m->last_tick = m->time; m->tick = fmi3False; }  /* deactivated when handled */
     *discreteStatesNeedUpdate = fmi3False; *terminateSimulation = fmi3False; *nominalsChanged = fmi3False;
     *valuesChanged = fmi3True;
-#ifdef MODEL_STAIR
+#if defined(MODEL_STAIR)
     *nextEventTimeDefined = fmi3True;
     *nextEventTime = next_event(m);
 #else
@@ -148,7 +157,9 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
     for (size_t i = 0; i < nvr; i++) {
         switch (vr[i]) {
         case VR_TIME: values[i] = m->time; break;
-#ifdef MODEL_STAIR
+#if defined(MODEL_TASK)
+        case VR_B: values[i] = m->last_tick; break;
+#elif defined(MODEL_STAIR)
         case VR_B: values[i] = m->period; break;
 #else
         case VR_A: values[i] = m->h; break;
@@ -169,7 +180,8 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
     if (nValues != nvr) return fmi3Error;
     for (size_t i = 0; i < nvr; i++) {
         switch (vr[i]) {
-#ifdef MODEL_STAIR
+#if defined(MODEL_TASK)
+#elif defined(MODEL_STAIR)
         case VR_B: m->period = values[i]; break;
 #else
         case VR_C: m->g = values[i]; break;
@@ -191,4 +203,20 @@ fmi3Status fmi3GetInt32(fmi3Instance instance, const fmi3ValueReference vr[], si
         values[i] = m->counter;
     }
     return fmi3OK;
+}
+
+fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, const fmi3Clock values[]) {
+    Model *m = instance;
+    for (size_t i = 0; i < nvr; i++) {
+#if defined(MODEL_TASK)
+        if (vr[i] == VR_C) { m->tick = values[i]; continue; }
+#endif
+        return fmi3Error;
+    }
+    return fmi3OK;
+}
+
+fmi3Status fmi3GetClock(fmi3Instance instance, const fmi3ValueReference vr[], size_t nvr, fmi3Clock values[]) {
+    (void)instance; (void)vr; (void)values;
+    return nvr == 0 ? fmi3OK : fmi3Error;  /* it has no output clocks */
 }

@@ -30,8 +30,6 @@ int fmi3GetBinary(void);
 int fmi3GetBinary(void) { return fmi3_stub_status(); }
 int fmi3GetBoolean(void);
 int fmi3GetBoolean(void) { return fmi3_stub_status(); }
-int fmi3GetClock(void);
-int fmi3GetClock(void) { return fmi3_stub_status(); }
 int fmi3GetContinuousStateDerivatives(void);
 int fmi3GetContinuousStateDerivatives(void) { return fmi3_stub_status(); }
 int fmi3GetContinuousStates(void);
@@ -92,8 +90,6 @@ int fmi3SetBinary(void);
 int fmi3SetBinary(void) { return fmi3_stub_status(); }
 int fmi3SetBoolean(void);
 int fmi3SetBoolean(void) { return fmi3_stub_status(); }
-int fmi3SetClock(void);
-int fmi3SetClock(void) { return fmi3_stub_status(); }
 int fmi3SetContinuousStates(void);
 int fmi3SetContinuousStates(void) { return fmi3_stub_status(); }
 int fmi3SetDebugLogging(void);
