@@ -101,7 +101,7 @@ def test_a_gain_and_offset_are_written_as_the_standards_linear_transformation(tm
     scenario = tmp_path / "gain.toml"
     scenario.write_text(text)
     out = tmp_path / "gain.ssp"
-    assert export(scenario, out).returncode == 0
+    assert export(scenario, out, "fish.count=2").returncode == 0
     ssd = _xml(out, "SystemStructure.ssd")
     c = ssd.find("ssd:System/ssd:Connections/ssd:Connection[@endElement='drive_c2'][@endConnector='speed_setpoint']",
                  NS)
@@ -109,6 +109,20 @@ def test_a_gain_and_offset_are_written_as_the_standards_linear_transformation(tm
     back = load_scenario(out)  # fishfmu's import takes it as the gain and offset it was
     table = [t for t in back.wiring.connection if t.to == "drive_c2.speed_setpoint"]
     assert [(t.gain, t.offset) for t in table] == [(0.9, 0.01)]
+    pytest.importorskip("libcosimpy")  # and libcosim applies it: 0.9 x 0.5 m/s + 0.01 m/s once c2 runs
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+    ex = CosimExecution.from_ssp_file(str(out))
+    idx = {i.name.decode(): i.index for i in ex.slave_infos()}
+    ref = {n: {v.name.decode(): v.reference for v in ex.slave_variables(i)} for n, i in idx.items()}
+    observer = CosimObserver.create_last_value()
+    ex.add_observer(observer)
+    for _ in range(500):
+        assert ex.step()
+    ex.stop()
+    source = observer.last_real_values(idx["controller"], [ref["controller"]["setpoint_2"]])[0]
+    target = observer.last_real_values(idx["drive_c2"], [ref["drive_c2"]["speed_setpoint"]])[0]
+    assert source == 0.5 and target == pytest.approx(0.46, abs=1e-12)
 
 
 def test_fmpys_ssp_reader_parses_it(paper_ssp):

@@ -167,7 +167,7 @@ def not_in_ssp(sc: Scenario) -> list[str]:
         value = "" if e.value is None else f" {e.value}"
         notes.append(f"[[event]] at {e.t_s} s: {e.action} {e.target}{value} (SSP has no events)")
     for key, b in sc.expect.items():
-        bounds = ", ".join(f"{k} = {v}" for k, v in b.model_dump(exclude_none=True).items())
+        bounds = ", ".join(f"{k} = {v}" for k, v in b.model_dump(exclude_none=True, exclude_defaults=True).items())
         notes.append(f"[expect] {key}: {bounds} (SSP has no acceptance bounds)")
     if sc.record.variables:
         notes.append(f"[record] variables = {sc.record.variables} (SSP says nothing of what a run records)")
@@ -180,6 +180,9 @@ def not_in_ssp(sc: Scenario) -> list[str]:
         if c.round:
             notes.append(f"{c.where}: round = true (Real into Integer, rounded) has no SSP transformation; another "
                          "tool converts as it does")
+    for part in sc.line.parts:  # export-fmu's plant keeps the path it was given: the file is not in the FMU
+        notes.append(f"[[line.parts]] stl = {part.stl}: the plant FMU names this file by its path on this machine; "
+                     "it is not in the archive")
     for f in sc.fmu:
         if f.step_multiple != 1:
             notes.append(f"fmu '{f.name}': step_multiple = {f.step_multiple} (SSP 1.0 has no per-component step)")
