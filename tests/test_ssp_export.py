@@ -94,7 +94,10 @@ def test_the_archive_validates_against_the_ssp_schemas_and_says_the_system(paper
     assert plant == {"seed": "1", "fish_count": "4"}
 
 
-def test_a_gain_and_offset_are_written_as_the_standards_linear_transformation(tmp_path):
+@pytest.fixture(scope="module")
+def gain_ssp(tmp_path_factory) -> Path:
+    """The paper's test with controller.setpoint_2 -> drive_c2.speed_setpoint through gain 0.9 and offset 0.01."""
+    tmp_path = tmp_path_factory.mktemp("gain")
     text = PAPER.read_text().replace('"controller.setpoint_2 -> drive_c2.speed_setpoint",\n', "")
     text += ('\n[[wiring.connection]]\nfrom = "controller.setpoint_2"\nto = "drive_c2.speed_setpoint"\n'
              'gain = 0.9\noffset = 0.01\n')
@@ -102,6 +105,11 @@ def test_a_gain_and_offset_are_written_as_the_standards_linear_transformation(tm
     scenario.write_text(text)
     out = tmp_path / "gain.ssp"
     assert export(scenario, out, "fish.count=2").returncode == 0
+    return out
+
+
+def test_a_gain_and_offset_are_written_as_the_standards_linear_transformation(gain_ssp):
+    out = gain_ssp
     ssd = _xml(out, "SystemStructure.ssd")
     c = ssd.find("ssd:System/ssd:Connections/ssd:Connection[@endElement='drive_c2'][@endConnector='speed_setpoint']",
                  NS)
@@ -134,6 +142,8 @@ def test_fmpys_ssp_reader_parses_it(paper_ssp):
     assert {c.name for c in comps["plant"].connectors} >= {"c1.speed", "pe_c4.blocked", "seed", "fish_count"}
     assert len(ssd.system.connections) == 20
     assert ssd.system.connections[0].startElement == "controller"
+    bound = {p.name: (p.type, p.value) for p in comps["controller"].parameterBindings[0].parameterValues[0].parameters}
+    assert bound["speed_4"] == ("Real", "1.25") and bound["n_belts"] == ("Integer", "4")  # the SSV, read through fmpy
 
 
 def _same_runs(a, b) -> None:
@@ -267,3 +277,13 @@ def test_as_system_ssp_of_a_scenario_file_the_plant_component_is_the_files_plant
     cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "check", str(scenario), "--set", "run.seed=2"],
                          capture_output=True, text=True)
     assert cli.returncode == 2 and "seed = 1" in cli.stderr and "run.seed = 2" in cli.stderr
+
+
+def test_fmpys_simulate_ssp_runs_it_without_its_bindings_or_transformations(gain_ssp):
+    """What fmpy 0.3.32's SSP simulation does not take from a conforming file (said in docs/scenarios.md)."""
+    from fmpy.ssp.simulation import simulate_ssp
+    r = simulate_ssp(str(gain_ssp), stop_time=5.0, step_size=0.01)
+    # the controller at its built-in default speed_4 = 1.3 m/s, not the 1.25 of its SSV
+    assert r["controller.setpoint_4"][-1] == 1.3
+    # speed_2 at its default 0.55 m/s (the SSV's is 0.5), copied as it is: no factor 0.9, no offset 0.01 (0.505)
+    assert r["drive_c2.speed_setpoint"][-1] == r["controller.setpoint_2"][-1] == 0.55
