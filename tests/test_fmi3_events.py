@@ -92,6 +92,16 @@ def test_the_balls_state_events_are_at_the_analytic_bounce_times(fmus):
     assert t1 == pytest.approx(0.4515236409857309)
 
 
+def test_a_ball_whose_bounces_pile_up_is_stopped_with_a_message(fmus):
+    """v_min = 0: the flights shrink by e each bounce until they no longer move the clock (Zeno); the master stops at
+    MAX_EVENTS_PER_STEP events in one step instead of looping for ever."""
+    from plant.errors import SimulationError
+    t_rest = math.sqrt(2 * H0 / G) * (1 + 2 * E / (1 - E))  # where the bounce times converge: 2.559 s
+    with pytest.raises(SimulationError, match=r"FMU 'uut': more than 10000 events in one step from t = 2\.5"):
+        stepped(fmus["BouncingBall"], {"v_min": 0.0}, ["h"], 40)
+    assert 2.5 < t_rest < 2.6
+
+
 def test_an_fmu_without_event_mode_is_stepped_over_its_events_as_before(fmus):
     with_events, ev_rows = stepped(fmus["BouncingBall"], {}, ["h", "v"], 30)
     without, rows = stepped(fmus["BouncingBallNoEventMode"], {}, ["h", "v"], 30)

@@ -30,7 +30,8 @@ VARIABLES = {
     <Float64 name="v" valueReference="2" causality="output" variability="continuous" initial="exact" start="0" unit="m/s"/>
     <Float64 name="g" valueReference="3" causality="parameter" variability="fixed" start="9.81" unit="m/s2"/>
     <Float64 name="e" valueReference="4" causality="parameter" variability="fixed" start="0.7"/>
-    <Float64 name="h0" valueReference="5" causality="parameter" variability="fixed" start="1" unit="m"/>""",
+    <Float64 name="h0" valueReference="5" causality="parameter" variability="fixed" start="1" unit="m"/>
+    <Float64 name="v_min" valueReference="6" causality="parameter" variability="fixed" start="0.1" unit="m/s"/>""",
 }
 OUTPUTS = {"Stair": [1], "Task": [1, 2], "BouncingBall": [1, 2]}
 UNITS = {"Stair": '<Unit name="s"><BaseUnit s="1"/></Unit>', "Task": '<Unit name="s"><BaseUnit s="1"/></Unit>',

@@ -29,7 +29,7 @@ typedef struct {
     fmi3Float64 last_tick;
 } Model;
 
-enum { VR_TIME = 0, VR_A = 1, VR_B = 2, VR_C = 3, VR_D = 4, VR_E = 5 };
+enum { VR_TIME = 0, VR_A = 1, VR_B = 2, VR_C = 3, VR_D = 4, VR_E = 5, VR_F = 6 };
 
 #if defined(MODEL_TASK)
 static fmi3Float64 next_event(const Model *m) { (void)m; return INFINITY; }  /* its events are the clock's ticks */
@@ -167,6 +167,7 @@ fmi3Status fmi3GetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
         case VR_C: values[i] = m->g; break;
         case VR_D: values[i] = m->e; break;
         case VR_E: values[i] = m->h0; break;
+        case VR_F: values[i] = m->v_min; break;
 #endif
         default: return fmi3Error;
         }
@@ -187,6 +188,7 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference vr[], 
         case VR_C: m->g = values[i]; break;
         case VR_D: m->e = values[i]; break;
         case VR_E: m->h0 = values[i]; break;
+        case VR_F: m->v_min = values[i]; break;  /* 0: it never rests, its bounces pile up (Zeno) */
 #endif
         default: return fmi3Error;
         }
