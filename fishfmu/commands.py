@@ -103,6 +103,22 @@ def export_fmu(scenario_file: str | Path, dest: str | Path, overrides: dict[str,
     return dest
 
 
+def export_ssp(scenario_file: str | Path, dest: str | Path,
+               overrides: dict[str, Any] | None = None) -> tuple[Path, list[str]]:
+    """The scenario's system as an SSP 1.0 archive at ``dest`` (see :mod:`fishfmu.cosim.ssp_export`), and what SSP
+    cannot say of it (also in the archive); an existing file is replaced only if fishfmu wrote it."""
+    dest = Path(dest)
+    if dest.suffix != ".ssp":
+        raise InputError(f"'{dest}': an SSP archive ends in .ssp", where="--out")
+    sc = schema.load_scenario(scenario_file, overrides or {})
+    check_single_file_target(dest, run_inputs(Path(scenario_file), sc, None))
+    check_scenario(sc, scenario_file)  # the wiring and every value checked against the FMUs, as a run checks them
+    from fishfmu.cosim.ssp_export import write_ssp  # builds the plant FMU: pythonfmu, loaded when asked for
+    data, notes = write_ssp(sc)
+    write_bytes_atomic(dest, data)
+    return dest, notes
+
+
 # ---------------------------------------------------------------- run and serve
 
 @dataclass

@@ -207,6 +207,24 @@ def export_fmu_cmd(
     literal_console().print(f"written: {path}")
 
 
+@app.command("export-ssp")
+def export_ssp_cmd(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML)."),
+    out: Path = typer.Option(..., "--out", help="The .ssp to write (replaced only if fishfmu wrote it)."),
+    set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
+) -> None:
+    """The scenario's system as an SSP 1.0 archive for other tools: every FMU and the plant (as export-fmu makes it)
+    as components, the connections with gain and offset, the parameter values as SSV; prints what SSP cannot say
+    (events, [expect], [record], ...), which the archive lists too."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
+    from fishfmu import commands
+    path, notes = commands.export_ssp(scenario, out, parse_assignments(set_))
+    console = literal_console()
+    console.print(f"written: {path}\nnot in the SSP (listed in resources/fishfmu-not-in-ssp.txt of the archive):")
+    for note in notes:
+        console.print(f"  - {note}")
+
+
 @app.command("check")
 def check_cmd(
     scenario: Path = typer.Argument(..., help="Scenario file (TOML)."),

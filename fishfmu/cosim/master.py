@@ -13,6 +13,10 @@ An FMU stepping every m base steps does one step of m * dt at the start of its b
 one-step FMU under Gauss-Seidel, the others use its end-of-step outputs for the whole block, and
 they are held until its next step.
 
+An FMI 3.0 FMU with event mode handles its events inside its own step, each at its time
+(:mod:`fishfmu.fmu.instance`); what it outputs is read here when that step ends: the plant, which takes one value per
+base step, steps the base step in which the event fell with it (Gauss-Seidel) or the next one (Jacobi).
+
 **Values between components** keep the type of their variable: Real as float, Integer as int,
 Boolean as bool, String as str (decoded from UTF-8), in-process and with FMUs in worker
 processes alike.  ``signals.csv`` (:meth:`CoSimulation.signal_frame`, written by pandas) holds

@@ -32,6 +32,8 @@ from fmpy import read_model_description
 from plant.errors import InputError
 from plant.validation import suggest
 
+from fishfmu.fmu.clocks import clock_attributes, clock_problem
+
 MAX_UNPACKED_BYTES = 1 << 30  # 1 GiB: far above any real FMU, far below filling a disk
 MAX_MEMBERS = 20_000
 LINUX_BINARY_DIR = "binaries/linux64"
@@ -216,18 +218,21 @@ def _read_checked_description(path: Path, unzip_dir: Path) -> Any:
         raise InputError(f"archive member '{where}/{binary.name}' {problem}; rebuild or re-export the FMU "
                          f"for Linux on {platform.machine()}", file=path)
     if md.fmiVersion == "3.0":
-        _refuse_fmi3_features(md, path)
+        _refuse_fmi3_features(md, path, unzip_dir)
     return md
 
 
-def _refuse_fmi3_features(md: Any, path: Path) -> None:
-    """What fishfmu's master does not do with an FMI 3.0 FMU, refused with the reason: clocks (they need event
-    mode, which fishfmu does not enter) and a co-simulation that cannot run without event mode."""
-    clocks = [v.name for v in md.modelVariables if v.type == "Clock"]
-    if clocks:
-        raise InputError(f"the FMU has clocks ({', '.join(clocks[:3])}{', ...' if len(clocks) > 3 else ''}): clocked "
-                         "co-simulation needs event mode, which fishfmu does not use; export it without clocks",
-                         file=path)
+def _refuse_fmi3_features(md: Any, path: Path, unzip_dir: Path) -> None:
+    """What fishfmu's master does not do with an FMI 3.0 FMU, refused with the reason: a clock it does not tick
+    (:func:`fishfmu.fmu.clocks.clock_problem`; periodic input clocks of an FMU with event mode it does)."""
+    if not any(v.type == "Clock" for v in md.modelVariables):
+        return
+    event_mode = bool(md.coSimulation is not None and getattr(md.coSimulation, "hasEventMode", False))
+    for name, attrs in clock_attributes(unzip_dir).items():
+        problem = clock_problem(attrs, event_mode)
+        if problem:
+            raise InputError(f"clock '{name}' is {problem}; fishfmu ticks periodic input clocks of FMUs with event "
+                             "mode only", file=path)
 
 
 _IDENTIFIER = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]*")

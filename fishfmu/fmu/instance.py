@@ -17,6 +17,16 @@ line and at most :data:`LOG_MESSAGE_CHARS` characters: ``FMU 'drive_c1': setReal
 **Values.** ``get`` gives Real as float, Integer and Enumeration as int, Boolean as bool and
 String as str (fmpy gives C ints and UTF-8 bytes); ``set`` takes the same.
 
+**Events inside a step (FMI 3.0).** An FMU whose modelDescription declares ``hasEventMode`` is instantiated with
+event mode used (and early return allowed where it declares ``mightReturnEarlyFromDoStep``): ``do_step`` from t to
+t + dt then steps it to its events one by one: where doStep returns early at an event (``lastSuccessfulTime``) or asks
+for event handling, the FMU enters event mode, its discrete states are updated until none needs another update, and
+it goes back to step mode and on to t + dt; a time event it announces (``nextEventTime``) ends a doStep there even
+without early return, and so does the tick of a periodic input clock (:mod:`fishfmu.fmu.clocks`: the clock is set
+active in that event mode).  The times the FMU was in event mode are kept in ``event_times_s``.  An FMU without event mode is
+stepped as before: one doStep per call.  Its outputs are read by the master at t + dt, so another component sees a
+value set at an event from the end of that step on (see :mod:`fishfmu.cosim.master`).
+
 **The library loaded** is ``binaries/linux64/<modelIdentifier>.so`` inside the unpacked archive,
 checked by :func:`fishfmu.fmu.archive.library_path` right before loading and passed to fmpy by
 its full path.
@@ -42,11 +52,16 @@ from plant.errors import InputError, SimulationError
 from plant.validation import suggest
 
 from fishfmu.fmu.archive import DescribedFmu, FmuVariable, OpenedFmu, library_path
+from fishfmu.fmu.clocks import PeriodicClocks, clock_attributes
 
 FMI2_STATUS = {0: "ok", 1: "warning", 2: "discard", 3: "error", 4: "fatal", 5: "pending"}
 SETTABLE_BEFORE_INIT = ("parameter", "input")
 LOG_LINES = 20
 """Log messages kept per FMU instance (the newest)."""
+MAX_EVENTS_PER_STEP = 10000
+"""Events one ``do_step`` handles at most: an FMU with more has events without end (a Zeno ball) and is stopped."""
+EVENT_TIMES_KEPT = 10000
+"""Event times kept per instance (the newest)."""
 LOG_MESSAGE_CHARS = 300
 """Longest FMU log message quoted in an error (longer ones are cut, ending in ...)."""
 _WHITESPACE = re.compile(r"\s+")
@@ -194,6 +209,14 @@ class InProcessFmu:
         self.log = FmuLog()
         binary = library_path(fmu)  # inside the unpacked archive, checked right before loading
         self._fmi3 = md.fmiVersion.startswith("3")
+        cs = md.coSimulation
+        self.event_mode = self._fmi3 and bool(getattr(cs, "hasEventMode", False))
+        self._early_return = self.event_mode and bool(getattr(cs, "mightReturnEarlyFromDoStep", False))
+        self.event_times_s: deque[float] = deque(maxlen=EVENT_TIMES_KEPT)
+        self._next_event_s: float | None = None
+        clocks = clock_attributes(fmu.unzip_dir) if self.event_mode and any(
+            v.type == "Clock" for v in fmu.variables.values()) else {}
+        self._clocks = PeriodicClocks.of(clocks, start_time_s) if clocks else None  # checked when the FMU was opened
         cwd = os.getcwd()
         try:
             if self._fmi3:  # fmpy joins the same path (binaries/<platform tuple>/<modelIdentifier>.so) itself
@@ -216,7 +239,8 @@ class InProcessFmu:
             if self._fmi3:
                 self._log_key = 0
                 # fmpy keeps the C callback alive on the slave; messages go to this instance's log
-                self._call("instantiate", self._slave.instantiate, loggingOn=False,
+                self._call("instantiate", self._slave.instantiate, loggingOn=False, eventModeUsed=self.event_mode,
+                           earlyReturnAllowed=self._early_return,
                            logMessage=lambda env, status, category, message: self.log.add(status, category, message))
             else:
                 self._callbacks = self._logging_callbacks()  # kept alive as long as the instance
@@ -232,6 +256,10 @@ class InProcessFmu:
             self._call("enterInitializationMode", self._slave.enterInitializationMode,
                        **({"startTime": start_time_s} if self._fmi3 else {}))
             self._call("exitInitializationMode", self._slave.exitInitializationMode)
+            if self.event_mode:  # FMI 3.0: with event mode used the FMU leaves initialisation in event mode
+                self._tick_clocks(start_time_s)
+                self._update_discrete_states()
+                self._call("enterStepMode", self._slave.enterStepMode)
         except BaseException:
             self.terminate()  # nobody else holds this instance yet
             raise
@@ -298,13 +326,77 @@ class InProcessFmu:
         return out
 
     def do_step(self, t_s: float, dt_s: float) -> None:
+        if self.event_mode:
+            self._step_through_events(t_s, t_s + dt_s)
+            return
         self._time = t_s
         result = self._call("doStep", self._slave.doStep, currentCommunicationPoint=t_s, communicationStepSize=dt_s)
         if self._fmi3 and result is not None and result[1]:  # terminateSimulation
-            said = self.log.last_problem()
-            raise SimulationError(f"FMU '{self.name}': doStep asked to end the simulation"
-                                  + (f': "{said}"' if said else ""), t_s + dt_s)
+            self._ended(t_s + dt_s)
         self._time = t_s + dt_s
+
+    def _ended(self, t_s: float) -> None:
+        said = self.log.last_problem()
+        raise SimulationError(f"FMU '{self.name}': doStep asked to end the simulation"
+                              + (f': "{said}"' if said else ""), t_s)
+
+    def _step_through_events(self, t_s: float, end_s: float) -> None:
+        """From t_s to end_s, each event handled at its time (see the module's docstring)."""
+        now = t_s
+        for _ in range(MAX_EVENTS_PER_STEP):
+            self._time = now
+            if self._clock_due(now):  # a tick at the step's start (or rounded just before it)
+                self._event(now)
+            stop = end_s
+            if self._next_event_s is not None and now < self._next_event_s < end_s:
+                stop = self._next_event_s  # a time event the FMU announced: step to it
+            tick = self._clocks.next_tick_s() if self._clocks is not None else None
+            if tick is not None and now < tick < stop:
+                stop = tick  # a periodic clock ticks: step to it
+            needed, terminate, early, last = self._call("doStep", self._slave.doStep, currentCommunicationPoint=now,
+                                                        communicationStepSize=stop - now)
+            if terminate:
+                self._ended(last if early else stop)
+            if early and not now <= last <= stop:
+                raise SimulationError(f"FMU '{self.name}': doStep returned early at t = {last}, outside the step "
+                                      f"[{now}, {stop}]", now)
+            now = self._time = last if early else stop
+            if needed or self._clock_due(now):
+                self._event(now)
+            if now >= end_s:
+                return
+        raise SimulationError(f"FMU '{self.name}': more than {MAX_EVENTS_PER_STEP} events in one step from "
+                              f"t = {t_s} s (events without end)", now)
+
+    def _clock_due(self, t_s: float) -> bool:
+        return self._clocks is not None and self._clocks.next_tick_s() <= t_s
+
+    def _event(self, t_s: float) -> None:
+        """Event mode at ``t_s``: the clocks that tick then activated, the discrete states updated, back to step mode."""
+        self._call("enterEventMode", self._slave.enterEventMode)
+        self._tick_clocks(t_s)
+        self._update_discrete_states()
+        self._call("enterStepMode", self._slave.enterStepMode)
+        self.event_times_s.append(t_s)
+
+    def _tick_clocks(self, t_s: float) -> None:
+        """In event mode: activate the periodic clocks that tick at ``t_s`` (:mod:`fishfmu.fmu.clocks`)."""
+        due = self._clocks.due(t_s) if self._clocks is not None else []
+        if due:
+            self._call("setClock", self._slave.setClock, due, [True] * len(due))
+
+    def _update_discrete_states(self) -> None:
+        """Event mode: update the discrete states until the FMU needs no further update (FMI 3.0's event iteration)."""
+        for _ in range(MAX_EVENTS_PER_STEP):
+            again, terminate, _, _, defined, next_s = self._call("updateDiscreteStates",
+                                                                 self._slave.updateDiscreteStates)
+            if terminate:
+                self._ended(self._time)
+            self._next_event_s = next_s if defined else None
+            if not again:
+                return
+        raise SimulationError(f"FMU '{self.name}': its discrete states still need updating after "
+                              f"{MAX_EVENTS_PER_STEP} updates", self._time)
 
     def terminate(self) -> None:
         """End and free the instance; safe to call twice and after a failure."""

@@ -56,6 +56,8 @@ from plant.validation import MAX_CSV_BYTES, Strict, ValueAtKey, read_toml, sugge
 
 from fishfmu.scenario.keys import set_dotted
 from fishfmu.scenario.ssp import SspSystem, read_parameter_file, read_ssp, start_value_problem
+from fishfmu.scenario.ssp_plant import (PLANT_COMPONENT, check_plant_agrees, plant_component, plant_links,
+                                        scenario_data)
 
 Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", min_length=1, max_length=64)]
 MAX_FMUS = 64
@@ -364,6 +366,10 @@ class Scenario(Strict):
         return out
 
 
+SSP_SUFFIXES = (".ssp", ".ssd")
+"""A scenario given as an SSP (``fishfmu export-ssp``'s archive): its plant component carries the line."""
+
+
 def load_scenario(path: str | Path, overrides: dict[str, Any] | None = None) -> Scenario:
     """Read, apply ``overrides`` (dotted keys, e.g. ``{"fish.count": 30}``) and validate a scenario file.
 
@@ -386,10 +392,15 @@ class ScenarioLoader:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.data = read_toml(self.path)
-        """The file's TOML, as read (never changed: each load works on a copy)."""
         self._parameter_files: dict[str, tuple[dict[str, Any], dict[str, str]]] = {}
         self._systems: dict[tuple[str, int, int], SspSystem] = {}
+        if self.path.suffix.lower() in SSP_SUFFIXES:  # a whole line exported by export-ssp (fishfmu.scenario.ssp_plant)
+            ssp = self.path.resolve()
+            system = self._read_ssp(ssp, MAX_FMUS, MAX_CONNECTION_TABLES)
+            self.data = scenario_data(ssp, system)
+        else:
+            self.data = read_toml(self.path)
+        """The file's TOML, as read (never changed: each load works on a copy)."""
 
     def load(self, overrides: dict[str, Any] | None = None) -> Scenario:
         path = self.path
@@ -434,11 +445,21 @@ class ScenarioLoader:
 def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path,
                     read: Callable[[Path, int, int], SspSystem] = read_ssp) -> None:
     """Add an SSP's FMUs and connections to a loaded scenario (checked like the file's own entries when the FMUs
-    are opened); their names must not clash with the scenario's, and the limits hold for the whole."""
+    are opened); their names must not clash with the scenario's, and the limits hold for the whole.  A fishfmu plant
+    component is the plant (:mod:`fishfmu.scenario.ssp_plant`)."""
     system = read(ssp, MAX_FMUS - len(scenario.fmu), MAX_CONNECTION_TABLES - len(scenario.wiring.connection))
-    taken = {f.name for f in scenario.fmu} | {"plant"}
+    found = plant_component(system, ssp)
+    links = [(c.source, c.target) for c in system.connections]
+    if found is not None:
+        links = plant_links(system, found[0])
+        if scenario_file.suffix.lower() not in SSP_SUFFIXES:
+            check_plant_agrees(found[0], scenario.run.seed, scenario.fish.count, dict(scenario.wiring.inputs), ssp,
+                               scenario_file)
+    taken = {f.name for f in scenario.fmu} | {PLANT_COMPONENT}
     where = f"system.ssp ({ssp.name})"
     for comp in system.components:
+        if found is not None and comp is found[0]:
+            continue
         if comp.name in taken:
             raise InputError(f"component '{comp.name}' of {ssp.name} has the name of an [[fmu]] of the scenario "
                              "(or 'plant'); rename one", file=scenario_file, where="system.ssp")
@@ -452,14 +473,14 @@ def _add_ssp_system(scenario: Scenario, ssp: Path, scenario_file: Path,
         entry._ssp_source = (str(ssp), comp.source)
         scenario.fmu.append(entry)
     scenario._ssp_not_imported = list(system.boundary)
-    for conn in system.connections:
+    for conn, (source, target) in zip(system.connections, links):
         text = f"connection {conn.source} -> {conn.target}"
-        for end in (conn.source, conn.target):
+        for end in (source, target):
             if not ENDPOINT_RE.match(end):
                 raise InputError(f"{text}: '{end}' is not a '<component>.<variable>' name fishfmu can connect "
                                  "(letters, digits, _ . [ ])", file=ssp)
         try:
-            table = ConnectionTable(**{"from": conn.source, "to": conn.target, "gain": conn.gain,
+            table = ConnectionTable(**{"from": source, "to": target, "gain": conn.gain,
                                        "offset": conn.offset})
         except pydantic.ValidationError as exc:
             raise InputError(f"{text}: {exc.errors()[0]['msg']}", file=ssp) from None

@@ -92,6 +92,8 @@ class SspSystem:
     connections: list[SspConnection]
     boundary: list[str]
     """Connections to the system's own connectors, not imported (the plant's links are in ``[wiring]``)."""
+    stop_time_s: float | None = None
+    """The default experiment's length (stopTime - startTime), where the SSD gives both."""
 
 
 class _Source:
@@ -440,4 +442,9 @@ def _read_system(data: bytes, source: _Source, max_components: int | None = None
         connections.append(SspConnection(f"{a}.{c.get('startConnector')}", f"{b}.{c.get('endConnector')}", gain,
                                          offset))
     comps = [SspComponent(n, p, parameters[n], units[n], c.get("source")) for n, (c, p) in components.items()]
-    return SspSystem(system.get("name"), comps, connections, boundary)
+    experiment = root.find("ssd:DefaultExperiment", NS)
+    length = None
+    if experiment is not None and experiment.get("stopTime") is not None:
+        where = "DefaultExperiment"
+        length = _number(experiment, "stopTime", 0.0, where, path) - _number(experiment, "startTime", 0.0, where, path)
+    return SspSystem(system.get("name"), comps, connections, boundary, length)
