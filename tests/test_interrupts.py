@@ -145,6 +145,57 @@ def test_compare_sigterm_stops_its_pool_and_writes_the_runs_that_finished(tmp_pa
     assert_nothing_left(children, tmp)
 
 
+def wait_for_cpu(proc: subprocess.Popen, cpu_s: float, timeout_s: float = 120.0) -> None:
+    """Until the command has used ``cpu_s`` of CPU (past its imports: re-simulating)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, "the command ended before it was signalled"
+        try:
+            t = psutil.Process(proc.pid).cpu_times()
+        except psutil.Error:
+            t = None
+        if t is not None and t.user + t.system >= cpu_s:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"no {cpu_s} s of CPU within {timeout_s} s")
+
+
+@pytest.mark.parametrize("command", ["compare", "diagnose", "calibrate"])
+def test_ctrl_c_to_the_group_while_re_simulating_in_the_command_is_exit_130(tmp_path, dataset, command):
+    """Issue 39, item 6: with one worker the runs are re-simulated in the command's own process; a Ctrl-C that
+    came while Exudyn's step ran Python code came out of it as a SystemError: exit 4, ``failed``."""
+    out = tmp_path / "o"
+    proc, tmp = launch([command, str(dataset), "--workers", "1", "--out", str(out)], tmp_path)
+    wait_for_cpu(proc, 6.0)
+    rc, err = stop(proc, signal.SIGINT, True, tmp_path)
+    assert rc == 130, err
+    assert "internal error" not in err and "SystemError" not in err and "Traceback" not in err, err
+    assert "stopped: by SIGINT" in err
+    info = run_info(out)
+    assert info["status"] == "partial" and info["stopped_by"] == "SIGINT", info
+
+
+def test_a_signal_raised_inside_exudyns_step_is_the_signal_not_a_bug(monkeypatch):
+    """What Exudyn gives back when the session's handler raised in Python code its step called: a SystemError
+    whose cause is the signal's exception.  The re-simulations in the command's process stop by the signal, with
+    what finished."""
+    from fishfmu.analysis import resim
+
+    def task(args):  # noqa: ANN001, ANN202
+        if args[1] == "second":
+            raise SystemError("<built-in method SolveSteps> returned a result with an exception set") \
+                from Interrupted(signal.SIGINT)
+        return "done"
+
+    monkeypatch.setattr(resim, "_task", task)
+    with pytest.raises(Interrupted) as stopped:
+        resim.resimulate_many(None, ["first", "second", "third"], [None] * 3, workers=1)
+    assert stopped.value.signum == signal.SIGINT and stopped.value.partial == ["done", None, None]
+    monkeypatch.setattr(resim, "_task", lambda args: (_ for _ in ()).throw(SystemError("a real one")))
+    with pytest.raises(SystemError, match="a real one"):
+        resim.resimulate_many(None, ["first"], [None], workers=1)
+
+
 # ------------------------------------------------------------------ the session itself, in-process
 
 def test_session_owns_a_temporary_folder_and_gives_it_back(tmp_path, monkeypatch):
