@@ -196,6 +196,36 @@ def test_a_signal_raised_inside_exudyns_step_is_the_signal_not_a_bug(monkeypatch
         resim.resimulate_many(None, ["first"], [None], workers=1)
 
 
+def test_a_signal_while_the_results_are_written_lets_them_be_written_whole_and_exits_130(tmp_path, monkeypatch,
+                                                                                         capsys):
+    """Issue 39, item 15: a Ctrl-C after the run's last step, while its results were written, gave exit 0 with no
+    word.  The results are written whole (``ok``: the run did end), and the exit and one line say the signal came."""
+    from fishfmu import cli
+    from fishfmu.output import ownership
+    from fishfmu.output.run_folder import RunFolder
+
+    write_kpis = RunFolder.write_kpis
+
+    def signalled_while_writing(self, doc):  # noqa: ANN001, ANN202
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C, in the middle of the final write
+        return write_kpis(self, doc)
+
+    monkeypatch.setattr(RunFolder, "write_kpis", signalled_while_writing)
+    out = tmp_path / "o"
+    junit = tmp_path / "junit.xml"
+    monkeypatch.setattr(sys, "argv", ["fishfmu", "run", SCENARIO, "--out", str(out), "--set", "run.duration_s=1",
+                                      "--set", "fish.count=1", "--no-report", "--junit", str(junit)])
+    with pytest.raises(SystemExit) as done:
+        cli.main()
+    assert done.value.code == 130
+    err = capsys.readouterr().err
+    assert "SIGINT after the run had ended" in err and "written whole" in err, err
+    assert run_info(out)["status"] == "ok"
+    assert json.loads((out / "kpis.json").read_text())["status"] == "ok"
+    assert (out / "signals.csv").is_file() and (out / "run" / "dataset.toml").is_file() and junit.is_file()
+    assert ownership.first_foreign(out) is None
+
+
 # ------------------------------------------------------------------ the session itself, in-process
 
 def test_session_owns_a_temporary_folder_and_gives_it_back(tmp_path, monkeypatch):

@@ -240,9 +240,27 @@ def open_resumable(out: str | Path, inputs: Iterable[str | Path | None] = (), co
             found_scan = scan(out, state)
             if found_scan.foreign:
                 raise _refuse_foreign(out, found_scan.foreign)
+            _remove_temporary(out, found_scan, state)
         start_session(out, command, keep=state if state.present else None,
                       created=_create(out) or created)
     return out
+
+
+def _remove_temporary(out: Path, found: Scan, state: State) -> None:
+    """The temporary files of ours that a command stopped in the middle of a write left (each recorded with its
+    size and hash: ours), and the temporary folders we made once empty: a resumed folder keeps its results only."""
+    for rel in [r for r in found.files if is_temporary_name(r)]:
+        try:
+            (out / rel).unlink(missing_ok=True)
+        except OSError as exc:
+            raise os_error(exc, out / rel, "cannot remove a temporary file of an earlier write") from None
+        state.files.pop(rel, None)
+    for rel in sorted((d for d in found.dirs if is_temporary_name(d) and d in state.dirs), key=lambda r: -r.count("/")):
+        try:
+            (out / rel).rmdir()
+            state.dirs.discard(rel)
+        except OSError:
+            pass  # not empty (what is left in it is not ours: kept)
 
 
 def check_single_file_target(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
