@@ -415,6 +415,8 @@ def main() -> None:
     except Interrupted as exc:  # the session has told the output folder (run_info.json: partial)
         where = f"; what finished is in {s.out_dir} (run_info.json: {_status(s.out_dir)})" \
             if s and s.out_dir is not None else ""
+        if getattr(exc, "written", None) is not None:  # a benchmark's results so far
+            where = f"; what it measured is in {exc.written} (status: partial)"
         err_console.print(labelled("stopped:", f"by {exc.signal_name}{where}", "bold yellow"))
         sys.exit(exc.exit_code)
     except Exception as exc:
