@@ -130,7 +130,8 @@ class RunOutcome:
     replay: Path | None
     """The replay page, when asked for."""
     stop_exit_code: int | None
-    """130/143 when a signal stopped the run (``result.status == "partial"``)."""
+    """130/143 when a signal came: it stopped the run (``result.status == "partial"``), or came after the run's last
+    step, while its results were written (whole)."""
 
 
 def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
@@ -147,18 +148,20 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
     with checked(sc, scenario_file) as checked_scenario:
         with RunFolder.open(out if out is not None else default_out(scenario_file), overwrite,
                             run_inputs(scenario_file, sc, junit), "run", scenario=str(scenario_file)) as folder:
-            with folder.stopping() as stop:  # Ctrl-C / SIGTERM: stop after this step, write what there is
+            # Ctrl-C / SIGTERM: stop after this step, write what there is; one that comes after the last step, while
+            # the results are written, lets them be written whole (the exit still says the signal came)
+            with folder.stopping() as stop:
                 result = run_scenario(sc, scenario_file, on_progress, record_poses=replay, stop=stop,
                                       checked_scenario=checked_scenario, **({"clock": clock} if clock else {}))
                 folder.finish_run(result, report=report)
-    replay_path = None
-    if replay:
-        # loaded by the commands that use it only: `fishfmu run` starts ~0.3 s sooner without the analysis and Dask
-        from fishfmu.output.replay import write_replay
-        replay_path = write_replay(folder.path)
-    if junit is not None:
-        write_junit(junit, **junit_args_of_run(result, str(scenario_file)))
-    return RunOutcome(result, folder.path, replay_path, stop.exit_code if result.status == "partial" else None)
+                replay_path = None
+                if replay:
+                    # loaded by the commands that use it only: `fishfmu run` starts ~0.3 s sooner without it
+                    from fishfmu.output.replay import write_replay
+                    replay_path = write_replay(folder.path)
+                if junit is not None:
+                    write_junit(junit, **junit_args_of_run(result, str(scenario_file)))
+    return RunOutcome(result, folder.path, replay_path, stop.exit_code if stop.requested else None)
 
 
 def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
@@ -199,7 +202,7 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
             finally:
                 line.close()
             folder.finish_run(result, report=report)
-    return RunOutcome(result, folder.path, None, stop.exit_code if result.status == "partial" else None)
+    return RunOutcome(result, folder.path, None, stop.exit_code if stop.requested else None)
 
 
 def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:

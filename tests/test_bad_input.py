@@ -442,3 +442,67 @@ def test_an_error_echoes_a_huge_value_in_one_bounded_line(override):
     text = str(info.value)
     assert "\n" not in text and len(text) < 1500, len(text)
     assert str(PAPER) in text
+# ---------------------------------------------------------------- bench options (issue 39, item 12)
+
+@pytest.mark.parametrize("args, option", [
+    (("pile", "--duration", "nan"), "--duration"),
+    (("pile", "--duration", "0"), "--duration"),
+    (("pile", "--duration", "-5"), "--duration"),
+    (("pile", "--comm-step", "0"), "--comm-step"),
+    (("pile", "--comm-step", "nan"), "--comm-step"),
+    (("pile", "--threads", "0"), "--threads"),
+    (("pile", "--fish", "100000"), "--fish"),
+    (("pile", "--fish", "5,-1"), "--fish"),
+    (("serve", "--factor", "0"), "--factor"),
+    (("serve", "--factor", "nan"), "--factor"),
+    (("serve", "--factor", "1e9"), "--factor"),
+    (("serve", "--continuous-s", "inf"), "--continuous-s"),
+    (("diagnose", "--first-seed", "-5"), "--first-seed"),
+    (("diagnose", "--strength", "nan"), "--strength"),
+    (("sweep", "--workers", "0"), "--workers"),
+    (("sweep", "--workers", "1", "--workers", "1000"), "--workers"),
+])
+def test_bench_options_are_checked_before_measuring(args, option, sandbox: Path, capsys, monkeypatch):
+    """Before, these measured for minutes and ended in exit 3 with a traceback in the message, or exit 0 recording a
+    real-time factor of -1 942 502; a serving factor of 0 served."""
+    code, err = run_main(sandbox, capsys, monkeypatch, "bench", *args, "--json", "b.json")
+    assert_one_clear_line(code, err, f"error: {option}: ")
+
+
+def test_bench_sweep_refuses_a_served_scenario(sandbox: Path, capsys, monkeypatch):
+    """A scenario whose inputs a PLC writes over OPC UA cannot be swept (every run would hold them at their start
+    values): refused naming the key, before three minutes of runs that measure nothing."""
+    served = ROOT / "scenarios" / "paper_opcua.toml"
+    code, err = run_main(sandbox, capsys, monkeypatch, "bench", "sweep", "--scenario", str(served), "--workers", "1",
+                         "--json", "b.json")
+    assert_one_clear_line(code, err, str(served), "opcua.inputs", "fishfmu serve")
+
+
+def _a_file_of_fishfmus(path: Path, text: str) -> Path:
+    from fishfmu.output import manifest, ownership
+    from fishfmu.output.atomic import write_text_atomic
+    ownership.check_single_file_target(path)
+    write_text_atomic(path, text)
+    manifest.close_all()
+    return path
+
+
+def test_bench_json_never_writes_over_the_benchmarks_input(sandbox: Path, capsys, monkeypatch):
+    """``bench scenario X --json X`` overwrote X when fishfmu had written it (a run's scenario.resolved.toml)."""
+    (sandbox / "own").mkdir()
+    scenario = _a_file_of_fishfmus(sandbox / "own" / "s.toml", PAPER.read_text())
+    code, err = run_main(sandbox, capsys, monkeypatch, "bench", "scenario", str(scenario), "--json", str(scenario),
+                         "--set", "run.duration_s=1")
+    assert_one_clear_line(code, err, str(scenario), "is an input of this command")
+    assert scenario.read_text() == PAPER.read_text()
+
+
+@pytest.mark.parametrize("labelled", [False, True])
+def test_bench_diagnose_json_never_writes_into_a_dataset_folder(labelled, sandbox: Path, capsys, monkeypatch):
+    data = sandbox / "data"
+    (data / "ds").mkdir(parents=True)
+    (data / "ds" / "dataset.toml").write_text("# a measured dataset\n")
+    target = data / ("b.json" if labelled else "ds/b.json")
+    extra = ("--labelled", str(data)) if labelled else ()
+    code, err = run_main(sandbox, capsys, monkeypatch, "bench", "diagnose", *extra, "--json", str(target))
+    assert_one_clear_line(code, err, str(target), "inside the input folder" if labelled else "dataset folder")

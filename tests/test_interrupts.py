@@ -145,6 +145,127 @@ def test_compare_sigterm_stops_its_pool_and_writes_the_runs_that_finished(tmp_pa
     assert_nothing_left(children, tmp)
 
 
+def wait_for_cpu(proc: subprocess.Popen, cpu_s: float, timeout_s: float = 120.0) -> None:
+    """Until the command has used ``cpu_s`` of CPU (past its imports: re-simulating)."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, "the command ended before it was signalled"
+        try:
+            t = psutil.Process(proc.pid).cpu_times()
+        except psutil.Error:
+            t = None
+        if t is not None and t.user + t.system >= cpu_s:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"no {cpu_s} s of CPU within {timeout_s} s")
+
+
+@pytest.mark.parametrize("command", ["compare", "diagnose", "calibrate"])
+def test_ctrl_c_to_the_group_while_re_simulating_in_the_command_is_exit_130(tmp_path, dataset, command):
+    """Issue 39, item 6: with one worker the runs are re-simulated in the command's own process; a Ctrl-C that
+    came while Exudyn's step ran Python code came out of it as a SystemError: exit 4, ``failed``."""
+    out = tmp_path / "o"
+    proc, tmp = launch([command, str(dataset), "--workers", "1", "--out", str(out)], tmp_path)
+    wait_for_cpu(proc, 6.0)
+    rc, err = stop(proc, signal.SIGINT, True, tmp_path)
+    assert rc == 130, err
+    assert "internal error" not in err and "SystemError" not in err and "Traceback" not in err, err
+    assert "stopped: by SIGINT" in err
+    info = run_info(out)
+    assert info["status"] == "partial" and info["stopped_by"] == "SIGINT", info
+
+
+def test_a_signal_raised_inside_exudyns_step_is_the_signal_not_a_bug(monkeypatch):
+    """What Exudyn gives back when the session's handler raised in Python code its step called: a SystemError
+    whose cause is the signal's exception.  The re-simulations in the command's process stop by the signal, with
+    what finished."""
+    from fishfmu.analysis import resim
+
+    def task(args):  # noqa: ANN001, ANN202
+        if args[1] == "second":
+            raise SystemError("<built-in method SolveSteps> returned a result with an exception set") \
+                from Interrupted(signal.SIGINT)
+        return "done"
+
+    monkeypatch.setattr(resim, "_task", task)
+    with pytest.raises(Interrupted) as stopped:
+        resim.resimulate_many(None, ["first", "second", "third"], [None] * 3, workers=1)
+    assert stopped.value.signum == signal.SIGINT and stopped.value.partial == ["done", None, None]
+    monkeypatch.setattr(resim, "_task", lambda args: (_ for _ in ()).throw(SystemError("a real one")))
+    with pytest.raises(SystemError, match="a real one"):
+        resim.resimulate_many(None, ["first"], [None], workers=1)
+
+
+def test_a_signal_while_the_results_are_written_lets_them_be_written_whole_and_exits_130(tmp_path, monkeypatch,
+                                                                                         capsys):
+    """Issue 39, item 15: a Ctrl-C after the run's last step, while its results were written, gave exit 0 with no
+    word.  The results are written whole (``ok``: the run did end), and the exit and one line say the signal came."""
+    from fishfmu import cli
+    from fishfmu.output import ownership
+    from fishfmu.output.run_folder import RunFolder
+
+    write_kpis = RunFolder.write_kpis
+
+    def signalled_while_writing(self, doc):  # noqa: ANN001, ANN202
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C, in the middle of the final write
+        return write_kpis(self, doc)
+
+    monkeypatch.setattr(RunFolder, "write_kpis", signalled_while_writing)
+    out = tmp_path / "o"
+    junit = tmp_path / "junit.xml"
+    monkeypatch.setattr(sys, "argv", ["fishfmu", "run", SCENARIO, "--out", str(out), "--set", "run.duration_s=1",
+                                      "--set", "fish.count=1", "--no-report", "--junit", str(junit)])
+    with pytest.raises(SystemExit) as done:
+        cli.main()
+    assert done.value.code == 130
+    err = capsys.readouterr().err
+    assert "SIGINT after the run had ended" in err and "written whole" in err, err
+    assert run_info(out)["status"] == "ok"
+    assert json.loads((out / "kpis.json").read_text())["status"] == "ok"
+    assert (out / "signals.csv").is_file() and (out / "run" / "dataset.toml").is_file() and junit.is_file()
+    assert ownership.first_foreign(out) is None
+
+
+def wait_for_text(path: Path, text: str, proc: subprocess.Popen, timeout_s: float = 180.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, path.read_text()
+        if text in path.read_text():
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"{text!r} not in {path} within {timeout_s} s")
+
+
+def test_ctrl_c_to_a_benchmark_writes_what_it_measured_marked_partial(tmp_path):
+    """Issue 39, item 12: an interrupted benchmark wrote nothing; it writes the cases it measured, marked."""
+    results = tmp_path / "pile.json"
+    proc, _ = launch(["bench", "pile", "--fish", "0,1,2,3,4,5,6,7,8", "--duration", "2", "--json", str(results)],
+                     tmp_path)
+    wait_for_text(tmp_path / "stderr.txt", "measured 1 fish", proc)
+    rc, err = stop(proc, signal.SIGINT, True, tmp_path)
+    assert rc == 130, err
+    assert "Traceback" not in err and f"what it measured is in {results} (status: partial)" in err, err
+    doc = json.loads(results.read_text())
+    assert doc["status"] == "partial" and doc["stopped_by"] == "SIGINT"
+    assert [r["fish"] for r in doc["records"]][:2] == [0, 1] and len(doc["records"]) < 9
+
+
+def test_ctrl_c_to_bench_serve_is_one_line_no_traceback(tmp_path):
+    """Raised inside asyncio's event loop (the PLC stand-in), the signal was caught and logged there with a
+    traceback; now the stand-in only polls the stop request."""
+    results = tmp_path / "serve.json"
+    proc, _ = launch(["bench", "serve", "--set", "run.duration_s=30", "--json", str(results)], tmp_path)
+    deadline = time.monotonic() + 120
+    while not any("serve" in p.cmdline() for p in psutil.Process(proc.pid).children()):  # the served case runs
+        assert proc.poll() is None and time.monotonic() < deadline, (tmp_path / "stderr.txt").read_text()
+        time.sleep(0.2)
+    time.sleep(4.0)  # the PLC stand-in connects and scans
+    rc, err = stop(proc, signal.SIGINT, True, tmp_path)
+    assert rc == 130, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1].startswith("stopped: by SIGINT"), err
+    assert json.loads(results.read_text())["status"] == "partial"
+
+
 # ------------------------------------------------------------------ the session itself, in-process
 
 def test_session_owns_a_temporary_folder_and_gives_it_back(tmp_path, monkeypatch):

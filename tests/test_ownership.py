@@ -191,6 +191,27 @@ def test_a_killed_command_leaves_a_folder_that_overwrite_replaces(tmp_path: Path
     assert (tmp_path / "keep.txt").read_text() == "next to it, not in it\n"
 
 
+CRASH_SWEEP = CRASH.replace("from fishfmu.output.run_folder import prepare_out_dir", "from fishfmu.output.ownership "
+                             "import open_resumable").replace('prepare_out_dir(sys.argv[1], overwrite=False, '
+                                                              'command="compare")', "open_resumable(sys.argv[1])")
+
+
+def test_a_resumed_sweep_removes_the_temporary_files_a_killed_write_left(tmp_path: Path) -> None:
+    """Issue 39, item 15: the ``.part`` files of a sweep stopped in the middle of a write stayed in its folder
+    through every resume.  They are fishfmu's (recorded with size and hash): the resume removes them."""
+    out = tmp_path / "sweep"
+    proc = subprocess.run([sys.executable, "-c", CRASH_SWEEP, str(out)], cwd=tmp_path, capture_output=True)
+    assert proc.returncode == -9, proc.stderr.decode()[-2000:]
+    assert [p.name for p in out.iterdir() if p.name.endswith(".part")]  # .report.html.<random>.part
+    assert ownership.open_resumable(out) == out
+    manifest.close_all()
+    assert not [p for p in out.rglob("*") if ".part" in p.name], sorted(p.name for p in out.rglob("*"))
+    assert (out / "kpis.csv").read_text() == "run_id,x\nr1,1\n" and (out / "sub" / "a.json").is_file()  # kept
+    listed = json.loads((out / manifest.MANIFEST).read_text())["files"]
+    assert sorted(listed) == ["kpis.csv", "sub/a.json"]
+    assert ownership.first_foreign(out) is None
+
+
 def test_sweep_resumes_only_into_a_folder_of_its_own(tmp_path: Path) -> None:
     out = ownership.open_resumable(tmp_path / "sweep")
     write_json_atomic(out / "points" / "p1.json", {"run_id": "p1"})

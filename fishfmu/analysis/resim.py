@@ -236,6 +236,12 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
             except STOPS as exc:
                 exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
                 raise
+            except SystemError as exc:
+                # the signal's exception, raised while Exudyn's step ran Python code, comes out of it wrapped
+                if not isinstance(exc.__cause__, STOPS):
+                    raise
+                exc.__cause__.partial = done  # type: ignore[union-attr]
+                raise exc.__cause__ from None
             return done  # type: ignore[return-value]
         own = resim_pool(workers)
         try:

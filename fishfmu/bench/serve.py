@@ -25,8 +25,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+from fishfmu.session import Interrupted, stop_between_steps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -37,9 +40,12 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0, scan_s: float = 0.01) -> int:
+async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0, scan_s: float = 0.01,
+              stop: Any = None) -> int:
     """A PLC stand-in: every ``scan_s`` of wall time read the time and the photo-eyes, and (``speeds``) write the
-    controller's fixed profile as setpoints, until the run ends; returns the scans made."""
+    controller's fixed profile as setpoints, until the run ends or ``stop`` (a
+    :class:`fishfmu.cosim.stop.StopRequest`) is requested; returns the scans made."""
+    stopped = lambda: stop is not None and stop.requested  # noqa: E731
     from asyncua import Client, ua  # slow and optional: the OPC UA client, only while a case runs
     logging.getLogger("asyncua").setLevel(logging.ERROR)  # session-timeout notices on every connect
     deadline = time.monotonic() + 120.0
@@ -49,7 +55,7 @@ async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0
             await client.connect()
             break
         except (OSError, asyncio.TimeoutError):
-            if time.monotonic() > deadline:
+            if time.monotonic() > deadline or stopped():
                 raise
             await asyncio.sleep(0.2)
     scans = 0
@@ -60,7 +66,7 @@ async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0
         eyes = [node(f"plant.pe_c{i}.blocked") for i in range(1, 5)]
         setpoints = [node(f"drive_c{i}.speed_setpoint") for i in range(1, 5)] if speeds else []
         n = len(speeds or [])
-        while await state.read_value() == "running":
+        while not stopped() and await state.read_value() == "running":
             t = await t_node.read_value()
             for eye in eyes:
                 await eye.read_value()
@@ -87,7 +93,19 @@ def serve_case(scenario: Path, factor: float, overrides: list[str], speeds: list
                str(factor), "--out", str(out), "--no-report", *overrides]
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        scans = asyncio.run(plc(url, speeds))
+        # a signal only asks the PLC stand-in to stop at its next scan: raised inside asyncio's event loop it would
+        # be caught and logged there with a traceback
+        with stop_between_steps() as stop:
+            try:
+                scans = asyncio.run(plc(url, speeds, stop=stop))
+            except (OSError, asyncio.TimeoutError):
+                if not stop.requested:
+                    raise
+        if stop.requested:  # the served case is stopped too (a Ctrl-C to the group reached it already)
+            if proc.poll() is None:
+                proc.send_signal(stop.signum)
+            proc.communicate(timeout=60)
+            raise Interrupted(stop.signum)
         stdout, stderr = proc.communicate(timeout=3600)
         wall = time.perf_counter() - t0
         if proc.returncode not in (0, 1):
@@ -105,16 +123,21 @@ SCENARIOS = tuple(ROOT / "scenarios" / f"{name}.toml" for name in ("paper_dump",
 """The scenarios served, in order (the continuous ones only with ``continuous_s``)."""
 
 
-def bench(factor: float = 1.0, continuous_s: float | None = None, sets: list[str] | None = None) -> dict[str, Any]:
-    """Serve each case (``sets``: ``KEY=VALUE`` overrides for every one, as ``--set`` takes them)."""
+def bench(factor: float = 1.0, continuous_s: float | None = None, sets: list[str] | None = None,
+          on_case: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """Serve each case (``sets``: ``KEY=VALUE`` overrides for every one, as ``--set`` takes them); ``on_case(case)``
+    after each (an interrupted benchmark keeps what it measured)."""
     extra = [a for s in sets or [] for a in ("--set", s)]
     paper_dump, paper_opcua, continuous, continuous_opcua = SCENARIOS
-    cases = [serve_case(paper_dump, factor, extra, None),
-             serve_case(paper_opcua, factor, extra, [0.25, 0.50, 0.80, 1.25])]
+    plan = [(paper_dump, extra, None), (paper_opcua, extra, [0.25, 0.50, 0.80, 1.25])]
     if continuous_s:
         duration = ["--set", f"run.duration_s={continuous_s:g}", *extra]
-        cases += [serve_case(continuous, factor, duration, None),
-                  serve_case(continuous_opcua, factor, duration, [0.50, 0.80, 1.25, 1.60])]
+        plan += [(continuous, duration, None), (continuous_opcua, duration, [0.50, 0.80, 1.25, 1.60])]
+    cases = []
+    for scenario, overrides, speeds in plan:
+        cases.append(serve_case(scenario, factor, overrides, speeds))
+        if on_case is not None:
+            on_case(cases[-1])
     return {"benchmark": "serve", "machine": {"platform": platform.platform(), "cpus": os.cpu_count(),
                                               "python": platform.python_version()},
             "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"), "cases": cases}

@@ -13,6 +13,7 @@ import os
 import platform
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +22,9 @@ from fishfmu.batch.sweep_spec import make_spec
 
 
 def bench(scenario: str | Path = "scenarios/paper_dump.toml", n_runs: int = 8, workers: tuple[int, ...] = (1, 2),
-          fixed: dict[str, Any] | None = None) -> dict[str, Any]:
-    """Runs per minute for each worker count (same scenario, same seeds)."""
+          fixed: dict[str, Any] | None = None, on_result: Callable[[dict], None] | None = None) -> dict[str, Any]:
+    """Runs per minute for each worker count (same scenario, same seeds); ``on_result(result)`` after each count
+    (an interrupted benchmark keeps what it measured)."""
     spec = make_spec(scenario, {}, n_runs, fixed or {})
     results = []
     for w in workers:
@@ -38,6 +40,8 @@ def bench(scenario: str | Path = "scenarios/paper_dump.toml", n_runs: int = 8, w
             "task_s_mean": round(float(runs["task_s"].mean()), 2),
             "sim_s_mean": round(float(runs["t_end_s"].mean()), 2),
             "load_average_before": round(load_before, 2), "load_average_after": round(os.getloadavg()[0], 2)})
+        if on_result is not None:
+            on_result(results[-1])
     return {"scenario": str(scenario), "fixed": fixed or {}, "seeds": spec.seeds, "cores": os.cpu_count(),
             "machine": platform.processor() or platform.machine(), "python": platform.python_version(),
             "results": results}

@@ -136,6 +136,10 @@ def _finish(result, out_dir: Path, stop_exit_code: int | None, console) -> None:
                                    "bold yellow"))
     elif result.status != "ok":
         raise SimulationError(f"{result.error} (results so far written to {out_dir})")
+    elif stop_exit_code is not None:
+        err_console.print(labelled("stopped:", f"by {signal.Signals(stop_exit_code - 128).name} after the run had "
+                                   f"ended; its results were written whole to {out_dir} (run_info.json: ok)",
+                                   "bold yellow"))
     raise typer.Exit(for_run(result, stop_exit_code))
 
 
@@ -430,7 +434,10 @@ def main() -> None:
         with session() as s:  # SIGINT/SIGTERM: workers stopped, temporary folder removed, exit 130/143
             app(standalone_mode=True)
     except Interrupted as exc:  # the session has told the output folder (run_info.json: partial)
-        where = f"; what finished is in {s.out_dir} (run_info.json: partial)" if s and s.out_dir is not None else ""
+        where = f"; what finished is in {s.out_dir} (run_info.json: {_status(s.out_dir)})" \
+            if s and s.out_dir is not None else ""
+        if getattr(exc, "written", None) is not None:  # a benchmark's results so far
+            where = f"; what it measured is in {exc.written} (status: partial)"
         err_console.print(labelled("stopped:", f"by {exc.signal_name}{where}", "bold yellow"))
         sys.exit(exc.exit_code)
     except Exception as exc:
@@ -440,6 +447,14 @@ def main() -> None:
         label, message, code = known
         print_error(label, message)
         sys.exit(code)
+
+
+def _status(out_dir: Path) -> str:
+    """What ``run_info.json`` says now (a signal that came after the folder was finished leaves it as it was)."""
+    try:
+        return str(json.loads((out_dir / "run_info.json").read_text())["status"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return "partial"
 
 
 def _internal_error(exc: Exception) -> None:

@@ -6,7 +6,12 @@ numpy, pandas and Exudyn.
 
 from __future__ import annotations
 
+import contextlib
+import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import typer
 from rich.table import Table
@@ -33,14 +38,16 @@ def bench_pile(
     """Fish dumped in a pile: real-time factor of plant and co-simulation per fish count, stages, peak memory."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
+    from fishfmu.bench import options
     from fishfmu.bench.pile import per_fish_cost, plot, records_json, run_bench
     try:
         counts = [int(x) for x in fish.split(",") if x.strip()]
     except ValueError:
         raise InputError(f"--fish '{fish}': expected comma-separated integers") from None
-    if not counts or min(counts) < 0:
-        raise InputError(f"--fish '{fish}': give one or more fish counts >= 0")
-    commands.check_targets(json_file, plot_file)
+    if not counts:
+        raise InputError(f"--fish '{fish}': give one or more fish counts")
+    options.pile(counts, duration, comm_step, threads)
+    _check_results(json_file, plot_file)
     console = literal_console()
     table = Table(title=f"fishfmu bench pile: {duration:g} s simulated after the drop, step {comm_step:g} s, "
                         f"{threads} thread(s)")
@@ -55,7 +62,9 @@ def bench_pile(
                       f"{100 * r.recording_s / w:.1f} %", f"{100 * r.overhead_fraction:.1f} %", f"{r.peak_rss_mb:.0f}")
         err_console.print(f"measured {r.fish} fish: RTF plant {r.rtf_plant:.2f}, co-sim {r.rtf_cosim:.2f}")
 
-    records = run_bench(counts, duration, comm_step, threads, on_record=row)
+    done: list = []
+    with _partial_results(json_file, "pile", lambda: {"records": records_json(done)}):
+        records = run_bench(counts, duration, comm_step, threads, on_record=lambda r: (done.append(r), row(r)))
     console.print(table)
     base, per = per_fish_cost(records)
     console.print(f"plant step cost: {base:.2f} ms with no fish + {per:.3f} ms per fish (straight line through the "
@@ -78,7 +87,7 @@ def bench_fmu_worker(
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench.fmu_worker import bench, summary
-    commands.check_targets(json_file)
+    _check_results(json_file, inputs=[scenario])
     doc = bench(scenario, steps, repeats, with_fish)
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
@@ -97,11 +106,15 @@ def bench_serve(
     from fishfmu import commands
     from fishfmu.bench.serve import SCENARIOS, bench, summary
     from fishfmu.scenario.schema import load_scenario
+    from fishfmu.bench import options
+    options.serve(factor, continuous_s)
     overrides = parse_assignments(set_)
     for s in SCENARIOS:  # bad input before measuring
         load_scenario(s, overrides)
-    commands.check_targets(json_file)
-    doc = bench(factor, continuous_s, set_)
+    _check_results(json_file, inputs=SCENARIOS)
+    done: list = []
+    with _partial_results(json_file, "serve", lambda: {"cases": done}):
+        doc = bench(factor, continuous_s, set_, on_case=done.append)
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
 
@@ -116,9 +129,16 @@ def bench_sweep(
     """Sweep throughput: scenario runs per minute on a local Dask cluster of 1, 2, ... workers."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
+    from fishfmu.bench import options
     from fishfmu.bench.sweep import bench, summary
-    commands.check_targets(json_file)
-    doc = bench(scenario, runs, tuple(workers), parse_assignments(set_))
+    from fishfmu.scenario.schema import load_scenario
+    options.sweep(workers)
+    overrides = parse_assignments(set_)
+    commands.refuse_served(load_scenario(scenario, overrides), scenario)  # its inputs come from a PLC: not swept
+    _check_results(json_file, inputs=[scenario])
+    done: list = []
+    with _partial_results(json_file, "sweep", lambda: {"scenario": str(scenario), "results": done}):
+        doc = bench(scenario, runs, tuple(workers), overrides, on_result=done.append)
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 
 
@@ -138,8 +158,11 @@ def bench_diagnose(
     """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.bench.diagnose import bench, bench_labelled, read_splits, summary
-    commands.check_targets(json_file)
+    from fishfmu.bench import options
+    from fishfmu.bench.diagnose import bench, bench_labelled, labelled_document, read_splits, summary
+    options.diagnose(seeds, first_seed, strength)
+    _check_results(json_file, inputs=[labelled, recipe])
+    rows: list = []
     if labelled is not None:
         if not labelled.is_dir():
             raise InputError(f"{labelled}: not a folder of labelled datasets")
@@ -147,11 +170,41 @@ def bench_diagnose(
         if split is not None and split not in set(splits.values()):
             raise InputError(f"--split {split}: no dataset of the recipe has that split "
                              f"(it has: {', '.join(sorted(set(splits.values()))) or 'none'})")
-        doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)), splits=splits, only=split,
-                             on_done=lambda partial: commands.write_json(json_file, partial))
+        with _partial_results(json_file, "diagnose", lambda: labelled_document(rows, labelled) if rows else {}):
+            doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)), splits=splits,
+                                 only=split, on_done=lambda partial: (rows.__setitem__(slice(None), partial["runs"]),
+                                                                      commands.write_json(json_file, partial)))
     else:
-        doc = bench(seeds, first_seed, strength, workers, on_row=lambda r: err_console.print(str(r)))
+        with _partial_results(json_file, "diagnose", lambda: {"runs": rows}):
+            doc = bench(seeds, first_seed, strength, workers,
+                        on_row=lambda r: (rows.append(r), err_console.print(str(r))))
     _bench_done(summary(doc), commands.write_json(json_file, doc))
+
+
+def _check_results(*files: Path | None, inputs=()) -> None:  # noqa: ANN001
+    """Before measuring: where the results go (:func:`fishfmu.bench.options.check_result_file`)."""
+    from fishfmu.bench.options import check_result_file  # slow (the scenario schema): only when a benchmark runs
+    for f in files:
+        check_result_file(f, [Path(i) for i in inputs if i is not None])
+
+
+@contextmanager
+def _partial_results(json_file: Path | None, name: str, so_far: Any) -> Iterator[None]:
+    """A benchmark stopped by a signal writes what it measured to ``json_file``, marked ``partial`` (``so_far()``:
+    the results so far), then ends by the signal (exit 130/143, one line saying where they are)."""
+    # only when a benchmark runs (commands imports numpy and pandas; --help answers without them)
+    from fishfmu import commands
+    from fishfmu.session import STOPS
+    try:
+        yield
+    except STOPS as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        if json_file is not None:
+            with contextlib.suppress(Exception):  # the signal is what is reported: a failed write only loses these
+                commands.write_json(json_file, {"benchmark": name, "status": "partial",
+                                                "stopped_by": signal.Signals(signum).name, **so_far()})
+                exc.written = json_file  # type: ignore[union-attr]
+        raise
 
 
 def _bench_done(lines: list[str], written: Path) -> None:
@@ -176,8 +229,14 @@ def bench_scenario(
     overrides = parse_assignments(set_)
     for s in scenarios:  # bad input before measuring
         load_scenario(s, overrides)
-    commands.check_targets(json_file)
-    doc = bench([str(s) for s in scenarios], repeats, overrides,
-                on_record=lambda r: err_console.print(f"{Path(r['scenario']).stem}: {r['rtf_cpu']:.2f}x per CPU s"))
+    _check_results(json_file, inputs=scenarios)
+    done: list = []
+
+    def record(r: dict) -> None:
+        done.append(r)
+        err_console.print(f"{Path(r['scenario']).stem}: {r['rtf_cpu']:.2f}x per CPU s")
+
+    with _partial_results(json_file, "scenario", lambda: {"records": done}):
+        doc = bench([str(s) for s in scenarios], repeats, overrides, on_record=record)
     _bench_done(summary(doc), commands.write_json(json_file, doc))
 

@@ -53,10 +53,11 @@ def for_signal(signum: int) -> int:
 
 
 def for_run(result: RunResult, stop_exit_code: int | None) -> int:
-    """A run (``run``, ``serve``) written into its folder: the signal's code if one stopped it (partial results),
+    """A run (``run``, ``serve``) written into its folder: the signal's code if one came (it stopped the run, partial
+    results, or came while its whole results were written),
     3 if it failed, else 1 if an ``[expect]`` bound did not hold, else 0."""
-    if result.status == "partial" and stop_exit_code is not None:
-        return stop_exit_code
+    if result.status in ("partial", "ok") and stop_exit_code is not None:
+        return stop_exit_code  # a signal came: it stopped the run, or came while its results were written
     if result.status != "ok":
         return EXIT_SIMULATION_FAILED
     return EXIT_OK if result.expect_ok else EXIT_EXPECT_FAILED

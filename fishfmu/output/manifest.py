@@ -38,6 +38,7 @@ from typing import IO, Callable
 
 from plant.errors import InputError
 
+from fishfmu.output import lock
 from fishfmu.output.manifest_state import (FORMAT, JOURNAL, MANIFEST, OutputError, State, is_internal, load_state,
                                            os_error, untrusted)
 
@@ -302,8 +303,17 @@ def note_dir(path: str | Path) -> None:
         _journal(found[0], _dir_ops(found[1]))
 
 
-def _close(s: _Session, status: str | None = "closed") -> None:
-    """Fold the journal into the manifest (files gone are dropped), then remove the journal."""
+def _close(s: _Session, status: str | None = "closed", unlock: bool = True) -> None:
+    """Fold the journal into the manifest (files gone are dropped), then remove the journal; then, ``unlock``,
+    let go of the folder's lock (:mod:`fishfmu.output.lock`): the command is done with it."""
+    try:
+        _fold(s, status)
+    finally:
+        if unlock:
+            lock.release(s.root)
+
+
+def _fold(s: _Session, status: str | None) -> None:
     with _LOCK:
         if s.journal_fh is not None:
             s.journal_fh.close()
@@ -360,7 +370,7 @@ def start_session(out: Path, command: str | None, keep: State | None = None, cre
     the manifest cannot be written, ``out`` is removed again when this command ``created`` it."""
     root = abs_path(out)
     for r in [r for r in _SESSIONS if r == root or r.is_relative_to(root)]:
-        _close(_SESSIONS[r])
+        _close(_SESSIONS[r], unlock=r != root)  # ``out``'s own lock is the new session's
     state = keep if keep is not None else State()
     state.present, state.status, state.command = True, "writing", command
     try:

@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable
 
 from plant.errors import InputError
 
+from fishfmu.output import lock
 from fishfmu.output.manifest import (abs_path, forget, inside_folder_being_written, note_dir, open_session, sha256_file,
                                      start_session)
 from fishfmu.output.manifest_state import OutputError, State, is_internal, is_temporary_name, load_state, os_error
@@ -169,29 +171,42 @@ def prepare_out_dir(out: str | Path, overwrite: bool, inputs: Iterable[str | Pat
         raise OutputError("is a symbolic link to nowhere", file=out)
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", file=out)
-    if not out.exists():
-        start_session(out, command, created=_create(out))
-        return out
-    try:
-        entries = [n for n in os.listdir(out)]
-    except OSError as exc:
-        raise os_error(exc, out, "cannot read the output folder") from None
-    if entries:
-        state = load_state(out)
-        found = scan(out, state)
-        if found.foreign:
-            raise _refuse_foreign(out, found.foreign)
-        if found.files or [n for n in entries if not is_internal(n)]:
-            if not overwrite:
-                raise InputError(f"output folder holds {_describe(out, state)}; pass --overwrite to replace it",
-                                 file=out)
-            forget(out)
-            try:
-                _remove_ours(out, found, state)
-            except OSError as exc:
-                raise os_error(exc, out, "cannot remove the earlier result") from None
-    start_session(out, command, created=_create(out))
+    created = not out.exists() and _create(out)
+    with _locked(out):
+        try:
+            entries = [n for n in os.listdir(out)]
+        except OSError as exc:
+            raise os_error(exc, out, "cannot read the output folder") from None
+        if entries:
+            state = load_state(out)
+            found = scan(out, state)
+            if found.foreign:
+                raise _refuse_foreign(out, found.foreign)
+            if found.files or [n for n in entries if not is_internal(n)]:
+                if not overwrite:
+                    raise InputError(f"output folder holds {_describe(out, state)}; pass --overwrite to replace it",
+                                     file=out)
+                forget(out)
+                try:
+                    _remove_ours(out, found, state)
+                except OSError as exc:
+                    raise os_error(exc, out, "cannot remove the earlier result") from None
+        start_session(out, command, created=_create(out) or created)
     return out
+
+
+@contextmanager
+def _locked(out: Path) -> Iterator[None]:
+    """Hold ``out``'s lock (:mod:`fishfmu.output.lock`) from before its contents are looked at; the session the
+    block starts keeps it until the command ends (:func:`fishfmu.output.manifest.close`), a refusal lets it go."""
+    held_before = lock.holds(out)
+    lock.acquire(out)
+    try:
+        yield
+    except BaseException:
+        if not held_before:
+            lock.release(out)
+        raise
 
 
 def _describe(out: Path, state: State) -> str:
@@ -218,16 +233,34 @@ def open_resumable(out: str | Path, inputs: Iterable[str | Path | None] = (), co
         return out
     if out.exists() and not out.is_dir():
         raise InputError("exists and is not a folder", file=out)
-    if not out.exists():
-        start_session(out, command, created=_create(out))
-        return out
-    state = load_state(out)
-    if [n for n in os.listdir(out) if not is_internal(n)]:
-        found_scan = scan(out, state)
-        if found_scan.foreign:
-            raise _refuse_foreign(out, found_scan.foreign)
-    start_session(out, command, keep=state if state.present else None, created=_create(out))
+    created = not out.exists() and _create(out)
+    with _locked(out):
+        state = load_state(out)
+        if [n for n in os.listdir(out) if not is_internal(n)]:
+            found_scan = scan(out, state)
+            if found_scan.foreign:
+                raise _refuse_foreign(out, found_scan.foreign)
+            _remove_temporary(out, found_scan, state)
+        start_session(out, command, keep=state if state.present else None,
+                      created=_create(out) or created)
     return out
+
+
+def _remove_temporary(out: Path, found: Scan, state: State) -> None:
+    """The temporary files of ours that a command stopped in the middle of a write left (each recorded with its
+    size and hash: ours), and the temporary folders we made once empty: a resumed folder keeps its results only."""
+    for rel in [r for r in found.files if is_temporary_name(r)]:
+        try:
+            (out / rel).unlink(missing_ok=True)
+        except OSError as exc:
+            raise os_error(exc, out / rel, "cannot remove a temporary file of an earlier write") from None
+        state.files.pop(rel, None)
+    for rel in sorted((d for d in found.dirs if is_temporary_name(d) and d in state.dirs), key=lambda r: -r.count("/")):
+        try:
+            (out / rel).rmdir()
+            state.dirs.discard(rel)
+        except OSError:
+            pass  # not empty (what is left in it is not ours: kept)
 
 
 def check_single_file_target(path: str | Path, inputs: Iterable[str | Path | None] = ()) -> Path:
@@ -246,20 +279,22 @@ def check_single_file_target(path: str | Path, inputs: Iterable[str | Path | Non
             raise InputError(f"lies inside the input folder {inp}; refusing to write there", file=path)
     if path.is_symlink():
         raise InputError("is a symbolic link, not written by fishfmu; refusing to write over it", file=path)
-    state = load_state(path.parent) if path.parent.is_dir() else State()  # a malformed manifest stops us here
-    if path.exists():
-        if not path.is_file():
-            raise InputError("exists and is not a file", file=path)
-        if path.name not in state.files or [*sha256_file(path)] not in state.files[path.name]:
-            why = "was changed since fishfmu wrote it" if path.name in state.files else "was not written by fishfmu"
-            raise InputError(f"exists and {why}; refusing to write over it (remove it, or choose another file)",
-                             file=path)
-    parent = path.parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"cannot write here: {parent} is not a folder", file=path)
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError("cannot write here: permission denied", file=path)
-    open_session(abs_path(path).parent, only=path.name)
+    # the folder's manifest records this write: one command at a time writes it
+    with _locked(path.parent) if path.parent.is_dir() else nullcontext():
+        state = load_state(path.parent) if path.parent.is_dir() else State()  # a malformed manifest stops us here
+        if path.exists():
+            if not path.is_file():
+                raise InputError("exists and is not a file", file=path)
+            if path.name not in state.files or [*sha256_file(path)] not in state.files[path.name]:
+                why = "was changed since fishfmu wrote it" if path.name in state.files else "was not written by fishfmu"
+                raise InputError(f"exists and {why}; refusing to write over it (remove it, or choose another file)",
+                                 file=path)
+        parent = path.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not parent.is_dir():
+            raise OutputError(f"cannot write here: {parent} is not a folder", file=path)
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise OutputError("cannot write here: permission denied", file=path)
+        open_session(abs_path(path).parent, only=path.name)
     return path

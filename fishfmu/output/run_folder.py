@@ -49,7 +49,7 @@ from plant.contract.measured import write_dataset
 from fishfmu import session
 from fishfmu.cosim.results import RunResult
 from fishfmu.cosim.stop import StopRequest
-from fishfmu.output import manifest, ownership
+from fishfmu.output import lock, manifest, ownership
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
 from fishfmu.output.manifest_state import OutputError, is_internal, os_error
 from fishfmu.scenario.schema import resolved_toml
@@ -184,6 +184,7 @@ class RunFolder:
                 for p in self.path.iterdir():
                     p.unlink()
                 self.path.rmdir()
+                lock.release(self.path)
                 return True
         except OSError:
             pass
