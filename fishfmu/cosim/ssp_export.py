@@ -180,9 +180,9 @@ def not_in_ssp(sc: Scenario) -> list[str]:
         if c.round:
             notes.append(f"{c.where}: round = true (Real into Integer, rounded) has no SSP transformation; another "
                          "tool converts as it does")
-    for part in sc.line.parts:  # export-fmu's plant keeps the path it was given: the file is not in the FMU
-        notes.append(f"[[line.parts]] stl = {part.stl}: the plant FMU names this file by its path on this machine; "
-                     "it is not in the archive")
+    for part in sc.line.parts:  # export-fmu carries the file in the plant FMU; fishfmu's read-back does not unpack it
+        notes.append(f"[[line.parts]] stl = {part.stl}: carried inside the plant FMU (resources/parts/); reading the "
+                     "archive back as a scenario (fishfmu run line.ssp) does not unpack it: run the scenario itself")
     for f in sc.fmu:
         if f.step_multiple != 1:
             notes.append(f"fmu '{f.name}': step_multiple = {f.step_multiple} (SSP 1.0 has no per-component step)")
