@@ -13,7 +13,8 @@ along its travel, 0 at home to 1 at the end of it.
   through: rejected.
 - **pusher**: a paddle (``length_m`` along x, 0.15 m high, 3 cm thick) whose face sits on the guide opposite
   ``side`` at home and moves ``p * travel_m`` across towards ``side``; the guide on ``side`` is open over the
-  paddle's length.
+  paddle's length and 0.15 m beyond each end of it.  A shield (a plate at the paddle's upstream end, as long as the stroke, behind the home guide
+  when home) closes the lane behind the paddle while it is out: the fish that come meanwhile wait at it.
 - **diverter**: an arm (``length_m``, 0.15 m high, 2 cm thick) that is the guide on ``side`` over
   ``x_m .. x_m + length_m`` at home, pivoting about a vertical axis at its downstream end; its free end swings
   ``p * travel_deg`` into the lane, and the guide it was is open.
@@ -30,7 +31,7 @@ A pusher's or diverter's fish whose mid-length point is 0.1 m beyond the guide l
 >>> [round(float(v), 3) for v in gate.pose(1.0)[1]], round(float(gate.travel), 4)   # open: 60 deg about y
 ([0.0, 1.047, 0.0], 1.0472)
 >>> [round(float(v), 3) for v in pusher.pose(0.5)[0]], pusher.opening  # half way across, to the right
-([0.5, 0.0, 0.0], (-1, 0.5, 1.3))
+([0.5, 0.0, 0.0], (-1, 0.35, 1.45))
 """
 
 from __future__ import annotations
@@ -50,6 +51,12 @@ GATE_DROP_M = 0.15
 """A fish whose mid-length point is this far below a gate's hinge, over its flap, has gone through."""
 SIDE_CLEAR_M = 0.1
 """A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left."""
+SHIELD_THICKNESS_M = 0.02
+"""A pusher's shield: the plate at the paddle's upstream end that closes the lane behind the paddle while it is out."""
+OPENING_MARGIN_M = 0.15
+"""A pusher's opening reaches this far beyond each end of its paddle: a fish lying across an end of the paddle, pushed
+at one end, turns out through the opening instead of being pinched between the paddle and the end of the guide (the
+paddle is position-controlled: nothing limits its force)."""
 ZONE_MARGIN_M = 0.1
 """Along x, a device's exit zone reaches this far beyond its flap, paddle or arm..."""
 SIDE_REACH_M = 0.6
@@ -104,13 +111,18 @@ class DeviceShape:
             return self.region(x_m, y_m, line) & (z_m < self.hinge_z_m - GATE_DROP_M)
         return self.region(x_m, y_m, line, beyond_m=SIDE_CLEAR_M)
 
+    def along(self, x_m: np.ndarray) -> np.ndarray:
+        """True where x is along the stretch where this device takes fish off: its flap, or its guide opening, with
+        :data:`ZONE_MARGIN_M` upstream and :data:`SIDE_REACH_M` downstream."""
+        x_from, x_to = (self.opening[1], self.opening[2]) if self.opening else (self.device.x_m, self.device.x_end_m)
+        return (x_m >= x_from - ZONE_MARGIN_M) & (x_m <= x_to + SIDE_REACH_M)
+
     def region(self, x_m: np.ndarray, y_m: np.ndarray | None, line: Line, beyond_m: float = 0.0) -> np.ndarray:
         """True where (x, y) is where a fish leaving through this device goes: over a gate's gap; beyond the guide
         line (by more than ``beyond_m``) at a pusher's or diverter's opening (anywhere across with ``y_m`` None: a
         fish falling off a belt's side can swing under it)."""
-        d = self.device
-        along = (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + SIDE_REACH_M)
-        if d.kind == "gate":
+        along = self.along(x_m)
+        if self.device.kind == "gate":
             return along
         if y_m is None:
             return along
@@ -154,11 +166,18 @@ def device_shape(line: Line, d: Device) -> DeviceShape:
     z = (CLEARANCE_M, PADDLE_HEIGHT_M)
     if d.kind == "pusher":
         home_y = right if side > 0 else left  # the paddle's face on the guide opposite the side fish leave by
+        travel = d.travel_m if d.travel_m is not None else left - right
         # the paddle behind its face (away from the lane)
         _box(pts, trigs, (0.0, d.length_m), (-0.03, 0.0) if side > 0 else (0.0, 0.03), z)
-        travel = d.travel_m if d.travel_m is not None else left - right
+        # its shield: a plate at its upstream end reaching back a whole stroke (through a slot in the guide it
+        # retracts behind), so that fish the belt brings while the paddle is out wait upstream of it instead of
+        # running in behind it, where the returning paddle would press them into its home guide
+        back = SHIELD_THICKNESS_M + 0.03 + travel
+        _box(pts, trigs, (0.0, SHIELD_THICKNESS_M), (-back, 0.0) if side > 0 else (0.0, back), z)
         return DeviceShape(d, np.array([d.x_m, home_y, z_belt]), np.array(pts, float), np.array(trigs), travel,
-                           np.array([0.0, float(side), 0.0]), (side, d.x_m, d.x_end_m))
+                           np.array([0.0, float(side), 0.0]),
+                           (side, max(d.x_m - OPENING_MARGIN_M, line.x_start_m), min(d.x_end_m + OPENING_MARGIN_M,
+                                                                                       line.x_end_m)))
     guide_y = float(line.guide_y_at(np.array(d.x_end_m))[0 if side > 0 else 1])
     # the arm upstream of its pivot, its inner face on the guide line
     _box(pts, trigs, (-d.length_m, 0.0), (0.0, 0.02) if side > 0 else (-0.02, 0.0), z)
@@ -203,6 +222,11 @@ def in_exit_regions(line: Line, x_m: np.ndarray, y_m: np.ndarray | None) -> np.n
     for shape in device_shapes(line):
         out |= shape.region(x_m, y_m, line)
     return out
+
+
+def pusher_openings(line: Line) -> tuple[tuple[int, float, float], ...]:
+    """(side, x from, x to) of every pusher's opening."""
+    return tuple(s.opening for s in device_shapes(line) if s.device.kind == "pusher")
 
 
 def guide_openings(line: Line) -> tuple[tuple[int, float, float], ...]:
