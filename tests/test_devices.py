@@ -63,6 +63,36 @@ def test_an_open_gate_drops_the_fish_through_its_gap_and_a_closed_one_lets_it_pa
     assert crossing and min(z for _, _, z in crossing) > -0.03  # carried across at the belts' height, never down
 
 
+def test_a_gate_hinged_just_after_its_belts_end_is_fed_by_that_belt_not_the_next():
+    """The hinge 1 cm after c1's end (the schema allows it at or after the end): the flap runs at c1's speed and
+    height, not at those of c2, which climbs at 20 deg from 2.45 m (its far end 1.5 tan 20 = 0.55 m up) at another
+    speed.  It took c2 as its feeder: the flap hinged 0.5 m up, at c2's speed (the issue's run blew up)."""
+    line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+        {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0},
+        {"id": "c2", "x_start_m": 2.45, "length_m": 1.5, "width_m": 0.5, "z_top_m": -0.02, "incline_deg": 20.0}],
+        "devices": [GATE | {"x_m": 2.01}]})
+    shape = device_shapes(line)[0]
+    assert (shape.feeder, shape.hinge_z_m, shape.gap_from_m) == (0, pytest.approx(-0.005), 2.0)
+    speeds = {"c1": 1.25, "c2": 0.4}
+
+    def crossing(command):
+        plant, energy, log = Plant(line, [fish(x_m=1.0)]), EnergyWatch(), []
+        while plant.t_s < 2.5 - 1e-9:
+            plant.step(speeds, {"gate": command})
+            energy.check(plant.state, DT_S)
+            poses = plant.state.fish_poses()
+            log.append((plant.t_s, poses.x_m[0], poses.z_m[0]))
+        return plant, np.array(log)
+
+    closed, log = crossing(False)
+    over = log[(log[:, 1] > 2.1) & (log[:, 1] < 2.3)]  # mid-point over the flap: most of the fish on it
+    assert (over[-1, 1] - over[0, 1]) / (over[-1, 0] - over[0, 0]) == pytest.approx(1.25, abs=0.1)  # c1's, not 0.4
+    assert over[:, 2].min() > -0.03 and closed.state.status[0] == FishStatus.ON_LINE  # across, on up c2
+    assert log[-1, 1] > 2.5
+    opened, _ = crossing(True)
+    assert opened.state.status[0] == FishStatus.REJECTED and opened.state.outputs.device_rejected == {"gate": 1}
+
+
 def test_the_gate_swings_down_at_its_stroke_rate_and_its_limit_switches_follow():
     line = two_belts([GATE])
     plant = Plant(line, [])

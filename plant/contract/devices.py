@@ -84,6 +84,13 @@ class DeviceShape:
     hinge_z_m: float = 0.0
     feeder: int = -1
     """A gate: the index of the conveyor before it, whose speed its surface runs at; -1 for the others."""
+    feeder_end_m: float = 0.0
+    """A gate: where the belt before it ends."""
+
+    @property
+    def gap_from_m(self) -> float:
+        """Where a gate's gap starts: the end of the belt before it (its hinge may sit a little after it)."""
+        return min(self.device.x_m, self.feeder_end_m) if self.feeder >= 0 else self.device.x_m
 
     @property
     def rotates(self) -> bool:
@@ -114,7 +121,7 @@ class DeviceShape:
     def along(self, x_m: np.ndarray) -> np.ndarray:
         """True where x is along the stretch where this device takes fish off: its flap, or its guide opening, with
         :data:`ZONE_MARGIN_M` upstream and :data:`SIDE_REACH_M` downstream."""
-        x_from, x_to = (self.opening[1], self.opening[2]) if self.opening else (self.device.x_m, self.device.x_end_m)
+        x_from, x_to = (self.opening[1], self.opening[2]) if self.opening else (self.gap_from_m, self.device.x_end_m)
         return (x_m >= x_from - ZONE_MARGIN_M) & (x_m <= x_to + SIDE_REACH_M)
 
     def region(self, x_m: np.ndarray, y_m: np.ndarray | None, line: Line, beyond_m: float = 0.0) -> np.ndarray:
@@ -155,12 +162,14 @@ def device_shape(line: Line, d: Device) -> DeviceShape:
     trigs: list = []
     left, right = (float(v) for v in line.guide_y_at(np.array(0.5 * (d.x_m + d.x_end_m))))
     if d.kind == "gate":
-        feeder = next(k for k, c in enumerate(line.conveyors) if d.x_m - 1e-6 < c.x_end_m)  # ends at x_m or before
+        # the belt before the gap, which ends at the hinge or before it (not the next one, which ends after it)
+        feeder = max(k for k, c in enumerate(line.conveyors) if c.x_end_m <= d.x_m + 1e-6)
         hinge_z = line.conveyors[feeder].z_end_m - 0.005
         # the flap: its top at the hinge's height, spanning the lane and a little under the guides
         _box(pts, trigs, (0.0, d.length_m), (right - 0.02, left + 0.02), (-0.02, 0.0), bottom=True)
         return DeviceShape(d, np.array([d.x_m, 0.0, hinge_z]), np.array(pts, float), np.array(trigs),
-                           np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder)
+                           np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder,
+                           line.conveyors[feeder].x_end_m)
     side = 1 if d.side == "left" else -1
     z_belt = min(line.z_top_at(d.x_m), line.z_top_at(d.x_end_m))
     z = (CLEARANCE_M, PADDLE_HEIGHT_M)
@@ -207,7 +216,7 @@ def bin_walls(line: Line) -> tuple[list[list[float]], list[list[int]]]:
         after = next(c for c in line.conveyors if c.x_start_m >= d.x_end_m - 1e-9)
         left, right = (float(v) + s for v, s in zip(line.guide_y_at(np.array(d.x_m)), (0.02, -0.02)))
         bottom = shape.hinge_z_m - BIN_DEPTH_M
-        for x, top, facing in ((d.x_m, shape.hinge_z_m - 0.04, 1.0), (after.x_start_m, after.z_top_m - 0.04, -1.0)):
+        for x, top, facing in ((shape.gap_from_m, shape.hinge_z_m - 0.04, 1.0), (after.x_start_m, after.z_top_m - 0.04, -1.0)):
             base = len(pts)
             pts += [[x, right, bottom], [x, left, bottom], [x, left, top], [x, right, top]]
             # (p1 - p0) x (p2 - p0) is +x for this order: flip it for a wall facing upstream
