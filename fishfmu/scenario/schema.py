@@ -41,6 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import pydantic
 import tomli_w
 from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
@@ -49,7 +50,7 @@ from plant.errors import InputError
 from plant.contract.kpis import KPI_KEYS
 from plant.contract.line import KpiSettings, Line
 from plant.sim.params import PlantParams
-from plant.fish.population import PopulationSpec
+from plant.fish.population import PopulationSpec, lane_across, tallest_fish_m
 from plant.validation import Strict, ValueAtKey, read_toml, suggest, validate
 
 from fishfmu.scenario.keys import set_dotted
@@ -332,6 +333,12 @@ class Scenario(Strict):
         if self.line.conveyors[0].length_m < longest:
             raise ValueAtKey("fish.length_max_m", f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
                              f"is shorter than the longest fish (fish.length_max_m = {longest} m)")
+        first = self.line.conveyors[0]
+        _, half = lane_across(*self.line.guide_y_at(np.linspace(first.x_start_m, first.x_end_m, 51)))
+        if 2.0 * half < tallest_fish_m(self.fish):
+            raise ValueAtKey("line.guides", f"the lane between the guides all along the infeed ('{first.id}') is "
+                             f"{2.0 * half:.3f} m wide: fish are dropped there lying on their side, and the longest "
+                             f"(fish.length_max_m = {longest} m) is {tallest_fish_m(self.fish):.3f} m tall")
         for i, c in enumerate(self.line.conveyors):
             if c.length_m < longest:
                 raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
