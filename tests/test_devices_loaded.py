@@ -1,6 +1,7 @@
-"""A pusher fired over and over on a loaded line: a stream of fish 0.2 m apart, each firing with neighbours lying just
-upstream and just downstream of the paddle.  The fish it pushes leave through its opening and are counted by it; the
-others stay on the line; no fish goes through a guide wall anywhere else (the run never fails)."""
+"""A pusher fired over and over on a loaded line (a stream of fish 0.2 m apart, each firing with neighbours lying just
+upstream and just downstream of the paddle) and a diverter swung for every second fish of a stream: the fish the
+device acts on leave through its opening and are counted by it; the others stay on the line; no fish goes through a
+guide wall anywhere else (the run never fails)."""
 
 from __future__ import annotations
 
@@ -28,14 +29,14 @@ def line_with(device: dict) -> Line:
         {"id": "c2", "x_start_m": 2.21, "length_m": 1.5, "width_m": 0.5, "z_top_m": -0.02}], "devices": [device]})
 
 
-def stream() -> list:
-    return [fish(f"f{k}", LENGTH_M, x_m=DROP_X_M, y_m=0.0, t_s=0.05 + INTERVAL_S * k) for k in range(N_FISH)]
+def stream(n: int, interval_s: float) -> list:
+    return [fish(f"f{k}", LENGTH_M, x_m=DROP_X_M, y_m=0.0, t_s=0.05 + interval_s * k) for k in range(n)]
 
 
-def run(line: Line, command, t_end_s: float):
+def run(line: Line, command, t_end_s: float, n: int = N_FISH, interval_s: float = INTERVAL_S):
     """Both belts at SPEED_MPS; returns the plant and, per step, the mid-length points (n_fish, 3) and the bodies of
     the fish on the line (n, 3)."""
-    plant = Plant(line, stream())
+    plant = Plant(line, stream(n, interval_s))
     watch = EnergyWatch()
     mids, bodies = [], []
     while plant.t_s < t_end_s - 1e-9:
@@ -91,3 +92,33 @@ def test_a_pusher_fired_at_every_second_fish_of_a_stream_pushes_those_out_and_le
     assert_no_fish_through_a_wall(bodies, 0.85, 1.95, -1)
     # the paddle's own side (left) never had a body beyond its guide: nothing pressed through it on the way back
     assert max(float(p[:, 1].max()) for p in bodies if len(p)) < 0.30
+
+
+def test_a_diverter_swung_for_every_second_fish_of_a_stream_steers_those_out_and_lets_the_others_pass():
+    """Fish 0.9 m apart (1.4 m pitch, 1.75 s) and the arm (1.0 .. 1.8 m, pivot at 1.8 m, 45 deg: its free end swings
+    from x = 1.0 to 1.8 - 0.8 cos 45 = 1.23 m, 0.57 m across: the whole lane) swung when fish k's head is at 0.85 m:
+    the fish before it has its tail at 1.75 m, by the pivot (the arm 5 cm before its pivot moves 5 cm in: clear of the
+    fish), so the arm's free end, always ahead of fish k's head (1.0 .. 1.23 m against 0.85 .. 1.09 m over the 0.3 s
+    swing), sweeps through an empty stretch.  Swung 1.2 s, back in 0.3 s: by then fish k+1's head is at 0.65 m, short
+    of the arm (1.0 m), so it passes the arm at home: a guide.  Fish k: steered out to the right; fish k+1: on."""
+    diverter = {"id": "d", "kind": "diverter", "x_m": 1.0, "length_m": 0.8, "stroke_s": 0.3, "side": "right",
+                "travel_deg": 45.0}
+    line = line_with(diverter)
+    interval_s = 1.4 / SPEED_MPS
+    # fish k's head: 0.3 + 0.25 - 0.07 + 0.8 (t - t_k) = 0.85 m at t_k + 0.46 s
+    swing_s = [0.05 + interval_s * k + 0.46 for k in range(0, 6, 2)]
+
+    def command(t):
+        return any(f <= t < f + 1.2 for f in swing_s)
+
+    plant, mids, bodies = run(line, command, 13.5, n=6, interval_s=interval_s)
+    s = plant.state
+    for k, f in zip(range(0, 6, 2), swing_s):
+        i = int(round(f / DT_S)) - 1
+        assert 0.55 < mids[i, k, 0] < 0.65   # head at 0.85 m as worked out
+    assert [FishStatus(v).name for v in s.status] == ["REJECTED", "LEFT"] * 3
+    assert list(s.rejected_by) == [0, -1] * 3 and s.outputs.device_rejected == {"d": 3}
+    for k in (0, 2, 4):  # out to the right, by the opening
+        seen = mids[np.isfinite(mids[:, k, 0]), k]
+        assert seen[-1, 1] < -0.25 - SIDE_CLEAR_M and 1.0 - 0.1 <= seen[-1, 0] <= 1.8 + 0.6
+    assert_no_fish_through_a_wall(bodies, 1.0, 1.8, -1)

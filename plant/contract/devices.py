@@ -19,7 +19,7 @@ along its travel, 0 at home to 1 at the end of it.
   ``x_m .. x_m + length_m`` at home, pivoting about a vertical axis at its downstream end; its free end swings
   ``p * travel_deg`` into the lane, and the guide it was is open.
 
-A pusher's or diverter's fish whose mid-length point is 0.1 m beyond the guide line on ``side`` has left: rejected.
+A pusher's or diverter's fish whose mid-length point is 0.05 m beyond the guide line on ``side`` has left: rejected.
 
 >>> from plant.contract.line import Line
 >>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
@@ -49,8 +49,10 @@ CLEARANCE_M = 0.003
 caught between them)."""
 GATE_DROP_M = 0.15
 """A fish whose mid-length point is this far below a gate's hinge, over its flap, has gone through."""
-SIDE_CLEAR_M = 0.1
-"""A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left."""
+SIDE_CLEAR_M = 0.05
+"""A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left: about
+half a fish's thickness, its middle off the lane (off the belt where the belt ends at the guide; where the belt is wider
+than the lane, a funnel's, it would ride on outside the guide)."""
 SHIELD_THICKNESS_M = 0.02
 """A pusher's shield: the plate at the paddle's upstream end that closes the lane behind the paddle while it is out."""
 OPENING_MARGIN_M = 0.15
@@ -230,6 +232,24 @@ def in_exit_regions(line: Line, x_m: np.ndarray, y_m: np.ndarray | None) -> np.n
     out = np.zeros(np.shape(x_m), dtype=bool)
     for shape in device_shapes(line):
         out |= shape.region(x_m, y_m, line)
+    return out
+
+
+def going_out_sideways(line: Line, x_m: np.ndarray, y_m: np.ndarray, fish_of: np.ndarray) -> np.ndarray:
+    """True for each body (x, y) beyond the guide line on the side of a pusher or diverter whose fish (``fish_of``, an
+    index per body) has a body beyond that guide line along the device's opening: a fish going out through the
+    opening, some of it swung round the end of the guide beside it (the health checks let it be there)."""
+    out = np.zeros(np.shape(x_m), dtype=bool)
+    if len(fish_of) == 0:
+        return out
+    for shape in device_shapes(line):
+        if shape.opening is None:
+            continue
+        side = shape.opening[0]
+        beyond = side * (y_m - line.guide_y_at(x_m)[0 if side > 0 else 1]) > 0.0
+        at = np.zeros(int(fish_of.max()) + 1, dtype=bool)
+        at[fish_of[beyond & shape.along(x_m)]] = True
+        out |= beyond & at[fish_of]
     return out
 
 
