@@ -5,7 +5,10 @@ guide wall anywhere else (the run never fails)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from plant.contract.devices import SIDE_CLEAR_M, device_shapes
 from plant.contract.line import Line
@@ -23,8 +26,9 @@ INTERVAL_S = PITCH_M / SPEED_MPS   # 0.875 s between drops
 N_FISH = 8
 
 
-def line_with(device: dict) -> Line:
-    return Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+def line_with(device: dict, half_lane_m: float = 0.25) -> Line:
+    guides = {"guides": {"left": [[0.0, half_lane_m]], "right": [[0.0, -half_lane_m]]}} if half_lane_m < 0.25 else {}
+    return Line.model_validate(guides | {"guide_width_m": 0.5, "conveyors": [
         {"id": "c1", "x_start_m": 0.0, "length_m": 2.2, "width_m": 0.5, "z_top_m": 0.0},
         {"id": "c2", "x_start_m": 2.21, "length_m": 1.5, "width_m": 0.5, "z_top_m": -0.02}], "devices": [device]})
 
@@ -49,13 +53,13 @@ def run(line: Line, command, t_end_s: float, n: int = N_FISH, interval_s: float 
     return plant, np.array(mids), bodies
 
 
-def assert_no_fish_through_a_wall(bodies, x_from: float, x_to: float, out_side: int) -> None:
-    """Every body of a fish on the line within the guides (+-0.25 m, a sphere's radius of slack as the health check
-    allows), except beyond the guide on ``out_side`` over the opening and its chute, x_from .. x_to."""
+def assert_no_fish_through_a_wall(bodies, x_from: float, x_to: float, out_side: int, half_lane_m: float = 0.25) -> None:
+    """Every body of a fish on the line within the guides (+-half_lane_m, a sphere's radius of slack as the health
+    check allows), except beyond the guide on ``out_side`` over the opening and its chute, x_from .. x_to."""
     for pos in bodies:
         x, y = pos[:, 0], pos[:, 1]
         at_opening = (x >= x_from - 0.05) & (x <= x_to + 0.05) & (out_side * y > 0)
-        assert np.all((np.abs(y) <= 0.30) | at_opening)
+        assert np.all((np.abs(y) <= half_lane_m + 0.05) | at_opening)
 
 
 def test_a_pusher_fired_at_every_second_fish_of_a_stream_pushes_those_out_and_lets_the_others_pass():
@@ -94,16 +98,19 @@ def test_a_pusher_fired_at_every_second_fish_of_a_stream_pushes_those_out_and_le
     assert max(float(p[:, 1].max()) for p in bodies if len(p)) < 0.30
 
 
-def test_a_diverter_swung_for_every_second_fish_of_a_stream_steers_those_out_and_lets_the_others_pass():
-    """Fish 0.9 m apart (1.4 m pitch, 1.75 s) and the arm (1.0 .. 1.8 m, pivot at 1.8 m, 45 deg: its free end swings
+@pytest.mark.parametrize("half_lane_m", [0.25, 0.15])
+def test_a_diverter_swung_for_every_second_fish_of_a_stream_steers_those_out_and_lets_the_others_pass(half_lane_m):
+    """In a lane as wide as the belt, and in one 0.3 m wide on the 0.5 m belt (as after a funnel: a fish steered out
+    lands on the strip of belt beyond the guide; it was not counted out until 0.1 m beyond it, rode on outside the
+    guide and failed the run).  Fish 0.9 m apart (1.4 m pitch, 1.75 s) and the arm (1.0 .. 1.8 m, pivot at 1.8 m, 45 deg: its free end swings
     from x = 1.0 to 1.8 - 0.8 cos 45 = 1.23 m, 0.57 m across: the whole lane) swung when fish k's head is at 0.85 m:
-    the fish before it has its tail at 1.75 m, by the pivot (the arm 5 cm before its pivot moves 5 cm in: clear of the
-    fish), so the arm's free end, always ahead of fish k's head (1.0 .. 1.23 m against 0.85 .. 1.09 m over the 0.3 s
+    the fish before it has its tail at 1.75 m, by the pivot (the arm 5 cm before its pivot moves 5 cm in, to y = -0.2
+    or -0.1 m: clear of the fish, 0.12 m tall, lying on its side about y = 0), so the arm's free end, always ahead of fish k's head (1.0 .. 1.23 m against 0.85 .. 1.09 m over the 0.3 s
     swing), sweeps through an empty stretch.  Swung 1.2 s, back in 0.3 s: by then fish k+1's head is at 0.65 m, short
     of the arm (1.0 m), so it passes the arm at home: a guide.  Fish k: steered out to the right; fish k+1: on."""
     diverter = {"id": "d", "kind": "diverter", "x_m": 1.0, "length_m": 0.8, "stroke_s": 0.3, "side": "right",
                 "travel_deg": 45.0}
-    line = line_with(diverter)
+    line = line_with(diverter, half_lane_m)
     interval_s = 1.4 / SPEED_MPS
     # fish k's head: 0.3 + 0.25 - 0.07 + 0.8 (t - t_k) = 0.85 m at t_k + 0.46 s
     swing_s = [0.05 + interval_s * k + 0.46 for k in range(0, 6, 2)]
@@ -120,5 +127,27 @@ def test_a_diverter_swung_for_every_second_fish_of_a_stream_steers_those_out_and
     assert list(s.rejected_by) == [0, -1] * 3 and s.outputs.device_rejected == {"d": 3}
     for k in (0, 2, 4):  # out to the right, by the opening
         seen = mids[np.isfinite(mids[:, k, 0]), k]
-        assert seen[-1, 1] < -0.25 - SIDE_CLEAR_M and 1.0 - 0.1 <= seen[-1, 0] <= 1.8 + 0.6
-    assert_no_fish_through_a_wall(bodies, 1.0, 1.8, -1)
+        assert seen[-1, 1] < -half_lane_m - SIDE_CLEAR_M and 1.0 - 0.1 <= seen[-1, 0] <= 1.8 + 0.6
+    assert_no_fish_through_a_wall(bodies, 1.0, 1.8, -1, half_lane_m)
+
+
+def test_the_issues_diverter_toggled_every_4_s_in_funnel_incline_runs_through(tmp_path):
+    """Issue 39: funnel_incline with a diverter (3.6 .. 4.2 m, left, 0.3 s) swung and put back every 4 s from 8 s failed
+    at 20.35 s, 'f03' left the line sideways at x = 3.49 m: going out at the opening's upstream end, its tail swung
+    round the guide's end.  It runs through now; the fish it counts are those it took off (all fish either out by
+    it, past the outfeed or still on the line)."""
+    from fishfmu import commands
+
+    src = Path("scenarios/funnel_incline.toml").read_text()
+    events = "".join(f'[[event]]\nt_s = {t}.0\ntarget = "plant.d.command"\naction = "override"\nvalue = {str(i % 2 == 0).lower()}\n\n'
+                     for i, t in enumerate(range(8, 24, 4)))
+    device = ('[[line.devices]]\nid = "d"\nkind = "diverter"\nx_m = 3.6\nlength_m = 0.6\nstroke_s = 0.3\n'
+              'side = "left"\n\n')
+    text = src.replace("[fish]", device + events + "[fish]", 1).replace(
+        "[wiring]\n", '[wiring]\ninputs = { "plant.d.command" = false }\n', 1)
+    scenario = tmp_path / "diverter.toml"
+    scenario.write_text(text)
+    done = commands.run(scenario, tmp_path / "out", {"run.duration_s": 22.0, "expect": {}}, report=False)
+    assert done.result.status == "ok"
+    k = done.result.kpis
+    assert k["rejected"] == k["rejected_by"]["d"] >= 1
