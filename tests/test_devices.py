@@ -11,7 +11,7 @@ from plant.contract.devices import GATE_DROP_M, device_shapes
 from plant.contract.kpis import compute_kpis
 from plant.contract.line import KpiSettings, Line
 from plant.contract.measured import PHOTOEYES, Run, empty_table, read_run, write_run
-from plant.errors import InputError
+from plant.errors import InputError, SimulationError
 from plant.sim.health import EnergyWatch
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
@@ -205,6 +205,29 @@ def test_rejected_and_good_rejected_by_hand(tmp_path):
                   rejections=rejections.assign(fish_id=[None, None]))
     k = compute_kpis(unnamed, line, KpiSettings(outfeed_photoeye="pe_out", min_gap_m=0.05))
     assert k["rejected"] == 2 and k["good_rejected"] is None
+
+
+# ----------------------------------------------------------------------------------- too fast for the step
+def test_a_paddle_faster_than_the_step_allows_passes_through_the_fish_and_such_a_device_is_refused_naming_it():
+    """The step is 1.25 ms and a fish's smallest contact sphere 12 mm: a paddle crossing the lane (0.5 m) in 0.105 s,
+    4.76 m/s, moves 6 mm a step: the contact's explicit step gives the fish it hits energy from nowhere and the run
+    failed as a 'numerical blow-up' blamed on the fish; in 0.21 s, 2.38 m/s (3 mm a step, a quarter of that sphere:
+    the most a scenario may ask), it pushes the fish out.  check refuses the first naming the device's stroke_s and
+    what to make it: 0.43 m x 60 deg in 0.02 s is 22.5 m/s, so at least 0.02 x 22.5 / 2.4 = 0.188 s."""
+    from fishfmu.scenario.schema import load_scenario
+
+    def push(stroke_s):
+        pusher = {"id": "p", "kind": "pusher", "x_m": 0.8, "length_m": 0.8, "stroke_s": stroke_s, "side": "right"}
+        return run_plant(two_belts([pusher], gap_m=0.01), [fish(x_m=1.2)], 0.0, lambda t: {"p": t >= 0.5}, 2.0)[0]
+
+    with pytest.raises(SimulationError, match="numerical blow-up.*fish 'f01'"):
+        push(0.105)
+    assert push(0.21).state.status[0] == FishStatus.REJECTED
+    with pytest.raises(InputError, match=r"gate 'gate' moves at 22\.5 m/s.*faster than 2\.4 m/s.*make stroke_s at "
+                                         r"least 0\.188 s") as err:
+        load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.02})
+    assert err.value.where == "line.devices[0].stroke_s"
+    assert load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.188}).line.devices[0].stroke_s
 
 
 # ------------------------------------------------------------------------------------------ parking

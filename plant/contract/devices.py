@@ -95,6 +95,13 @@ class DeviceShape:
         return min(self.device.x_m, self.feeder_end_m) if self.feeder >= 0 else self.device.x_m
 
     @property
+    def fastest_mps(self) -> float:
+        """Speed of the device's fastest point while it moves: a pusher's paddle, the far edge of a gate's flap or of a
+        diverter's arm."""
+        reach_m = 1.0 if self.device.kind == "pusher" else self.device.length_m
+        return reach_m * self.travel / self.device.stroke_s
+
+    @property
     def rotates(self) -> bool:
         return self.device.kind != "pusher"
 
