@@ -59,6 +59,9 @@ OPENING_MARGIN_M = 0.15
 """A pusher's opening reaches this far beyond each end of its paddle: a fish lying across an end of the paddle, pushed
 at one end, turns out through the opening instead of being pinched between the paddle and the end of the guide (the
 paddle is position-controlled: nothing limits its force)."""
+CHUTE_DEPTH_M = 0.5
+"""How far out from the guide line the plates at the ends of a pusher's opening reach (its chute): a fish going out
+stays between them (one half out, carried on by the belt, cannot slide past the end of the guide outside it)."""
 ZONE_MARGIN_M = 0.1
 """Along x, a device's exit zone reaches this far beyond its flap, paddle or arm..."""
 SIDE_REACH_M = 0.6

@@ -8,16 +8,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant.contract.devices import DeviceShape, bin_walls, device_shapes, guide_openings, pusher_openings
+from plant.contract.devices import CHUTE_DEPTH_M, DeviceShape, bin_walls, device_shapes, guide_openings, pusher_openings
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
 
 Triangles = tuple[list[list[float]], list[list[int]]]
 """(points, triangles as three point indices each)."""
 
-CHUTE_DEPTH_M = 0.5
-"""How far out from the guide line the plates at the ends of a pusher's opening reach: a fish going out
-stays between them (one half out, carried on by the belt, cannot slide past the end of the guide outside it)."""
 DRUM_RADIUS_M = 0.03
 """A belt's rounded lip at each end (its drum)."""
 
