@@ -11,7 +11,7 @@ from plant.contract.devices import GATE_DROP_M, device_shapes
 from plant.contract.kpis import compute_kpis
 from plant.contract.line import KpiSettings, Line
 from plant.contract.measured import PHOTOEYES, Run, empty_table, read_run, write_run
-from plant.errors import InputError
+from plant.errors import InputError, SimulationError
 from plant.sim.health import EnergyWatch
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
@@ -61,6 +61,36 @@ def test_an_open_gate_drops_the_fish_through_its_gap_and_a_closed_one_lets_it_pa
     assert closed.state.status[0] == FishStatus.LEFT  # over the closed gate (a flap running at c1's speed) and c2
     crossing = [p[0] for _, p, _ in log if np.isfinite(p[0, 0]) and 2.0 <= p[0, 0] <= 2.45]
     assert crossing and min(z for _, _, z in crossing) > -0.03  # carried across at the belts' height, never down
+
+
+def test_a_gate_hinged_just_after_its_belts_end_is_fed_by_that_belt_not_the_next():
+    """The hinge 1 cm after c1's end (the schema allows it at or after the end): the flap runs at c1's speed and
+    height, not at those of c2, which climbs at 20 deg from 2.45 m (its far end 1.5 tan 20 = 0.55 m up) at another
+    speed.  It took c2 as its feeder: the flap hinged 0.5 m up, at c2's speed (the issue's run blew up)."""
+    line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+        {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0},
+        {"id": "c2", "x_start_m": 2.45, "length_m": 1.5, "width_m": 0.5, "z_top_m": -0.02, "incline_deg": 20.0}],
+        "devices": [GATE | {"x_m": 2.01}]})
+    shape = device_shapes(line)[0]
+    assert (shape.feeder, shape.hinge_z_m, shape.gap_from_m) == (0, pytest.approx(-0.005), 2.0)
+    speeds = {"c1": 1.25, "c2": 0.4}
+
+    def crossing(command):
+        plant, energy, log = Plant(line, [fish(x_m=1.0)]), EnergyWatch(), []
+        while plant.t_s < 2.5 - 1e-9:
+            plant.step(speeds, {"gate": command})
+            energy.check(plant.state, DT_S)
+            poses = plant.state.fish_poses()
+            log.append((plant.t_s, poses.x_m[0], poses.z_m[0]))
+        return plant, np.array(log)
+
+    closed, log = crossing(False)
+    over = log[(log[:, 1] > 2.1) & (log[:, 1] < 2.3)]  # mid-point over the flap: most of the fish on it
+    assert (over[-1, 1] - over[0, 1]) / (over[-1, 0] - over[0, 0]) == pytest.approx(1.25, abs=0.1)  # c1's, not 0.4
+    assert over[:, 2].min() > -0.03 and closed.state.status[0] == FishStatus.ON_LINE  # across, on up c2
+    assert log[-1, 1] > 2.5
+    opened, _ = crossing(True)
+    assert opened.state.status[0] == FishStatus.REJECTED and opened.state.outputs.device_rejected == {"gate": 1}
 
 
 def test_the_gate_swings_down_at_its_stroke_rate_and_its_limit_switches_follow():
@@ -175,6 +205,29 @@ def test_rejected_and_good_rejected_by_hand(tmp_path):
                   rejections=rejections.assign(fish_id=[None, None]))
     k = compute_kpis(unnamed, line, KpiSettings(outfeed_photoeye="pe_out", min_gap_m=0.05))
     assert k["rejected"] == 2 and k["good_rejected"] is None
+
+
+# ----------------------------------------------------------------------------------- too fast for the step
+def test_a_paddle_faster_than_the_step_allows_passes_through_the_fish_and_such_a_device_is_refused_naming_it():
+    """The step is 1.25 ms and a fish's smallest contact sphere 12 mm: a paddle crossing the lane (0.5 m) in 0.105 s,
+    4.76 m/s, moves 6 mm a step: the contact's explicit step gives the fish it hits energy from nowhere and the run
+    failed as a 'numerical blow-up' blamed on the fish; in 0.21 s, 2.38 m/s (3 mm a step, a quarter of that sphere:
+    the most a scenario may ask), it pushes the fish out.  check refuses the first naming the device's stroke_s and
+    what to make it: 0.43 m x 60 deg in 0.02 s is 22.5 m/s, so at least 0.02 x 22.5 / 2.4 = 0.188 s."""
+    from fishfmu.scenario.schema import load_scenario
+
+    def push(stroke_s):
+        pusher = {"id": "p", "kind": "pusher", "x_m": 0.8, "length_m": 0.8, "stroke_s": stroke_s, "side": "right"}
+        return run_plant(two_belts([pusher], gap_m=0.01), [fish(x_m=1.2)], 0.0, lambda t: {"p": t >= 0.5}, 2.0)[0]
+
+    with pytest.raises(SimulationError, match="numerical blow-up.*fish 'f01'"):
+        push(0.105)
+    assert push(0.21).state.status[0] == FishStatus.REJECTED
+    with pytest.raises(InputError, match=r"gate 'gate' moves at 22\.5 m/s.*faster than 2\.4 m/s.*make stroke_s at "
+                                         r"least 0\.188 s") as err:
+        load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.02})
+    assert err.value.where == "line.devices[0].stroke_s"
+    assert load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.188}).line.devices[0].stroke_s
 
 
 # ------------------------------------------------------------------------------------------ parking

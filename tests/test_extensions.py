@@ -16,8 +16,8 @@ from tests.test_plant_physics import G, speed_of
 
 
 def slide_acceleration(params: PlantParams, yaw_rad: float, angle_deg: float) -> float:
-    """Measured acceleration down an inclined, stopped belt (gravity tilted towards -x)."""
-    params.incline_deg = -angle_deg
+    """Measured acceleration down an inclined, stopped belt (the line rising downstream: gravity tilted towards -x)."""
+    params.incline_deg = angle_deg
     line = straight_line(("c1", 0.0, 6.0, 0.0))
     run = simulate_plant(line, [fish(x_m=5.0, yaw_rad=yaw_rad)], {"c1": 0.0}, 1.3, params=params,
                          stop_when_clear=False)
@@ -81,7 +81,7 @@ def test_adhesion_holds_a_fish_on_top_of_another_on_a_slope():
     relative = {}
     for force in (0.0, 3.0):
         params = PlantParams()
-        params.incline_deg = -angle
+        params.incline_deg = angle  # rising downstream
         params.extensions.adhesion.force_n = force
         line = straight_line(("c1", 0.0, 6.0, 0.0))
         lower = fish("low", x_m=3.0, t_s=0.02)

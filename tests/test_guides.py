@@ -3,6 +3,7 @@ fish and none crosses it; a bad polyline is refused naming its key; straight gui
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -96,3 +97,35 @@ def test_the_replay_draws_the_funnel_where_the_line_has_it(tmp_path):
     left, right = line.guide_y_at(xs)
     assert np.allclose(drawn, np.column_stack([left, right]), atol=1e-12)
     assert drawn[2] == pytest.approx([0.2, -0.2])  # half-way down the funnel
+
+
+OFF_CENTRE = {"line.guides.left": [[0.0, -0.05]], "line.guides.right": [[0.0, -0.25]]}
+
+
+def test_fish_are_dropped_into_an_off_centre_lane_and_none_leaves_it():
+    """Guides at y = -0.05 and -0.25 m: the lane is 0.2 m wide about y = -0.15 m.  A fish of 0.42 .. 0.75 m lying on
+    its side is at most 0.187 m tall (the regression at 0.75 m), so each is dropped with its footprint inside
+    -0.25 .. -0.05 (they were dropped about y = 0, outside it, and the first 'left the line sideways')."""
+    from fishfmu.cosim.build import scenario_fish
+    from fishfmu.scenario.schema import load_scenario
+
+    sc = load_scenario(Path("scenarios/paper_dump.toml"), OFF_CENTRE | {"fish.count": 6, "fish.yaw_spread_deg": 0.0})
+    fishes = scenario_fish(sc)
+    for f in fishes:  # heading along the line (no yaw spread): across, it spans its height about drop_y_m
+        assert -0.25 <= f.drop_y_m - 0.5 * f.height_m and f.drop_y_m + 0.5 * f.height_m <= -0.05
+    plant = Plant(sc.line, [dataclasses.replace(f, drop_t_s=0.05 + 0.6 * i) for i, f in enumerate(fishes)])
+    while plant.t_s < 4.0 - 1e-9:  # stopped belts: all of them dropped and settled (no run failure)
+        plant.step({c.id: 0.0 for c in sc.line.conveyors})
+    s = plant.state
+    assert np.all(s.status == FishStatus.ON_LINE)
+    on = s.on_line_bodies()
+    assert np.all((s.pos[on, 1] > -0.25 - 0.05) & (s.pos[on, 1] < -0.05 + 0.05))  # bodies' centres, spheres' slack
+
+
+def test_a_lane_too_narrow_for_the_fish_at_the_infeed_is_refused_naming_the_guides():
+    from fishfmu.scenario.schema import load_scenario
+
+    narrow = {"line.guides.left": [[0.0, -0.12]], "line.guides.right": [[0.0, -0.25]]}  # 0.13 m for fish up to 0.187 m tall
+    with pytest.raises(InputError, match="lane between the guides all along the infeed .* 0.130 m wide") as err:
+        load_scenario(Path("scenarios/paper_dump.toml"), narrow)
+    assert err.value.where == "line.guides"

@@ -12,6 +12,7 @@ import pytest
 
 from plant.contract.line import Line
 from plant.errors import InputError
+from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
 from plant.validation import validate
 from tests.plant_helpers import fish
@@ -77,3 +78,30 @@ def test_an_incline_sets_where_the_belt_ends_and_the_next_must_start_below_it():
         validate(Line, data, prefix="line")
     data["conveyors"][1]["z_top_m"] = 0.5
     assert np.isclose(validate(Line, data, prefix="line").z_range_m[1], 0.529, atol=1e-3)
+
+
+def test_the_whole_line_tilted_up_by_plant_incline_deg_pulls_fish_back_upstream_as_a_climbing_belt_does():
+    """``plant.incline_deg = +a`` tilts the line so that it rises downstream, as a conveyor's ``incline_deg = +a``:
+    gravity along the line is -g sin(a), g cos(a) into the belt.  On a flat, stopped belt tilted by 30 deg (above the
+    friction angle) a fish slides upstream at g (sin a - mu cos a) = 9.81 (0.5 - 0.45 x 0.866) = 1.08 m/s^2, as it does
+    down a stopped belt inclined 30 deg in a level line (there along the slope)."""
+    a = math.radians(30.0)
+    params = PlantParams()
+    params.incline_deg = 30.0
+    flat = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
+        {"id": "c1", "x_start_m": 0.0, "length_m": 3.0, "width_m": 0.5, "z_top_m": 0.0}]})
+    tilted = Plant(flat, [fish("f1", 0.6, x_m=2.4)], params=params)
+    assert tilted.state.gravity_mps2 == pytest.approx([-9.81 * math.sin(a), 0.0, -9.81 * math.cos(a)])
+    climbing = Plant(slope(30.0), [fish("f1", 0.6, x_m=2.4)])
+    travelled = []
+    for plant, scale in ((tilted, 1.0), (climbing, 1.0 / math.cos(a))):
+        x = []
+        for k in range(round(0.8 / 0.01)):
+            plant.step({"c1": 0.0})
+            if k + 1 in (40, 60, 80):
+                x.append(plant.state.fish_poses().x_m[0] * scale)
+        travelled.append(x)
+    for x0, x1, x2 in travelled:
+        acc = ((x2 - x1) - (x1 - x0)) / 0.2 ** 2
+        assert x2 < x1 < x0  # upstream, down the slope
+        assert -acc == pytest.approx(9.81 * (math.sin(a) - MU * math.cos(a)), rel=0.05)

@@ -43,7 +43,7 @@ def test_fish_on_inclined_stopped_belt_stays_below_friction_angle_and_slides_abo
     mu = params.friction.fish_belt
     friction_angle = math.degrees(math.atan(mu))  # 24.2 deg for mu = 0.45
     angle = friction_angle - 9.0 if below else friction_angle + 8.0
-    params.incline_deg = -angle  # gravity pulls towards -x, down the slope
+    params.incline_deg = angle  # the line rises downstream: gravity pulls towards -x, down the slope
     line = straight_line(("c1", 0.0, 4.0, 0.0))
     run = simulate_plant(line, [fish(x_m=2.5)], {"c1": 0.0}, 1.6, params=params, stop_when_clear=False)
     tr = run.tracks

@@ -12,6 +12,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from plant.contract.devices import device_shapes
+from plant.contract.line import Device
 from plant.contract.measured import read_dataset
 from plant.errors import InputError
 
@@ -124,6 +125,11 @@ def test_a_record_without_device_positions_draws_them_at_home_and_a_line_without
     bare = data.line.model_copy(update={"devices": []})
     header, blob = build_scene(bare, data.name, data.runs[0], without_devices(poses))
     assert header["devices"] == [] and header["guide_openings"] == [] and "device_p" not in unpack(header, blob)
+    # a pusher's opening (its paddle 1.0 .. 1.8 m and 0.15 m beyond each end) and its chute's plates, 0.5 m out
+    pusher = Device.model_validate({"id": "p", "kind": "pusher", "x_m": 1.0, "length_m": 0.8, "side": "left"})
+    header, _ = build_scene(bare.model_copy(update={"devices": [pusher]}), data.name, data.runs[0],
+                            without_devices(poses))
+    assert header["guide_openings"] == [[1, 0.85, 1.95]] and header["chutes"] == [[1, 0.85, 1.95, 0.5]]
 
 
 @pytest.mark.parametrize("change, expected", [

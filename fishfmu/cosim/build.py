@@ -29,7 +29,7 @@ from plant.contract.parts import part_triangles
 from plant.errors import InputError, SimulationError
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
-from plant.fish.population import FishSpec, sample_fish
+from plant.fish.population import FishSpec, lane_across, sample_fish
 from plant.sim.recorder import RunRecorder
 
 from fishfmu.cosim.master import NO_CLOCK, CoSimulation, StageClock
@@ -46,9 +46,9 @@ def scenario_fish(scenario: Scenario) -> list[FishSpec]:
     """The batch of a scenario: sampled from its seed (the same seed gives the same fish)."""
     rng = np.random.default_rng([scenario.run.seed, scenario.fish.seed_offset])
     first = scenario.line.conveyors[0]
-    # dropped within the guides wherever on the infeed: the narrowest of them there (all of it without a funnel)
-    left, right = scenario.line.guide_y_at(np.linspace(first.x_start_m, first.x_end_m, 51))
-    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), float(min(left.min(), -right.max())), rng)
+    # dropped within the guides wherever on the infeed: the lane between them all along it (an off-centre one too)
+    centre_y_m, half_width_m = lane_across(*scenario.line.guide_y_at(np.linspace(first.x_start_m, first.x_end_m, 51)))
+    return sample_fish(scenario.fish, (first.x_start_m, first.x_end_m), half_width_m, rng, centre_y_m)
 
 
 def fmu_path(fmu: FmuEntry) -> Path:

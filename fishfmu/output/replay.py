@@ -45,7 +45,7 @@ import pandas as pd
 
 from plant.errors import InputError
 from plant.fish.fish_data import length_regressions
-from plant.contract.devices import device_shapes, guide_openings
+from plant.contract.devices import CHUTE_DEPTH_M, device_shapes, guide_openings, pusher_openings
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
 from plant.contract.measured import Run, read_dataset
@@ -347,6 +347,7 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
         "parts": _part_triangles(line),
         "devices": devices,
         "guide_openings": [[side, round(x0, 6), round(x1, 6)] for side, x0, x1 in guide_openings(line)],
+        "chutes": [[side, round(x0, 6), round(x1, 6), CHUTE_DEPTH_M] for side, x0, x1 in pusher_openings(line)],
         "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(n_fish),
                  "body_fish": body_fish.astype(int).tolist()},
         "photoeyes": _photoeye_intervals(run.photoeyes, [pe.id for pe in line.photoeyes]),

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+import numpy as np
 import pydantic
 import tomli_w
 from pydantic import AfterValidator, Field, PrivateAttr, field_validator, model_validator
@@ -51,7 +52,9 @@ from plant.contract.kpis import KPI_KEYS
 from plant.contract.log_values import detections_bytes_bound
 from plant.contract.line import KpiSettings, Line
 from plant.sim.params import PlantParams
-from plant.fish.population import PopulationSpec
+from plant.contract.devices import device_shapes
+from plant.fish.fish_body import MIN_SPHERE_RADIUS_M
+from plant.fish.population import PopulationSpec, lane_across, tallest_fish_m
 from plant.validation import MAX_CSV_BYTES, Strict, ValueAtKey, read_toml, suggest, validate
 
 from fishfmu.scenario.keys import set_dotted
@@ -282,6 +285,13 @@ class RecordSpec(Strict):
             "each must match some variable; an FMU's variables are read after each of its steps"))
 
 
+DEVICE_STEP_FRACTION = 0.25
+"""How much of a fish's smallest contact sphere a device may move in one integration step: with the 1.25 ms step and
+12 mm spheres, 2.4 m/s.  A pusher's paddle hitting a fish at 4.8 and 8.3 m/s (4 and 7 mm a step) gave it energy
+from nowhere (the contact's explicit step), at 12.5 and 25 m/s it passed through it; at 2.0 .. 2.4 m/s (three places
+of the fish) and 6.25 m/s it pushed it out (tests/test_devices.py)."""
+
+
 class Scenario(Strict):
     """A whole scenario file."""
 
@@ -336,6 +346,13 @@ class Scenario(Strict):
         if self.line.conveyors[0].length_m < longest:
             raise ValueAtKey("fish.length_max_m", f"the first conveyor ('{self.line.conveyors[0].id}', {self.line.conveyors[0].length_m} m) "
                              f"is shorter than the longest fish (fish.length_max_m = {longest} m)")
+        self._check_device_speeds()
+        first = self.line.conveyors[0]
+        _, half = lane_across(*self.line.guide_y_at(np.linspace(first.x_start_m, first.x_end_m, 51)))
+        if 2.0 * half < tallest_fish_m(self.fish):
+            raise ValueAtKey("line.guides", f"the lane between the guides all along the infeed ('{first.id}') is "
+                             f"{2.0 * half:.3f} m wide: fish are dropped there lying on their side, and the longest "
+                             f"(fish.length_max_m = {longest} m) is {tallest_fish_m(self.fish):.3f} m tall")
         for i, c in enumerate(self.line.conveyors):
             if c.length_m < longest:
                 raise ValueAtKey(f"line.conveyors[{i}].length_m", f"{c.length_m} m ('{c.id}') is shorter than the "
@@ -349,6 +366,21 @@ class Scenario(Strict):
                              f"reads a CSV of at most {MAX_CSV_BYTES / 1024**2:.0f} MB; use fewer cameras, a lower "
                              "rate_hz, a shorter run or fewer fish")
         return self
+
+    def _check_device_speeds(self) -> None:
+        """A device whose fastest point moves more than a quarter of a fish's smallest contact sphere in one
+        integration step hits fish too hard for the step, or passes through them: refused, naming it."""
+        step_s = self.plant.numerics.step_s
+        limit_mps = DEVICE_STEP_FRACTION * MIN_SPHERE_RADIUS_M / step_s
+        for i, shape in enumerate(device_shapes(self.line)):
+            if shape.fastest_mps > limit_mps:
+                d = shape.device
+                raise ValueAtKey(f"line.devices[{i}].stroke_s", (
+                    f"{d.kind} '{d.id}' moves at {shape.fastest_mps:.1f} m/s (its whole travel in {d.stroke_s:g} s): "
+                    f"faster than {limit_mps:.1f} m/s, a quarter of a fish's smallest contact sphere "
+                    f"({1000 * MIN_SPHERE_RADIUS_M:g} mm) per integration step (plant.numerics.step_s = {step_s:g} s), "
+                    f"it would hit fish too hard for the step or pass through them; make stroke_s at least "
+                    f"{d.stroke_s * shape.fastest_mps / limit_mps:.3f} s or the step shorter"))
 
     def connection_specs(self) -> list[ConnectionSpec]:
         """Every connection, the string form's first, then the table form's."""

@@ -13,12 +13,13 @@ along its travel, 0 at home to 1 at the end of it.
   through: rejected.
 - **pusher**: a paddle (``length_m`` along x, 0.15 m high, 3 cm thick) whose face sits on the guide opposite
   ``side`` at home and moves ``p * travel_m`` across towards ``side``; the guide on ``side`` is open over the
-  paddle's length.
+  paddle's length and 0.15 m beyond each end of it.  A shield (a plate at the paddle's upstream end, as long as the stroke, behind the home guide
+  when home) closes the lane behind the paddle while it is out: the fish that come meanwhile wait at it.
 - **diverter**: an arm (``length_m``, 0.15 m high, 2 cm thick) that is the guide on ``side`` over
   ``x_m .. x_m + length_m`` at home, pivoting about a vertical axis at its downstream end; its free end swings
   ``p * travel_deg`` into the lane, and the guide it was is open.
 
-A pusher's or diverter's fish whose mid-length point is 0.1 m beyond the guide line on ``side`` has left: rejected.
+A pusher's or diverter's fish whose mid-length point is 0.05 m beyond the guide line on ``side`` has left: rejected.
 
 >>> from plant.contract.line import Line
 >>> line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
@@ -30,7 +31,7 @@ A pusher's or diverter's fish whose mid-length point is 0.1 m beyond the guide l
 >>> [round(float(v), 3) for v in gate.pose(1.0)[1]], round(float(gate.travel), 4)   # open: 60 deg about y
 ([0.0, 1.047, 0.0], 1.0472)
 >>> [round(float(v), 3) for v in pusher.pose(0.5)[0]], pusher.opening  # half way across, to the right
-([0.5, 0.0, 0.0], (-1, 0.5, 1.3))
+([0.5, 0.0, 0.0], (-1, 0.35, 1.45))
 """
 
 from __future__ import annotations
@@ -48,8 +49,19 @@ CLEARANCE_M = 0.003
 caught between them)."""
 GATE_DROP_M = 0.15
 """A fish whose mid-length point is this far below a gate's hinge, over its flap, has gone through."""
-SIDE_CLEAR_M = 0.1
-"""A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left."""
+SIDE_CLEAR_M = 0.05
+"""A fish whose mid-length point is this far beyond the guide line at a pusher's or diverter's opening has left: about
+half a fish's thickness, its middle off the lane (off the belt where the belt ends at the guide; where the belt is wider
+than the lane, a funnel's, it would ride on outside the guide)."""
+SHIELD_THICKNESS_M = 0.02
+"""A pusher's shield: the plate at the paddle's upstream end that closes the lane behind the paddle while it is out."""
+OPENING_MARGIN_M = 0.15
+"""A pusher's opening reaches this far beyond each end of its paddle: a fish lying across an end of the paddle, pushed
+at one end, turns out through the opening instead of being pinched between the paddle and the end of the guide (the
+paddle is position-controlled: nothing limits its force)."""
+CHUTE_DEPTH_M = 0.5
+"""How far out from the guide line the plates at the ends of a pusher's opening reach (its chute): a fish going out
+stays between them (one half out, carried on by the belt, cannot slide past the end of the guide outside it)."""
 ZONE_MARGIN_M = 0.1
 """Along x, a device's exit zone reaches this far beyond its flap, paddle or arm..."""
 SIDE_REACH_M = 0.6
@@ -77,6 +89,20 @@ class DeviceShape:
     hinge_z_m: float = 0.0
     feeder: int = -1
     """A gate: the index of the conveyor before it, whose speed its surface runs at; -1 for the others."""
+    feeder_end_m: float = 0.0
+    """A gate: where the belt before it ends."""
+
+    @property
+    def gap_from_m(self) -> float:
+        """Where a gate's gap starts: the end of the belt before it (its hinge may sit a little after it)."""
+        return min(self.device.x_m, self.feeder_end_m) if self.feeder >= 0 else self.device.x_m
+
+    @property
+    def fastest_mps(self) -> float:
+        """Speed of the device's fastest point while it moves: a pusher's paddle, the far edge of a gate's flap or of a
+        diverter's arm."""
+        reach_m = 1.0 if self.device.kind == "pusher" else self.device.length_m
+        return reach_m * self.travel / self.device.stroke_s
 
     @property
     def rotates(self) -> bool:
@@ -104,13 +130,18 @@ class DeviceShape:
             return self.region(x_m, y_m, line) & (z_m < self.hinge_z_m - GATE_DROP_M)
         return self.region(x_m, y_m, line, beyond_m=SIDE_CLEAR_M)
 
+    def along(self, x_m: np.ndarray) -> np.ndarray:
+        """True where x is along the stretch where this device takes fish off: its flap, or its guide opening, with
+        :data:`ZONE_MARGIN_M` upstream and :data:`SIDE_REACH_M` downstream."""
+        x_from, x_to = (self.opening[1], self.opening[2]) if self.opening else (self.gap_from_m, self.device.x_end_m)
+        return (x_m >= x_from - ZONE_MARGIN_M) & (x_m <= x_to + SIDE_REACH_M)
+
     def region(self, x_m: np.ndarray, y_m: np.ndarray | None, line: Line, beyond_m: float = 0.0) -> np.ndarray:
         """True where (x, y) is where a fish leaving through this device goes: over a gate's gap; beyond the guide
         line (by more than ``beyond_m``) at a pusher's or diverter's opening (anywhere across with ``y_m`` None: a
         fish falling off a belt's side can swing under it)."""
-        d = self.device
-        along = (x_m >= d.x_m - ZONE_MARGIN_M) & (x_m <= d.x_end_m + SIDE_REACH_M)
-        if d.kind == "gate":
+        along = self.along(x_m)
+        if self.device.kind == "gate":
             return along
         if y_m is None:
             return along
@@ -143,22 +174,31 @@ def device_shape(line: Line, d: Device) -> DeviceShape:
     trigs: list = []
     left, right = (float(v) for v in line.guide_y_at(np.array(0.5 * (d.x_m + d.x_end_m))))
     if d.kind == "gate":
-        feeder = next(k for k, c in enumerate(line.conveyors) if d.x_m - 1e-6 < c.x_end_m)  # ends at x_m or before
+        # the belt before the gap, which ends at the hinge or before it (not the next one, which ends after it)
+        feeder = max(k for k, c in enumerate(line.conveyors) if c.x_end_m <= d.x_m + 1e-6)
         hinge_z = line.conveyors[feeder].z_end_m - 0.005
         # the flap: its top at the hinge's height, spanning the lane and a little under the guides
         _box(pts, trigs, (0.0, d.length_m), (right - 0.02, left + 0.02), (-0.02, 0.0), bottom=True)
         return DeviceShape(d, np.array([d.x_m, 0.0, hinge_z]), np.array(pts, float), np.array(trigs),
-                           np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder)
+                           np.radians(d.travel_deg or 60.0), np.array([0.0, 1.0, 0.0]), None, hinge_z, feeder,
+                           line.conveyors[feeder].x_end_m)
     side = 1 if d.side == "left" else -1
     z_belt = min(line.z_top_at(d.x_m), line.z_top_at(d.x_end_m))
     z = (CLEARANCE_M, PADDLE_HEIGHT_M)
     if d.kind == "pusher":
         home_y = right if side > 0 else left  # the paddle's face on the guide opposite the side fish leave by
+        travel = d.travel_m if d.travel_m is not None else left - right
         # the paddle behind its face (away from the lane)
         _box(pts, trigs, (0.0, d.length_m), (-0.03, 0.0) if side > 0 else (0.0, 0.03), z)
-        travel = d.travel_m if d.travel_m is not None else left - right
+        # its shield: a plate at its upstream end reaching back a whole stroke (through a slot in the guide it
+        # retracts behind), so that fish the belt brings while the paddle is out wait upstream of it instead of
+        # running in behind it, where the returning paddle would press them into its home guide
+        back = SHIELD_THICKNESS_M + 0.03 + travel
+        _box(pts, trigs, (0.0, SHIELD_THICKNESS_M), (-back, 0.0) if side > 0 else (0.0, back), z)
         return DeviceShape(d, np.array([d.x_m, home_y, z_belt]), np.array(pts, float), np.array(trigs), travel,
-                           np.array([0.0, float(side), 0.0]), (side, d.x_m, d.x_end_m))
+                           np.array([0.0, float(side), 0.0]),
+                           (side, max(d.x_m - OPENING_MARGIN_M, line.x_start_m), min(d.x_end_m + OPENING_MARGIN_M,
+                                                                                       line.x_end_m)))
     guide_y = float(line.guide_y_at(np.array(d.x_end_m))[0 if side > 0 else 1])
     # the arm upstream of its pivot, its inner face on the guide line
     _box(pts, trigs, (-d.length_m, 0.0), (0.0, 0.02) if side > 0 else (-0.02, 0.0), z)
@@ -188,7 +228,7 @@ def bin_walls(line: Line) -> tuple[list[list[float]], list[list[int]]]:
         after = next(c for c in line.conveyors if c.x_start_m >= d.x_end_m - 1e-9)
         left, right = (float(v) + s for v, s in zip(line.guide_y_at(np.array(d.x_m)), (0.02, -0.02)))
         bottom = shape.hinge_z_m - BIN_DEPTH_M
-        for x, top, facing in ((d.x_m, shape.hinge_z_m - 0.04, 1.0), (after.x_start_m, after.z_top_m - 0.04, -1.0)):
+        for x, top, facing in ((shape.gap_from_m, shape.hinge_z_m - 0.04, 1.0), (after.x_start_m, after.z_top_m - 0.04, -1.0)):
             base = len(pts)
             pts += [[x, right, bottom], [x, left, bottom], [x, left, top], [x, right, top]]
             # (p1 - p0) x (p2 - p0) is +x for this order: flip it for a wall facing upstream
@@ -203,6 +243,29 @@ def in_exit_regions(line: Line, x_m: np.ndarray, y_m: np.ndarray | None) -> np.n
     for shape in device_shapes(line):
         out |= shape.region(x_m, y_m, line)
     return out
+
+
+def going_out_sideways(line: Line, x_m: np.ndarray, y_m: np.ndarray, fish_of: np.ndarray) -> np.ndarray:
+    """True for each body (x, y) beyond the guide line on the side of a pusher or diverter whose fish (``fish_of``, an
+    index per body) has a body beyond that guide line along the device's opening: a fish going out through the
+    opening, some of it swung round the end of the guide beside it (the health checks let it be there)."""
+    out = np.zeros(np.shape(x_m), dtype=bool)
+    if len(fish_of) == 0:
+        return out
+    for shape in device_shapes(line):
+        if shape.opening is None:
+            continue
+        side = shape.opening[0]
+        beyond = side * (y_m - line.guide_y_at(x_m)[0 if side > 0 else 1]) > 0.0
+        at = np.zeros(int(fish_of.max()) + 1, dtype=bool)
+        at[fish_of[beyond & shape.along(x_m)]] = True
+        out |= beyond & at[fish_of]
+    return out
+
+
+def pusher_openings(line: Line) -> tuple[tuple[int, float, float], ...]:
+    """(side, x from, x to) of every pusher's opening."""
+    return tuple(s.opening for s in device_shapes(line) if s.device.kind == "pusher")
 
 
 def guide_openings(line: Line) -> tuple[tuple[int, float, float], ...]:

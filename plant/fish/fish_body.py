@@ -40,6 +40,8 @@ OUTLINE_S = np.array([0.00, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.78
 OUTLINE_H = np.array([0.20, 0.50, 0.68, 0.88, 0.98, 1.00, 0.95, 0.82, 0.62, 0.42, 0.30, 0.30, 0.45, 0.65, 0.75])
 OUTLINE_W = np.array([0.30, 0.60, 0.80, 0.95, 1.00, 1.00, 0.92, 0.78, 0.58, 0.40, 0.28, 0.25, 0.12, 0.08, 0.05])
 
+MIN_SPHERE_RADIUS_M = 0.012
+"""No contact sphere of a fish is smaller (its tail fin's): what a moving device must not pass in one integration step."""
 BODY_NAMES = ("head", "upper_body", "lower_body", "tail", "tail_fin")
 N_BODIES = 5
 _GRID = np.linspace(0.0, 1.0, 801)
@@ -195,7 +197,7 @@ def _with_min_fraction(fractions: np.ndarray, minimum: float) -> np.ndarray:
 
 def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: float,
                   joint_limits_rad: tuple[tuple[float, float], ...] | None = None,
-                  sphere_spacing: float = 1.5, min_radius_m: float = 0.012,
+                  sphere_spacing: float = 1.5, min_radius_m: float = MIN_SPHERE_RADIUS_M,
                   min_body_fraction: float = 0.06, min_radius_fraction: float = 0.3) -> FishGeometry:
     """Cut a fish of the given size into five bodies with masses, inertias and contact spheres.
 

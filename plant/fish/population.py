@@ -111,9 +111,22 @@ def fish_size(length_m: float, rng: np.random.Generator | None) -> tuple[float, 
     return h, w, m
 
 
+def lane_across(left_y_m: np.ndarray, right_y_m: np.ndarray) -> tuple[float, float]:
+    """(centre y, half width) of the lane between the guides all along a stretch, from the guides' y along it (an
+    off-centre lane: guides at y = -0.05 and -0.25 m give (-0.15, 0.1))."""
+    lo, hi = float(np.max(right_y_m)), float(np.min(left_y_m))
+    return 0.5 * (lo + hi), 0.5 * (hi - lo)
+
+
+def tallest_fish_m(spec: PopulationSpec) -> float:
+    """Height of the longest fish of ``spec`` by the regression: how wide a fish lying on its side is across."""
+    return fish_size(spec.length_max_m, None)[0]
+
+
 def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_width_m: float,
-                rng: np.random.Generator) -> list[FishSpec]:
-    """Draw ``spec.count`` fish and their drops; ``infeed_x_m`` is the first conveyor's x range."""
+                rng: np.random.Generator, centre_y_m: float = 0.0) -> list[FishSpec]:
+    """Draw ``spec.count`` fish and their drops; ``infeed_x_m`` is the first conveyor's x range, the lane there
+    ``centre_y_m +- half_width_m`` (:func:`lane_across`)."""
     lengths = np.clip(rng.normal(spec.length_mean_m, spec.length_sd_m, spec.count), spec.length_min_m, spec.length_max_m)
     x0, x1 = infeed_x_m
     zone = (spec.drop_x_min_m, spec.drop_x_max_m) if spec.drop_x_min_m is not None else (x0, x0 + 0.6 * (x1 - x0))
@@ -133,11 +146,11 @@ def sample_fish(spec: PopulationSpec, infeed_x_m: tuple[float, float], half_widt
         lo = max(zone[0], x0) + ext_x + 0.03  # clear of the infeed end plate
         if spec.drop == "sparse":
             x = lo
-            y = rng.uniform(-0.3, 0.3) * y_room
+            y = centre_y_m + rng.uniform(-0.3, 0.3) * y_room
         else:
             hi = max(zone[1] - 0.3 * ext_x, lo)
             x = rng.uniform(lo, hi)
-            y = rng.uniform(-1, 1) * y_room
+            y = centre_y_m + rng.uniform(-1, 1) * y_room
         yaw = math.atan2(math.sin(yaw), math.cos(yaw))
         fish.append(FishSpec(
             fish_id=f"f{i + 1:02d}", length_m=length, height_m=h, width_m=w, weight_kg=m,

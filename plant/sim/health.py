@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant.contract.devices import in_exit_regions
+from plant.contract.devices import going_out_sideways, in_exit_regions
 from plant.errors import SimulationError
 from plant.sim.state import FishStatus, PlantState
 
@@ -72,7 +72,9 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     body's fish as an index into ``fish_ids``; ``line`` the :class:`plant.contract.line.Line`; ``t_s`` the
     time reported with the error.  A body over the last 0.1 m of the line (hanging over the end drum)
     or past its end is not checked against the belts: a fish leaving the line over the end; nor is one at a device
-    that takes fish off the line (through a gate's gap, out of a pusher's or diverter's opening)."""
+    that takes fish off the line (through a gate's gap, out of a pusher's or diverter's opening).  Beyond a guide a
+    body may be only at an opening in it, or when its fish is going out through one (some of it beyond the guide
+    there): anywhere else a fish outside the guides went through a wall."""
     if len(pos) == 0:
         return
     bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
@@ -88,7 +90,7 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     left, right = line.guide_y_at(pos[:, 0])
     outside = within_x & ((pos[:, 1] > left + 0.05) | (pos[:, 1] < right - 0.05))
     if np.any(outside) and line.devices:  # rare: only then look for a device's opening (a pusher's or diverter's)
-        outside &= ~in_exit_regions(line, pos[:, 0], pos[:, 1])
+        outside &= ~(in_exit_regions(line, pos[:, 0], pos[:, 1]) | going_out_sideways(line, pos[:, 0], pos[:, 1], fish_of))
     if np.any(outside):
         i = int(np.flatnonzero(outside)[0])
         guides = (f"guides at +-{left[i]:g} m" if line.guides is None else

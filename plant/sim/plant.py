@@ -85,8 +85,8 @@ class Plant:
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._surfaces = line_surfaces(line, self._params.guide_height_m)  # once a run (STLs read once)
         self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
-        tilt = np.radians(self._params.incline_deg)
-        self._gravity = self._params.gravity_mps2 * np.array([np.sin(tilt), 0.0, -np.cos(tilt)])
+        tilt = np.radians(self._params.incline_deg)  # > 0: rising downstream (as a belt's), pulling fish back upstream
+        self._gravity = self._params.gravity_mps2 * np.array([-np.sin(tilt), 0.0, -np.cos(tilt)])
         self._gravity.setflags(write=False)
         ext = self._params.extensions
         if joint_factors is None:

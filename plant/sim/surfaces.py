@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from plant.contract.devices import DeviceShape, bin_walls, device_shapes, guide_openings
+from plant.contract.devices import CHUTE_DEPTH_M, DeviceShape, bin_walls, device_shapes, guide_openings, pusher_openings
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
 
@@ -49,8 +49,9 @@ def belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], li
 
 
 def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], list[list[int]]]:
-    """Side walls along the whole line (straight, or along the guides' polylines) and an end plate at the infeed,
-    in panels of at most 0.5 m."""
+    """Side walls along the whole line (straight, or along the guides' polylines), open where a pusher or diverter
+    sends fish out, with a chute's end plates at a pusher's opening, and an end plate at the infeed; in panels of at
+    most 0.5 m.  (A diverter's arm returns onto its opening's ends: a plate there would pinch a fish against it.)"""
     pts: list[list[float]] = []
     trigs: list[list[int]] = []
     z_lo = line.z_range_m[0] - 0.15
@@ -69,6 +70,14 @@ def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], l
             _quad(pts, trigs, (x0, l0, z_lo), (x1, l1, z_lo), (x1, l1, z_hi), (x0, l0, z_hi))
         if -1 not in open_on:  # right wall, normal inwards
             _quad(pts, trigs, (x0, r0, z_lo), (x0, r0, z_hi), (x1, r1, z_hi), (x1, r1, z_lo))
+    for side, a, b in pusher_openings(line):  # its chute: a plate at each end, out from the guide line
+        (ya, yb), out = (line.guide_y_at(np.array([a, b]))[0 if side > 0 else 1]), side * CHUTE_DEPTH_M
+        if side > 0:  # normals into the chute: +x at its upstream end, -x at its downstream end
+            _quad(pts, trigs, (a, ya, z_lo), (a, ya + out, z_lo), (a, ya + out, z_hi), (a, ya, z_hi))
+            _quad(pts, trigs, (b, yb, z_lo), (b, yb, z_hi), (b, yb + out, z_hi), (b, yb + out, z_lo))
+        else:
+            _quad(pts, trigs, (a, ya, z_lo), (a, ya, z_hi), (a, ya + out, z_hi), (a, ya + out, z_lo))
+            _quad(pts, trigs, (b, yb, z_lo), (b, yb + out, z_lo), (b, yb + out, z_hi), (b, yb, z_hi))
     xp = line.x_start_m - 0.02
     yl, yr = (float(v[0]) for v in line.guide_y_at([xp]))
     _quad(pts, trigs, (xp, yr, z_lo), (xp, yl, z_lo), (xp, yl, z_hi), (xp, yr, z_hi))  # end plate, normal +x

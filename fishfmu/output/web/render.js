@@ -277,6 +277,12 @@ function buildLine(program) {
       }
     }
   }
+  for (const [side, a, b, depth] of header.chutes || []) {   // a pusher's chute: a plate out from each end of its opening
+    for (const x of [a, b]) {
+      const y = guideY(line, x)[side > 0 ? 0 : 1], y1 = y + side * depth;
+      walls.push([x - 0.002, x + 0.002, Math.min(y, y1), Math.max(y, y1), ext.zLow - 0.01, top]);
+    }
+  }
   objects.push(sceneObject(program, walls, [0.55, 0.7, 0.85, 0.22]));
   if (header.parts && header.parts.length) objects.push(meshObject(program, header.parts, [0.62, 0.66, 0.7, 1]));
   (line.cameras || []).forEach((cam) => {   // its field of view as a faint pane above the line, and the camera
