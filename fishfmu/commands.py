@@ -186,6 +186,25 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
     return RunOutcome(result, folder.path, None, stop.exit_code if result.status == "partial" else None)
 
 
+def signal_list(scenario_file: str | Path, dest: str | Path | None = None,
+                overrides: dict[str, Any] | None = None) -> str:
+    """The signal list of the line ``fishfmu serve`` would serve for a scenario (:mod:`fishfmu.serve.signal_list`:
+    every variable and method with its node id, type, unit, range, direction and description), as CSV text;
+    written to ``dest`` too when given (an existing file is replaced only if fishfmu wrote it)."""
+    # loaded by the command that uses it only, as serve's (the other commands start without them)
+    from fishfmu.scenario.wiring import signal_names
+    from fishfmu.serve.model import STATUS_ITEMS, information_model, served_signals
+    from fishfmu.serve.signal_list import signal_list_csv
+    sc = schema.load_scenario(scenario_file, overrides or {})
+    if dest is not None:
+        check_single_file_target(dest, [scenario_file])
+    with checked(sc, scenario_file) as c:
+        text = signal_list_csv(information_model(c, served_signals(c, signal_names(c.wiring)), STATUS_ITEMS))
+    if dest is not None:
+        write_text_atomic(Path(dest), text)
+    return text
+
+
 def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:
     """Everything a run checks before it starts (the scenario, every FMU's archive, parameters and start values,
     the wiring, units, [record] and [expect]), without running: the stepping order, delayed links, conversions,

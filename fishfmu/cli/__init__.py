@@ -193,6 +193,22 @@ def serve_cmd(
     _finish(result, done.out_dir, done.stop_exit_code, console)
 
 
+@app.command("signal-list")
+def signal_list_cmd(
+    scenario: Path = typer.Argument(..., help="Scenario file (TOML), as `fishfmu serve` would serve it."),
+    out: Path | None = typer.Option(None, "--out", help="The CSV to write (replaced only if fishfmu wrote it); "
+                                    "without it, printed."),
+    set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
+) -> None:
+    """The served line's signal list as CSV for a PLC's tag table: every variable and method of `fishfmu serve`
+    with its node id, browse path, direction, type, unit, range, states and description."""
+    # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
+    from fishfmu import commands
+    text = commands.signal_list(scenario, out, parse_assignments(set_))
+    if out is None:
+        sys.stdout.write(text)
+
+
 @app.command("export-fmu")
 def export_fmu_cmd(
     scenario: Path = typer.Argument(..., help="Scenario file (TOML): its line, fish, plant and kpi tables."),

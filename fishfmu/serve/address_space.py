@@ -1,11 +1,14 @@
 """The served line's address space: what an OPC UA client of ``fishfmu serve`` sees and may write.
 
-A folder ``fishfmu`` under Objects, in the namespace ``urn:fishfmu``: one variable per signal (node id ``s=<its
-name>``) with its OPC UA data type, an ``EngineeringUnits`` property where a unit is known and ``EURange`` from a
-declared min/max; ``fishfmu.time_s``, ``fishfmu.run_state`` and the fish counts; the methods ``step(n)``,
-``stop()`` and ``reset()``, whose arguments are checked here (what they do is the line's,
-:class:`fishfmu.serve.line.LineServer`).  Only the external inputs are writable, and a write one cannot take is
-refused item by item with its status before asyncua stores it.
+The nodes of the information model (:mod:`fishfmu.serve.model`) in the namespace ``urn:fishfmu``: the object
+``fishfmu`` under Objects, an object per component under it, each signal a variable (node id ``s=<its name>``) of
+the type OPC UA clients look for: a Real an AnalogItemType (with an ``EURange``) or a BaseAnalogType (without),
+its ``EngineeringUnits`` (UNECE code) and ``EURange`` properties in namespace 0 where Part 8 puts them; a Boolean
+a TwoStateDiscreteType (``TrueState``/``FalseState``); a code a MultiStateValueDiscreteType (``EnumValues``,
+``ValueAsText``).  A component's parameters are its properties.  ``fishfmu.time_s``, ``fishfmu.run_state`` and the
+fish counts are on the root object, with the methods ``step(n)``, ``stop()`` and ``reset()``, whose arguments are
+checked here (what they do is the line's, :class:`fishfmu.serve.line.LineServer`).  Only the external inputs are
+writable, and a write one cannot take is refused item by item with its status before asyncua stores it.
 """
 
 from __future__ import annotations
@@ -19,19 +22,13 @@ import numpy as np
 from asyncua import ua
 
 from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING
-from plant.sim.ports import PlantPorts, signal_of
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
-from fishfmu.scenario.wiring import PLANT
+from fishfmu.serve.model import (PARAMETER, ROOT, STATUS_ITEMS, Component, InformationModel, Item,
+                                 NAMESPACE, UNECE, information_model, variable_type)
 
-NAMESPACE = "urn:fishfmu"
-FOLDER = "fishfmu"
 UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
-
-# UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)
-_UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "RPM", "1/min": "RPM",
-          "rad/s": "2A", "A": "AMP", "V": "VLT", "W": "WTT", "Hz": "HTZ", "K": "KEL", "degC": "CEL"}
 _FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT,
                 "fishfmu.fish_rejected": REJECTED}
 
@@ -62,28 +59,93 @@ def _variant(value: Any, vtype: Any) -> Any:
     return ua.Variant(cast(value), vtype)
 
 
-def _signal_info(checked: CheckedScenario, keys: list[str]
-                 ) -> dict[str, tuple[str, str | None, tuple[float, float] | None]]:
-    """Per signal: its type, unit and declared (min, max) where both are given."""
-    out = {}
-    for key in keys:
-        comp, _, var = key.partition(".")
-        if comp == PLANT:
-            out[key] = (signal_of(var).type, signal_of(var).unit, None)
-            continue
-        v = checked.opened[comp].variables[var]
-        md_var = next((m for m in checked.opened[comp].model_description.modelVariables if m.name == var), None)
-        lo, hi = getattr(md_var, "min", None), getattr(md_var, "max", None)
-        rng = (float(lo), float(hi)) if lo is not None and hi is not None else None
-        out[key] = (v.type, v.unit, rng)
-    return out
+
+_DATA_TYPES = {ua.VariantType.Double: ua.ObjectIds.Double, ua.VariantType.Int32: ua.ObjectIds.Int32,
+               ua.VariantType.Boolean: ua.ObjectIds.Boolean, ua.VariantType.String: ua.ObjectIds.String}
 
 
-def served_signals(checked: CheckedScenario, names: list[str]) -> list[str]:
-    """Every signal in the address space: the run's signals ``names``, then the plant's outputs it does not record
-    (a PLC always needs its sensors)."""
-    plant_outputs = [f"{PLANT}.{port}" for port in PlantPorts.of(checked.scenario.line).outputs()]
-    return [*names, *(k for k in plant_outputs if k not in names)]
+def _eu_information(unit: str) -> Any:
+    code = UNECE.get(unit)
+    return ua.EUInformation(NamespaceUri=UNITS_NAMESPACE, UnitId=_unit_id(code) if code else -1,
+                            DisplayName=ua.LocalizedText(unit), Description=ua.LocalizedText(unit))
+
+
+def _variable(idx: int, key: str, parent: str | ua.NodeId, name: str, value: ua.Variant, data_type: int,
+              type_def: int, description: str, *, prop: bool = False, writable: bool = False,
+              name_ns: int | None = None) -> Any:
+    """The AddNodesItem of a variable (or a property, ``prop``) ``key`` under ``parent``."""
+    node = ua.AddNodesItem()
+    node.RequestedNewNodeId = ua.NodeId(key, idx)
+    node.BrowseName = ua.QualifiedName(name, idx if name_ns is None else name_ns)
+    node.NodeClass = ua.NodeClass.Variable
+    node.ParentNodeId = parent if isinstance(parent, ua.NodeId) else ua.NodeId(parent, idx)
+    node.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasProperty if prop else ua.ObjectIds.HasComponent)
+    node.TypeDefinition = ua.NodeId(type_def)
+    attrs = ua.VariableAttributes()
+    attrs.Description, attrs.DisplayName = ua.LocalizedText(description), ua.LocalizedText(name)
+    attrs.DataType = ua.NodeId(data_type)
+    attrs.Value = value
+    attrs.ValueRank = ua.ValueRank.OneDimension if isinstance(value.Value, list) else ua.ValueRank.Scalar
+    attrs.ArrayDimensions = [0] if isinstance(value.Value, list) else None
+    attrs.WriteMask = attrs.UserWriteMask = 0
+    access = ua.AccessLevel.CurrentRead.mask | (ua.AccessLevel.CurrentWrite.mask if writable else 0)
+    attrs.AccessLevel = attrs.UserAccessLevel = access
+    attrs.Historizing = False
+    node.NodeAttributes = attrs
+    return node
+
+
+def _object(idx: int, c: Component, parent: ua.NodeId) -> Any:
+    node = ua.AddNodesItem()
+    node.RequestedNewNodeId = ua.NodeId(c.key, idx)
+    node.BrowseName = ua.QualifiedName(c.name, idx)
+    node.NodeClass = ua.NodeClass.Object
+    node.ParentNodeId = parent
+    node.ReferenceTypeId = ua.NodeId(ua.ObjectIds.Organizes if c.key == ROOT else ua.ObjectIds.HasComponent)
+    node.TypeDefinition = ua.NodeId(ua.ObjectIds.BaseObjectType)
+    attrs = ua.ObjectAttributes()
+    attrs.Description, attrs.DisplayName = ua.LocalizedText(c.description), ua.LocalizedText(c.name)
+    attrs.EventNotifier = 1 if c.key == ROOT else 0  # the root object sends the run's events
+    attrs.WriteMask = attrs.UserWriteMask = 0
+    node.NodeAttributes = attrs
+    return node
+
+
+def node_items(idx: int, model: InformationModel, external: list[str]) -> list[Any]:
+    """The AddNodesItems of the whole model, parents before children."""
+    objects = ua.NodeId(ua.ObjectIds.ObjectsFolder)
+    nodes = [_object(idx, c, objects if c.key == ROOT else ua.NodeId(c.parent, idx)) for c in model.components]
+    for item in model.items:
+        vtype, initial = _VARIANT_TYPES[item.type]
+        value = ua.Variant(item.value if item.value is not None else initial, vtype)
+        nodes.append(_variable(idx, item.key, item.component, item.name, value, _DATA_TYPES[vtype],
+                               getattr(ua.ObjectIds, variable_type(item)), item.description, prop=item.direction == PARAMETER,
+                               writable=item.key in external))
+        props: list[tuple[str, ua.Variant, int]] = []
+        if item.unit:
+            props.append(("EngineeringUnits", ua.Variant(_eu_information(item.unit)), ua.ObjectIds.EUInformation))
+        if item.range is not None and item.type == "Real":  # Part 8: an analog item's
+            rng = ua.Range(Low=float(item.range[0]), High=float(item.range[1]))
+            props.append(("EURange", ua.Variant(rng), ua.ObjectIds.Range))
+        if item.two_states:
+            props += [(state, ua.Variant(ua.LocalizedText(text)), ua.ObjectIds.LocalizedText)
+                      for state, text in zip(("TrueState", "FalseState"), item.two_states)]
+        if item.enumeration:
+            values = [ua.EnumValueType(Value=v, DisplayName=ua.LocalizedText(t), Description=ua.LocalizedText(t))
+                      for v, t in item.enumeration]
+            props.append(("EnumValues", ua.Variant(values), ua.ObjectIds.EnumValueType))
+            props.append(("ValueAsText", ua.Variant(ua.LocalizedText(_text_of(item, initial))),
+                          ua.ObjectIds.LocalizedText))
+        if item.direction != PARAMETER:
+            nodes += [_variable(idx, f"{item.key}.{name}", ua.NodeId(item.key, idx), name, value, dtype,
+                                ua.ObjectIds.PropertyType, name, prop=True, name_ns=0)
+                      for name, value, dtype in props]
+    return nodes
+
+
+def _text_of(item: Item, value: Any) -> str:
+    """An enumeration's text for ``value``."""
+    return dict(item.enumeration or ()).get(int(value), str(value))
 
 
 def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str]) -> dict[str, Any]:
@@ -111,7 +173,10 @@ class AddressSpace:
 
     def __init__(self, checked: CheckedScenario, served: list[str], external: list[str]) -> None:
         self.checked, self.served, self.external = checked, served, external
+        self.model = information_model(checked, served, STATUS_ITEMS)
         self.nodes: dict[str, Any] = {}
+        self.as_text: dict[str, tuple[Any, Item]] = {}
+        """An enumeration's ValueAsText node, by its variable."""
         self.types: dict[str, Any] = {}
         self.ranges: dict[str, tuple[float, float] | None] = {}
         self.last_written: dict[str, Any] = {}
@@ -122,29 +187,22 @@ class AddressSpace:
 
     async def build(self, server: Any, lockstep: bool, step: Callable[[int], Awaitable[float]],
                     stop: Callable[[], Awaitable[None]], reset: Callable[[], Awaitable[float]]) -> None:
-        """The folder, its variables and methods in ``server``; ``step(n)``, ``stop()`` and ``reset()`` do what
+        """The model's objects, variables and methods in ``server``; ``step(n)``, ``stop()`` and ``reset()`` do what
         the methods of the same names are asked (with their arguments checked); ``step`` only in ``lockstep``."""
         self.server = server
         idx = await server.register_namespace(NAMESPACE)
-        folder = await server.nodes.objects.add_folder(ua.NodeId(FOLDER, idx), ua.QualifiedName(FOLDER, idx))
-        types = _signal_info(self.checked, self.served)
-        extra = {"fishfmu.time_s": ("Real", "s", None), "fishfmu.run_state": ("String", None, None),
-                 **{k: ("Integer", None, None) for k in _FISH_COUNTS}}
-        for name in [*extra, *self.served]:
-            kind, unit, rng = extra[name] if name in extra else types[name]
-            vtype, initial = _VARIANT_TYPES[kind]
-            node = await folder.add_variable(ua.NodeId(name, idx), ua.QualifiedName(name, idx),
-                                             ua.Variant(initial, vtype))
-            if unit:
-                code = _UNECE.get(unit)
-                eu = ua.EUInformation(NamespaceUri=UNITS_NAMESPACE, UnitId=_unit_id(code) if code else -1,
-                                      DisplayName=ua.LocalizedText(unit), Description=ua.LocalizedText(unit))
-                await node.add_property(idx, "EngineeringUnits", eu)
-            if rng is not None:
-                await node.add_property(idx, "EURange", ua.Range(Low=float(rng[0]), High=float(rng[1])))
-            self.nodes[name], self.types[name], self.ranges[name] = node, vtype, rng
-            if name in self.external:
-                await node.set_writable()
+        results = await server.iserver.isession.add_nodes(node_items(idx, self.model, self.external))
+        for r in results:
+            r.StatusCode.check()
+        folder = server.get_node(ua.NodeId(ROOT, idx))
+        for item in self.model.items:
+            if item.direction == PARAMETER:
+                continue
+            self.nodes[item.key] = server.get_node(ua.NodeId(item.key, idx))
+            self.types[item.key] = _VARIANT_TYPES[item.type][0]
+            self.ranges[item.key] = item.range
+            if item.enumeration:
+                self.as_text[item.key] = (server.get_node(ua.NodeId(f"{item.key}.ValueAsText", idx)), item)
         await self.restart_inputs()
         self._guard_writes(server)
 
@@ -218,6 +276,10 @@ class AddressSpace:
             await self.server.write_attribute_value(
                 self.nodes[name].nodeid, ua.DataValue(_variant(value, self.types[name]), SourceTimestamp=now,
                                                       ServerTimestamp=now))
+            if name in self.as_text:
+                node, item = self.as_text[name]
+                await self.server.write_attribute_value(node.nodeid, ua.DataValue(
+                    ua.Variant(ua.LocalizedText(_text_of(item, value))), SourceTimestamp=now, ServerTimestamp=now))
 
     def write_refusal(self, key: str, value: Any) -> Any:
         """The status a write of the DataValue ``value`` to the external input ``key`` is refused with, or None.

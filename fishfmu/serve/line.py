@@ -36,7 +36,8 @@ from fishfmu.cosim.results import RunResult
 from fishfmu.cosim.runner import collect, run_end
 from fishfmu.cosim.stop import StopRequest
 from fishfmu.scenario.wiring import signal_names
-from fishfmu.serve.address_space import NAMESPACE, AddressSpace, served_signals, shown_values
+from fishfmu.serve.address_space import NAMESPACE, AddressSpace, shown_values
+from fishfmu.serve.model import served_signals
 from fishfmu.serve.options import (DEFAULT_ENDPOINT, PASSWORD_ENV, Certificates, endpoint_problem,
                                    realtime_problem)
 from fishfmu.serve.pacing import Pacing

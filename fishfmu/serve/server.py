@@ -12,6 +12,9 @@ certificate is in that folder.
 from __future__ import annotations
 
 import hmac
+from datetime import datetime, timezone
+from importlib.metadata import version as package_version
+from pathlib import Path
 import logging
 from typing import Any
 
@@ -20,6 +23,7 @@ from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.crypto.truststore import TrustStore
 from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
+import fishfmu
 from plant.errors import InputError, one_line
 
 from fishfmu.serve.options import Certificates, host_port, listen_error
@@ -40,6 +44,7 @@ async def make_server(endpoint: str, user: str | None, password: str | None,
     server.set_endpoint(endpoint)
     server.set_server_name("fishfmu line")
     await server.set_application_uri(APPLICATION_URI)
+    await set_build_info(server)
     if certificates is None:
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
     else:
@@ -53,6 +58,15 @@ async def make_server(endpoint: str, user: str | None, password: str | None,
                                          | CertificateValidatorOptions.PEER_CLIENT, store)
         server.set_certificate_validator(validator.validate)
     return server
+
+
+async def set_build_info(server: Server) -> None:
+    """The server's BuildInfo names fishfmu and its installed version (not asyncua's defaults); the build date is
+    when this copy of fishfmu was installed (its package file's time)."""
+    version = package_version("fishfmu")
+    await server.set_build_info(product_uri="urn:fishfmu", manufacturer_name="fishfmu",
+                                product_name="fishfmu serve", software_version=version, build_number=version,
+                                build_date=datetime.fromtimestamp(Path(fishfmu.__file__).stat().st_mtime, timezone.utc))
 
 
 async def start_server(server: Server, endpoint: str) -> None:
