@@ -1,8 +1,9 @@
 // An independent OPC UA client (node-opcua): browse fishfmu's information model as an integrator's tool does, read
 // units and ranges with node-opcua's own helper (readUAAnalogItem), the states of a Boolean and an enumeration, the
-// server's BuildInfo, then stop the run; prints "RESULT <json>" (node-opcua logs to stdout too).
-const { OPCUAClient, AttributeIds, BrowseDirection, NodeClass, MessageSecurityMode, SecurityPolicy, readUAAnalogItem,
-        makeBrowsePath } = require("node-opcua-client");
+// server's BuildInfo; as an anonymous client it is refused a write, then as the user given (argv 3 and 4) it writes and
+// stops the run; prints "RESULT <json>" (node-opcua logs to stdout too).
+const { OPCUAClient, AttributeIds, BrowseDirection, DataType, NodeClass, MessageSecurityMode, SecurityPolicy,
+        UserTokenType, readUAAnalogItem, makeBrowsePath } = require("node-opcua-client");
 // node-opcua gives an Int64 as [high, low] 32-bit words
 const int64 = (v) => Array.isArray(v) ? Number(BigInt.asIntN(64, (BigInt(v[0] >>> 0) << 32n) | BigInt(v[1] >>> 0)))
                                       : Number(v);
@@ -55,12 +56,21 @@ const int64 = (v) => Array.isArray(v) ? Number(BigInt.asIntN(64, (BigInt(v[0] >>
   const enumValues = (await prop("plant.cam.lead_heading", "EnumValues")) || [];
   const asText = await prop("plant.cam.lead_heading", "ValueAsText");
   const build = (await session.read({ nodeId: "i=2260", attributeId: AttributeIds.Value })).value.value;
-  await session.call({ objectId: id("fishfmu"), methodId: id("fishfmu.stop"), inputArguments: [] });
+  const gate = { nodeId: id("plant.gate.command"), attributeId: AttributeIds.Value,
+                 value: { value: { dataType: DataType.Boolean, value: true } } };
+  const stop = { objectId: id("fishfmu"), methodId: id("fishfmu.stop"), inputArguments: [] };
+  // a refused request is a service fault: node-opcua rejects the promise with the status in its message
+  const status = async (p) => {
+    try { const r = await p; return (r.statusCode || r).name; } catch (e) { return (/Bad\w+/.exec(String(e)) || [String(e)])[0]; }
+  };
+  const anonymous = { write: await status(session.write(gate)), stop: await status(session.call(stop)) };
+  const operator = await client.createSession({ type: UserTokenType.UserName, userName: process.argv[3],
+                                                password: process.argv[4] });
+  const byUser = { write: await status(operator.write(gate)), stop: await status(operator.call(stop)) };
   console.log("RESULT " + JSON.stringify({ ns, objects: Object.keys(objects), leaves, analog,
     twoStates: [trueState && trueState.text, falseState && falseState.text],
     enumValues: enumValues.map((e) => [int64(e.value), e.displayName.text]), asText: asText && asText.text,
     build: { productName: build.productName, manufacturerName: build.manufacturerName,
-             softwareVersion: build.softwareVersion } }));
-  await session.close();
+             softwareVersion: build.softwareVersion }, anonymous, byUser }));
   await client.disconnect();
 })().catch((e) => { console.error(String(e && e.stack || e)); process.exit(1); });

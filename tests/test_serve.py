@@ -29,6 +29,7 @@ PAPER = ROOT / "scenarios" / "paper_dump.toml"
 SPEEDS = [0.25, 0.50, 0.80, 1.25]
 DT = 0.01
 SHORT = ["--set", "fish.count=4", "--set", "run.duration_s=20", "--no-report"]  # fish reach pe_c4 at ~17 s
+LAB = ["--allow-anonymous-write"]  # the PLCs here write and call methods without logging in (test_serve_access.py)
 
 
 def free_port() -> int:
@@ -40,7 +41,8 @@ def free_port() -> int:
 def start_server(out: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint", url, "--out",
-                             str(out), *SHORT, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             str(out), *SHORT, *LAB, *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     return proc, url
 
 
@@ -219,7 +221,7 @@ def test_real_time_paces_the_run_and_reports_its_lateness(tmp_path):
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     cli = subprocess.run([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint", url, "--out",
                           str(tmp_path / "rt"), "--realtime", "5", "--set", "run.duration_s=1", "--set",
-                          "fish.count=2", "--no-report"], capture_output=True, text=True, timeout=300)
+                          "fish.count=2", "--no-report", "--grace", "0"], capture_output=True, text=True, timeout=300)
     assert cli.returncode in (0, 1), cli.stderr  # 1: the short run misses the scenario's [expect] bounds
     info = json.loads((tmp_path / "rt" / "run_info.json").read_text())
     pacing = info["served"]["pacing"]
@@ -360,7 +362,7 @@ def test_with_certificates_only_trusted_clients_get_an_encrypted_session(tmp_pat
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(SERVED), "--endpoint", url, "--out",
                              str(tmp_path / "o"), "--certificate", str(certs["server"][0]), "--private-key",
-                             str(certs["server"][1]), "--trusted-clients", str(trusted), *SHORT],
+                             str(certs["server"][1]), "--trusted-clients", str(trusted), *SHORT, *LAB],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     seen = asyncio.run(secured_sessions(url, proc, certs))
     out, err = proc.communicate(timeout=300)

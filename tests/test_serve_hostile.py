@@ -25,14 +25,14 @@ from asyncua import Client, ua  # noqa: E402
 
 from plant.errors import InputError  # noqa: E402
 
-from tests.test_serve import SERVED, SHORT, connect, free_port, make_certificate  # noqa: E402
+from tests.test_serve import LAB, SERVED, SHORT, connect, free_port, make_certificate  # noqa: E402
 
 RUN = [sys.executable, "-m", "fishfmu.cli"]
 
 
 def serve(out: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     url = f"opc.tcp://127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([*RUN, "serve", str(SERVED), "--endpoint", url, "--out", str(out), *SHORT, *extra],
+    proc = subprocess.Popen([*RUN, "serve", str(SERVED), "--endpoint", url, "--out", str(out), *SHORT, *LAB, *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return proc, url
 

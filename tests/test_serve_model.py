@@ -51,6 +51,19 @@ async def _listening(url: str, proc: subprocess.Popen) -> None:
     await (await connect(url, proc)).disconnect()
 
 
+def users_file(tmp_path: Path, users: dict[str, tuple[str, str]]) -> Path:
+    """A --users file of ``{name: (role, password)}``, the passwords hashed by `fishfmu hash-password`."""
+    lines = []
+    for name, (role, password) in users.items():
+        hashed = subprocess.run([sys.executable, "-m", "fishfmu.cli", "hash-password"], input=password + "\n",
+                                capture_output=True, text=True, timeout=60)
+        assert hashed.returncode == 0 and password not in hashed.stdout, hashed.stderr
+        lines += ["[[user]]", f'name = "{name}"', f'role = "{role}"', f'password = "{hashed.stdout.strip()}"', ""]
+    path = tmp_path / "users.toml"
+    path.write_text("\n".join(lines))
+    return path
+
+
 def _node_opcua(tmp_path: Path, scenario: Path) -> dict:
     if not (NODE_OPCUA / "node-opcua-client").is_dir() or shutil.which("node") is None:
         if os.environ.get("CI") == "true":
@@ -58,12 +71,14 @@ def _node_opcua(tmp_path: Path, scenario: Path) -> dict:
         pytest.skip("node-opcua-client not installed (.ci/run installs it)")
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(scenario), "--endpoint", url, "--out",
-                             str(tmp_path / "served"), *SHORT], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             str(tmp_path / "served"), *SHORT, "--users",
+                             str(users_file(tmp_path, {"plc": ("operator", "s3cret pass")}))],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     asyncio.run(_listening(url, proc))  # the line is built and served before node-opcua's retries run out
     env = {**os.environ, "NODE_PATH": str(NODE_OPCUA), "HOME": str(tmp_path)}
-    js = subprocess.run(["node", str(Path(__file__).parent / "opcua_model_client.js"), url], capture_output=True,
-                        text=True, env=env, timeout=180)
+    js = subprocess.run(["node", str(Path(__file__).parent / "opcua_model_client.js"), url, "plc", "s3cret pass"],
+                        capture_output=True, text=True, env=env, timeout=180)
     proc.communicate(timeout=300)
     assert js.returncode == 0, js.stderr
     return json.loads(next(line for line in js.stdout.splitlines() if line.startswith("RESULT "))[7:])
@@ -107,6 +122,9 @@ def test_node_opcua_finds_objects_units_ranges_states_and_parameters(tmp_path):
     # only the scenario's inputs are writable
     assert [p for p, leaf in leaves.items() if leaf.get("writable")] == ["Objects/fishfmu/plant/gate/command"]
     assert GATE == "plant.gate.command"
+    # secure by default: an anonymous client reads but may not write nor call; a user with a role may
+    assert seen["anonymous"] == {"write": "BadUserAccessDenied", "stop": "BadUserAccessDenied"}
+    assert seen["byUser"] == {"write": "Good", "stop": "Good"}
     assert seen["build"] == {"productName": "fishfmu serve", "manufacturerName": "fishfmu",
                              "softwareVersion": version("fishfmu")}
     # the signal list is what the server serves: the same node ids, the same writable ones

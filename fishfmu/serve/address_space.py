@@ -25,8 +25,10 @@ from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
-from fishfmu.serve.model import (PARAMETER, ROOT, STATUS_ITEMS, Component, InformationModel, Item,
-                                 NAMESPACE, UNECE, information_model, variable_type)
+from fishfmu.serve.model import (NAMESPACE, PARAMETER, ROOT, STATUS_ITEMS, UNECE, Component, InformationModel, Item,
+                                 information_model, variable_type)
+from fishfmu.serve.options import realtime_problem
+from fishfmu.serve.status import InvalidState
 
 UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
 _FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT,
@@ -50,6 +52,11 @@ def _unit_id(code: str) -> int:
 
 _NOTHING = object()
 """No value published yet."""
+
+
+def _same(a: Any, b: Any) -> bool:
+    """``a == b``, NaN equal to NaN (an undefined KPI stays NaN without being written again)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
 
 
 def _variant(value: Any, vtype: Any) -> Any:
@@ -148,9 +155,12 @@ def _text_of(item: Item, value: Any) -> str:
     return dict(item.enumeration or ()).get(int(value), str(value))
 
 
-def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str]) -> dict[str, Any]:
-    """What the address space shows of the co-simulation ``c`` (None: not built) in the run state ``state``."""
-    values: dict[str, Any] = {"fishfmu.time_s": c.t_s if c is not None else 0.0, "fishfmu.run_state": state}
+def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str],
+                 status: dict[str, Any]) -> dict[str, Any]:
+    """What the address space shows of the co-simulation ``c`` (None: not built) in the run state ``state``, with
+    the run's ``status`` values (its clock, its KPIs) by node id."""
+    values: dict[str, Any] = {"fishfmu.time_s": c.t_s if c is not None else 0.0, "fishfmu.run_state": state,
+                              **status}
     if c is not None:
         # the last recorded row (inputs as sent, outputs as they are); before the first step the start values;
         # the plant's outputs not recorded as they are now
@@ -160,6 +170,82 @@ def shown_values(c: CoSimulation | None, state: str, names: list[str], served: l
         status = c.plant.state.status
         values.update((k, int(np.count_nonzero(status == s))) for k, s in _FISH_COUNTS.items())
     return values
+
+
+def _one_argument(args: tuple, types: set[Any], check: Callable[[Any], bool]) -> Any:
+    """The value of a method's one argument, or the refusal of a call without it, with more, or with a value of
+    another type or one ``check`` refuses."""
+    if not args:
+        return refused(ua.StatusCodes.BadArgumentsMissing)
+    if len(args) > 1:
+        return refused(ua.StatusCodes.BadTooManyArguments)
+    n = args[0]
+    if (not isinstance(n, ua.Variant) or n.VariantType not in types or n.is_array or isinstance(n.Value, bool)
+            or not isinstance(n.Value, (int, float))):
+        return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadTypeMismatch])
+    if not check(n.Value):
+        return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadOutOfRange])
+    return n.Value
+
+
+def _argument(name: str, type_id: int, text: str) -> Any:
+    return ua.Argument(Name=name, DataType=ua.NodeId(type_id), ValueRank=-1, Description=ua.LocalizedText(text))
+
+
+async def _add_methods(folder: Any, idx: int, lockstep: bool, line: Any) -> None:
+    """The root object's methods (see :data:`fishfmu.serve.model.METHODS`), each calling ``line``'s coroutine of
+    the same name; one the run's state does not allow (:class:`InvalidState`) gets BadInvalidState."""
+
+    def method(fn: Callable[..., Awaitable[Any]], allowed: bool = True) -> Callable[..., Awaitable[Any]]:
+        async def call(parent: Any, *args: Any) -> Any:
+            if not allowed:
+                return refused(ua.StatusCodes.BadInvalidState)
+            try:
+                return await fn(*args)
+            except InvalidState:
+                return refused(ua.StatusCodes.BadInvalidState)
+        return call
+
+    def no_arguments(fn: Callable[[], Awaitable[Any]], out: bool = False) -> Callable[..., Awaitable[Any]]:
+        async def call(*args: Any) -> Any:
+            if args:
+                return refused(ua.StatusCodes.BadTooManyArguments)
+            value = await fn()
+            return [ua.Variant(value, ua.VariantType.Double)] if out else []
+        return call
+
+    async def step(*args: Any) -> Any:
+        n = _one_argument(args, _INTEGER_TYPES, lambda v: isinstance(v, int) and v >= 0)
+        return n if isinstance(n, ua.CallMethodResult) else [ua.Variant(await line.step(n), ua.VariantType.Double)]
+
+    async def reset(*args: Any) -> Any:
+        seed = _one_argument(args, _INTEGER_TYPES, lambda v: isinstance(v, int) and 0 <= v < 2**32) if args else None
+        if isinstance(seed, ua.CallMethodResult):
+            return seed
+        return [ua.Variant(await line.reset(seed), ua.VariantType.Double)]
+
+    async def set_speed(*args: Any) -> Any:
+        factor = _one_argument(args, {ua.VariantType.Double, ua.VariantType.Float, *_INTEGER_TYPES},
+                               lambda v: realtime_problem(float(v)) is None)
+        if isinstance(factor, ua.CallMethodResult):
+            return factor
+        await line.set_speed(float(factor))
+        return []
+
+    t_out = _argument("time_s", ua.ObjectIds.Double, "simulated time afterwards, s")
+    table = {"step": (method(step, lockstep), [_argument("n", ua.ObjectIds.Int32, "communication steps to advance "
+                                                                                   "(0 or more)")], [t_out]),
+             "start": (method(no_arguments(line.start)), [], []),
+             "pause": (method(no_arguments(line.pause)), [], []),
+             "resume": (method(no_arguments(line.resume)), [], []),
+             "stop": (method(no_arguments(line.stop)), [], []),
+             "reset": (method(reset), [_argument("seed", ua.ObjectIds.UInt32, "optional: the seed of the run to "
+                                                                                "start (default: the scenario's)")],
+                       [t_out]),
+             "set_speed": (method(set_speed, not lockstep),
+                           [_argument("factor", ua.ObjectIds.Double, "real-time factor, 0.001 to 1000")], [])}
+    for name, (fn, inputs, outputs) in table.items():
+        await folder.add_method(ua.NodeId(f"{ROOT}.{name}", idx), ua.QualifiedName(name, idx), fn, inputs, outputs)
 
 
 def refused(code: Any, per_argument: list[Any] | None = None) -> Any:
@@ -185,10 +271,10 @@ class AddressSpace:
         """Each other node's value as last published (see :meth:`publish`)."""
         self.server: Any = None
 
-    async def build(self, server: Any, lockstep: bool, step: Callable[[int], Awaitable[float]],
-                    stop: Callable[[], Awaitable[None]], reset: Callable[[], Awaitable[float]]) -> None:
-        """The model's objects, variables and methods in ``server``; ``step(n)``, ``stop()`` and ``reset()`` do what
-        the methods of the same names are asked (with their arguments checked); ``step`` only in ``lockstep``."""
+    async def build(self, server: Any, lockstep: bool, line: Any) -> None:
+        """The model's objects, variables and methods in ``server``; each method calls the coroutine of the same
+        name of ``line`` (:class:`fishfmu.serve.line.LineServer`) with its arguments checked; ``step`` only in
+        ``lockstep``, ``set_speed`` only in real time."""
         self.server = server
         idx = await server.register_namespace(NAMESPACE)
         results = await server.iserver.isession.add_nodes(node_items(idx, self.model, self.external))
@@ -206,41 +292,13 @@ class AddressSpace:
         await self.restart_inputs()
         self._guard_writes(server)
 
-        async def _step(parent, *args):  # noqa: ANN001, ANN002 - asyncua's method signature
-            if not lockstep:  # the wall clock steps the line; a client's step would race it
-                return refused(ua.StatusCodes.BadInvalidState)
-            if not args:
-                return refused(ua.StatusCodes.BadArgumentsMissing)
-            if len(args) > 1:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            n = args[0]
-            if (not isinstance(n, ua.Variant) or n.VariantType not in _INTEGER_TYPES or n.is_array
-                    or not isinstance(n.Value, int) or isinstance(n.Value, bool)):
-                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadTypeMismatch])
-            if n.Value < 0:
-                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadOutOfRange])
-            return [ua.Variant(await step(n.Value), ua.VariantType.Double)]
+        await _add_methods(folder, idx, lockstep, line)
+        self.event = await server.get_event_generator(ua.ObjectIds.BaseEventType, folder.nodeid)
 
-        async def _stop(parent, *args):  # noqa: ANN001, ANN002
-            if args:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            await stop()
-            return []
-
-        async def _reset(parent, *args):  # noqa: ANN001, ANN002
-            if args:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            return [ua.Variant(await reset(), ua.VariantType.Double)]
-
-        n_arg = ua.Argument(Name="n", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1,
-                            Description=ua.LocalizedText("communication steps to advance (0 or more)"))
-        t_out = ua.Argument(Name="time_s", DataType=ua.NodeId(ua.ObjectIds.Double), ValueRank=-1,
-                            Description=ua.LocalizedText("simulated time after the steps, s"))
-        await folder.add_method(ua.NodeId("fishfmu.step", idx), ua.QualifiedName("step", idx), _step, [n_arg],
-                                [t_out])
-        await folder.add_method(ua.NodeId("fishfmu.stop", idx), ua.QualifiedName("stop", idx), _stop, [], [])
-        await folder.add_method(ua.NodeId("fishfmu.reset", idx), ua.QualifiedName("reset", idx), _reset, [],
-                                [t_out])
+    async def announce(self, state: str) -> None:
+        """An event from the root object: the run's state is now ``state``."""
+        self.event.event.Severity = 700 if state.startswith("failed") else 300
+        await self.event.trigger(message=f"run_state: {state}")
 
     async def restart_inputs(self) -> None:
         """Every external input back at its start value (the scenario's), as the line takes it."""
@@ -270,7 +328,7 @@ class AddressSpace:
         made steps late while a PLC's writes waited for it.  A node's timestamp is that of its last change."""
         now = datetime.now(timezone.utc)
         for name, value in values.items():
-            if name in self.external or value is None or self.published.get(name, _NOTHING) == value:
+            if name in self.external or value is None or _same(self.published.get(name, _NOTHING), value):
                 continue
             self.published[name] = value
             await self.server.write_attribute_value(

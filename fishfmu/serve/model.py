@@ -19,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from plant.contract.kpis import KPIS as KPI_TABLE
 from plant.contract.line import Camera, Conveyor, Device, Line, PhotoEye
 from plant.contract.plausibility import MAX_BELT_SPEED_MPS
 from plant.sim.ports import PlantPorts, signal_of
@@ -33,6 +34,8 @@ UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "
          "rad/s": "2A", "A": "AMP", "V": "VLT", "W": "WTT", "Hz": "HTZ", "K": "KEL", "degC": "CEL", "deg": "DD"}
 """UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)."""
 ROOT = "fishfmu"
+KPIS = "fishfmu.kpis"
+"""The object holding the run's KPIs once it has ended."""
 """The root object under Objects: the line's components, its status and its methods."""
 
 IN, OUT, PARAMETER, STATUS = "in", "out", "parameter", "status"
@@ -93,19 +96,41 @@ class InformationModel:
         return next(i for i in self.items if i.key == key)
 
 
-STATUS_ITEMS = [Item("fishfmu.time_s", ROOT, "time_s", "Real", "s", None, STATUS, "simulated time of the line"),
-                Item("fishfmu.run_state", ROOT, "run_state", "String", None, None, STATUS,
-                     "the run's state: running, finished, stopped or failed: <why>"),
-                *(Item(k, ROOT, k.partition(".")[2], "Integer", None, None, STATUS, text) for k, text in (
-                    ("fishfmu.fish_waiting", "fish of the batch not yet dropped onto the line"),
-                    ("fishfmu.fish_on_line", "fish on the line"),
-                    ("fishfmu.fish_left", "fish that left at the outfeed"),
-                    ("fishfmu.fish_rejected", "fish a device took off the line")))]
+STATUS_ITEMS = [
+    Item("fishfmu.time_s", ROOT, "time_s", "Real", "s", None, STATUS, "simulated time of the line"),
+    Item("fishfmu.run_state", ROOT, "run_state", "String", None, None, STATUS,
+         "the run's state: waiting (for start()), running, paused, finished, stopped or failed: <why>; each change "
+         "is an event from this object"),
+    Item("fishfmu.lag_s", ROOT, "lag_s", "Real", "s", None, STATUS,
+         "real time: how late the last step started against the wall clock (0 in lockstep)"),
+    Item("fishfmu.lag_max_s", ROOT, "lag_max_s", "Real", "s", None, STATUS,
+         "real time: the largest lag since the run (re)started"),
+    Item("fishfmu.late_steps", ROOT, "late_steps", "Integer", None, None, STATUS,
+         "real time: steps that started more than one communication step (of wall time) late"),
+    Item("fishfmu.realtime_factor", ROOT, "realtime_factor", "Real", None, None, STATUS,
+         "the real-time factor paced to (set_speed changes it; 0 in lockstep)"),
+    Item("fishfmu.realtime_factor_reached", ROOT, "realtime_factor_reached", "Real", None, None, STATUS,
+         "simulated time per second of wall time while running, since the run (re)started"),
+    *(Item(k, ROOT, k.partition(".")[2], "Integer", None, None, STATUS, text) for k, text in (
+        ("fishfmu.fish_waiting", "fish of the batch not yet dropped onto the line"),
+        ("fishfmu.fish_on_line", "fish on the line"),
+        ("fishfmu.fish_left", "fish that left at the outfeed"),
+        ("fishfmu.fish_rejected", "fish a device took off the line"))),
+    *(Item(f"{KPIS}.{k.key}", KPIS, k.key, "Real", k.unit, None, STATUS,
+           f"{k.description} (once the run has finished; NaN before, or when undefined)")
+      for k in KPI_TABLE)]
 """The run's own variables on the root object."""
 
 METHODS = {"step": ("n: Int32 -> time_s: Double", "lockstep only: advance n communication steps; the new time"),
-           "stop": ("", "end the run; it is written like any run"),
-           "reset": ("-> time_s: Double", "start the run over from the scenario's start")}
+           "start": ("", "start a run waiting for it (--wait-for-start)"),
+           "pause": ("", "pause a running run (real time: the wall clock no longer steps it; lockstep: step() is "
+                     "refused)"),
+           "resume": ("", "resume a paused run"),
+           "stop": ("", "end the run; it is written like any run, and the server ends"),
+           "reset": ("[seed: UInt32] -> time_s: Double", "start the run over from the scenario's start, with the "
+                     "scenario's seed or the one given"),
+           "set_speed": ("factor: Double", "real time only: pace to this real-time factor from now on (0.001 to "
+                         "1000)")}
 """The root object's methods: their arguments and what they do."""
 
 
@@ -240,5 +265,7 @@ def information_model(checked: CheckedScenario, served: list[str], status: list[
             items.append(_fmu_item(key, checked, direction, source_of.get(key), fed.get(key, [])))
     order = {c.key: i for i, c in enumerate(components)}
     items.sort(key=lambda i: order[i.component])  # stable: each component's items together, in their order
-    return InformationModel([Component(ROOT, "", ROOT, "line", "The served line: its components, the run's status "
-                                       "and the methods that drive it"), *components], [*status, *items])
+    root = Component(ROOT, "", ROOT, "line", "The served line: its components, the run's status and the methods "
+                     "that drive it")
+    kpis = Component(KPIS, ROOT, "kpis", "kpis", "The run's KPIs, served once the run has ended")
+    return InformationModel([root, kpis, *components], [*status, *items])
