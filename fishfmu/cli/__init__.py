@@ -171,6 +171,8 @@ def serve_cmd(
                                       "viewer: read) and `fishfmu hash-password` hashes."),
     allow_anonymous_write: bool = typer.Option(False, "--allow-anonymous-write", help="Lab bench: anonymous clients "
                                                "may write and call methods (by default they only read)."),
+    modbus: str | None = typer.Option(None, "--modbus", help="HOST:PORT of a Modbus TCP server beside OPC UA (the "
+                                      "register map: fishfmu signal-list)."),
     grace: float | None = typer.Option(None, "--grace", help="Seconds the server stays up after the run finished or "
                                        "failed, unless a client calls stop() (0 to 86400; default 60)."),
 ) -> None:
@@ -194,7 +196,7 @@ def serve_cmd(
     done = commands.serve(scenario, out, parse_assignments(set_), endpoint=endpoint, realtime=realtime,
                           allow_remote=allow_remote, user=user, certificates=certificates, overwrite=overwrite,
                           report=report, on_ready=ready, wait_for_start=wait_for_start, grace_s=grace,
-                          users_file=users, allow_anonymous_write=allow_anonymous_write, pki=pki)
+                          users_file=users, allow_anonymous_write=allow_anonymous_write, pki=pki, modbus=modbus)
     result = done.result
     pacing = (result.served or {}).get("pacing")
     if pacing:

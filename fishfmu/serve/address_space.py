@@ -307,6 +307,22 @@ class AddressSpace:
             await self.nodes[key].write_value(_variant(start, self.types[key]))
             self.last_written[key] = start
 
+    def input_value(self, key: str) -> Any:
+        """The external input ``key`` as clients last wrote it (used from the next step on)."""
+        return self.server.iserver.aspace.read_attribute_value(self.nodes[key].nodeid,
+                                                               ua.AttributeIds.Value).Value.Value
+
+    async def write_input(self, key: str, value: Any) -> bool:
+        """Write the external input ``key`` as a client's write would (another protocol's, e.g. Modbus): False,
+        and nothing written, when an OPC UA write of it would be refused."""
+        data = ua.DataValue(_variant(value, self.types[key]))
+        if isinstance(value, float) and self.types[key] != ua.VariantType.Double:
+            return False
+        if self.write_refusal(key, data) is not None:
+            return False
+        await self.server.write_attribute_value(self.nodes[key].nodeid, data)
+        return True
+
     def changed_inputs(self) -> list[tuple[str, Any]]:
         """The external inputs a client changed since the last call, with their values (read from the address
         space directly: a plain read, safe from the line's worker thread)."""

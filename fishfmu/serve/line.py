@@ -43,7 +43,7 @@ from fishfmu.serve.access import Account, LineUsers, hash_password, read_users
 from fishfmu.serve.address_space import NAMESPACE, AddressSpace, shown_values
 from fishfmu.serve.model import KPIS, served_signals
 from fishfmu.serve.options import (DEFAULT_ENDPOINT, PASSWORD_ENV, Certificates, endpoint_problem,
-                                   realtime_problem)
+                                   modbus_host_port, modbus_problem, realtime_problem)
 from fishfmu.serve.pacing import Pacing
 from fishfmu.serve.server import make_server, start_server
 from fishfmu.serve.status import (DEFAULT_GRACE_S, FINISHED, PAUSED, RUNNING, STOPPED, WAITING, InvalidState,
@@ -62,7 +62,7 @@ class LineServer:
                  realtime: float | None = None, user: str | None = None,
                  certificates: Certificates | None = None, wait_for_start: bool = False,
                  grace_s: float = DEFAULT_GRACE_S, users_file: Path | None = None,
-                 allow_anonymous_write: bool = False) -> None:
+                 allow_anonymous_write: bool = False, modbus: str | None = None) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
@@ -87,6 +87,10 @@ class LineServer:
         if problem:
             raise InputError(problem, where="--grace")
         self.wait_for_start, self.grace_s = wait_for_start, grace_s
+        problem = modbus_problem(modbus, allow_remote) if modbus is not None else None
+        if problem:
+            raise InputError(problem, where="--modbus")
+        self.modbus_at, self.modbus, self.allow_anonymous_write = modbus, None, allow_anonymous_write
         self.clock = RunClock()
         self.kpis: dict[str, Any] = {}
         """The run's KPIs once it has ended (served under fishfmu.kpis)."""
@@ -297,7 +301,10 @@ class LineServer:
                   "fishfmu.realtime_factor": self.realtime or 0.0,
                   "fishfmu.realtime_factor_reached": self.clock.factor_reached(t_s),
                   **(self.kpis or {f"{KPIS}.{k}": math.nan for k in KPI_KEYS})}
-        await self.space.publish(shown_values(self.cosim, self.state, self.names, self.served, status))
+        values = shown_values(self.cosim, self.state, self.names, self.served, status)
+        await self.space.publish(values)
+        if self.modbus is not None:
+            self.modbus.publish(values)
         if self.state != self._announced:
             self._announced = self.state
             await self.space.announce(self.state)
@@ -324,6 +331,8 @@ class LineServer:
             return
         await start_server(server, self.endpoint)
         try:
+            if self.modbus_at is not None:
+                await self._start_modbus()
             if on_ready is not None:
                 on_ready(self)
             if self.realtime is None:
@@ -336,9 +345,19 @@ class LineServer:
                 if self.state == RUNNING and self.stop_requested.is_set():
                     self.state = STOPPED
         finally:
+            if self.modbus is not None:
+                await self.modbus.stop()
             await server.stop()
         if self._crash is not None:
             raise self._crash
+
+    async def _start_modbus(self) -> None:
+        """The Modbus TCP server beside OPC UA (:mod:`fishfmu.serve.modbus`; pymodbus imported only for it)."""
+        from fishfmu.serve.modbus import ModbusObserver  # pymodbus: only when --modbus is given
+        host, port = modbus_host_port(self.modbus_at)
+        self.modbus = ModbusObserver(self.space.model, host, port, self.allow_anonymous_write, self)
+        await self.modbus.start()
+        self.modbus.publish(dict(self.space.published))  # every value so far, not only the next changes
 
     async def _sleep_until(self, due: float) -> bool:
         """Wait for the monotonic time ``due``, looking for the end of serving and a reset every POLL_S;
