@@ -168,11 +168,15 @@ def test_pki_makes_the_servers_certificate_on_first_use_and_admits_only_trusted_
     (pki / "trusted" / "plc.der").write_bytes(trusted[0].read_bytes())
     untrusted = asyncio.run(make_certificate(keys, "intruder", "urn:test:untrusted", False))
     proc, url = _serve(tmp_path, "--pki", str(pki), "--allow-anonymous-write")
-    seen = asyncio.run(_secure_clients(url, proc, server_cert, {
-        "trusted": (*trusted, "urn:test:trusted", SecurityPolicyAes256Sha256RsaPss),
-        "untrusted": (*untrusted, "urn:test:untrusted", SecurityPolicyBasic256Sha256),
-        "last": (*trusted, "urn:test:trusted", SecurityPolicyBasic256Sha256)}))
-    out, err = proc.communicate(timeout=120)
+    try:
+        seen = asyncio.run(_secure_clients(url, proc, server_cert, {
+            "trusted": (*trusted, "urn:test:trusted", SecurityPolicyAes256Sha256RsaPss),
+            "untrusted": (*untrusted, "urn:test:untrusted", SecurityPolicyBasic256Sha256),
+            "last": (*trusted, "urn:test:trusted", SecurityPolicyBasic256Sha256)}))
+        out, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()  # a server the last client failed to stop must not outlive the test
+        proc.wait()
     assert seen == {"trusted": 0.0, "untrusted": "BadCertificateUntrusted", "last": 0.0}, (seen, err)
     assert server_cert.read_bytes() == made  # made once, on first use
     # the untrusted certificate refused in one line each, no traceback
