@@ -167,9 +167,18 @@ def run(scenario_file: str | Path, out: str | Path | None = None, overrides: dic
 def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: dict[str, Any] | None = None, *,
           endpoint: str = serving.DEFAULT_ENDPOINT, realtime: float | None = None, allow_remote: bool = False,
           user: str | None = None, certificates: serving.Certificates | None = None, overwrite: bool = False,
-          report: bool = True, on_ready: Callable[[Any], None] | None = None) -> RunOutcome:
+          report: bool = True, on_ready: Callable[[Any], None] | None = None, wait_for_start: bool = False,
+          grace_s: float | None = None, users_file: str | Path | None = None,
+          allow_anonymous_write: bool = False, pki: str | Path | None = None,
+          modbus: str | None = None) -> RunOutcome:
     """Serve a scenario's line over OPC UA (:mod:`fishfmu.serve`) until its run ends (real time), a client calls
     stop() or a signal comes, then write the run into ``out`` (default ``out/<name>``) as :func:`run` does.
+    ``wait_for_start``: the line waits for a client's start(); ``grace_s``: how long the server stays up after the
+    run finished or failed (default :data:`fishfmu.serve.status.DEFAULT_GRACE_S`); ``users_file``: the users and
+    their roles (:mod:`fishfmu.serve.access`); anonymous clients read only, unless ``allow_anonymous_write``;
+    ``pki``: a folder for the server's certificate, made on first use, and the trusted clients'
+    (:mod:`fishfmu.serve.pki`), instead of ``certificates``; ``modbus``: ``HOST:PORT`` of a Modbus TCP server
+    beside OPC UA (:mod:`fishfmu.serve.modbus`).
 
     Bad options (the endpoint, a port in use, the real-time factor, certificates, the user's password) are
     refused before the output folder is made; anything that fails after leaves ``run_info.json`` at ``failed``
@@ -177,12 +186,19 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
     # slow (asyncua, about 0.4 s) and needed only here: the other commands start without it
     from fishfmu.serve.line import LineServer
     scenario_file = Path(scenario_file)
+    if pki is not None:
+        from fishfmu.serve.pki import pki_certificates  # with asyncua, as LineServer
+        from fishfmu.serve.server import APPLICATION_URI  # asyncua: imported only to serve
+        certificates = pki_certificates(Path(pki), APPLICATION_URI)
     problem = serving.options_problem(endpoint, allow_remote, realtime, certificates)
     if problem:
         raise problem
     sc = schema.load_scenario(scenario_file, overrides or {})
     with checked(sc, scenario_file) as c:
-        line = LineServer(c, endpoint, allow_remote, realtime, user, certificates)
+        grace = {} if grace_s is None else {"grace_s": grace_s}
+        line = LineServer(c, endpoint, allow_remote, realtime, user, certificates, wait_for_start,
+                          users_file=Path(users_file) if users_file is not None else None,
+                          allow_anonymous_write=allow_anonymous_write, modbus=modbus, **grace)
         try:
             problem = serving.listen_problem(endpoint)
             if problem:
@@ -203,6 +219,25 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
                 line.close()
             folder.finish_run(result, report=report)
     return RunOutcome(result, folder.path, None, stop.exit_code if stop.requested else None)
+
+
+def signal_list(scenario_file: str | Path, dest: str | Path | None = None,
+                overrides: dict[str, Any] | None = None) -> str:
+    """The signal list of the line ``fishfmu serve`` would serve for a scenario (:mod:`fishfmu.serve.signal_list`:
+    every variable and method with its node id, type, unit, range, direction and description), as CSV text;
+    written to ``dest`` too when given (an existing file is replaced only if fishfmu wrote it)."""
+    # loaded by the command that uses it only, as serve's (the other commands start without them)
+    from fishfmu.scenario.wiring import signal_names
+    from fishfmu.serve.model import STATUS_ITEMS, information_model, served_signals
+    from fishfmu.serve.signal_list import signal_list_csv
+    sc = schema.load_scenario(scenario_file, overrides or {})
+    if dest is not None:
+        check_single_file_target(dest, [scenario_file])
+    with checked(sc, scenario_file) as c:
+        text = signal_list_csv(information_model(c, served_signals(c, signal_names(c.wiring)), STATUS_ITEMS))
+    if dest is not None:
+        write_text_atomic(Path(dest), text)
+    return text
 
 
 def check(scenario_file: str | Path, overrides: dict[str, Any] | None = None) -> dict[str, Any]:

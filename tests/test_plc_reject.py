@@ -39,7 +39,7 @@ asyncua = pytest.importorskip("asyncua")
 from asyncua import ua  # noqa: E402
 
 from plant.contract.kpis import KPI_KEYS  # noqa: E402
-from tests.test_serve import connect, free_port  # noqa: E402
+from tests.test_serve import LAB, connect, free_port  # noqa: E402
 
 ROOT = Path(__file__).parents[1]
 SCENARIO = ROOT / "scenarios" / "reject_doubles.toml"
@@ -163,7 +163,7 @@ async def plc(url: str, proc: subprocess.Popen) -> dict:
 def test_a_plc_running_the_reject_logic_over_opc_ua_gives_the_run_of_the_controller_fmu(tmp_path):
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "fishfmu.cli", "serve", str(served_variant(tmp_path)), "--endpoint",
-                             url, "--out", str(tmp_path / "served"), *SHORT], stdout=subprocess.PIPE,
+                             url, "--out", str(tmp_path / "served"), *SHORT, *LAB], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
         seen = asyncio.run(plc(url, proc))

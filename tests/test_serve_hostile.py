@@ -25,14 +25,14 @@ from asyncua import Client, ua  # noqa: E402
 
 from plant.errors import InputError  # noqa: E402
 
-from tests.test_serve import SERVED, SHORT, connect, free_port, make_certificate  # noqa: E402
+from tests.test_serve import LAB, SERVED, SHORT, connect, free_port, make_certificate  # noqa: E402
 
 RUN = [sys.executable, "-m", "fishfmu.cli"]
 
 
 def serve(out: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     url = f"opc.tcp://127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([*RUN, "serve", str(SERVED), "--endpoint", url, "--out", str(out), *SHORT, *extra],
+    proc = subprocess.Popen([*RUN, "serve", str(SERVED), "--endpoint", url, "--out", str(out), *SHORT, *LAB, *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     return proc, url
 
@@ -210,13 +210,24 @@ def test_usable_certificates_pass_the_check(pki):
 
 # ---------------------------------------------------------------- the address space, writes, methods, reset
 
+async def node_ids_under(node) -> set[str]:  # noqa: ANN001 - an asyncua Node
+    """The node ids of the variables and methods held by ``node``'s objects, at any depth (not their properties)."""
+    out = set()
+    for child in await node.get_children():
+        if await child.read_node_class() == ua.NodeClass.Object:
+            out |= await node_ids_under(child)
+        else:
+            out.add(child.nodeid.Identifier)
+    return out
+
+
 async def hostile_plc(url: str, proc: subprocess.Popen) -> dict:
     client = await connect(url, proc)
     seen: dict = {}
     try:
         idx = await client.get_namespace_index("urn:fishfmu")
         folder = node_of(client, idx, "fishfmu")
-        seen["names"] = {(await n.read_browse_name()).Name for n in await folder.get_children()}
+        seen["names"] = await node_ids_under(folder)
         sp1, sp2 = node_of(client, idx, "drive_c1.speed_setpoint"), node_of(client, idx, "drive_c2.speed_setpoint")
         double = ua.VariantType.Double
         seen["writes"] = {

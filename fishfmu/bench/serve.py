@@ -90,7 +90,8 @@ def serve_case(scenario: Path, factor: float, overrides: list[str], speeds: list
     with tempfile.TemporaryDirectory(prefix="fishfmu-serve-bench-") as tmp:
         out = Path(tmp) / "out"
         cmd = [sys.executable, "-m", "fishfmu.cli", "serve", str(scenario), "--endpoint", url, "--realtime",
-               str(factor), "--out", str(out), "--no-report", *overrides]
+               str(factor), "--out", str(out), "--no-report", "--grace", "0", "--allow-anonymous-write",
+               *overrides]  # ends with its run; its PLC writes without logging in
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         # a signal only asks the PLC stand-in to stop at its next scan: raised inside asyncio's event loop it would

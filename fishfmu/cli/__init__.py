@@ -25,7 +25,7 @@ from rich.table import Table
 
 from plant.errors import InputError, SimulationError
 
-from fishfmu.cli import export
+from fishfmu.cli import export, serving
 from fishfmu.cli.bench import bench_app
 from fishfmu.cli.exit_codes import EXIT_INTERNAL_ERROR, for_error, for_run, for_seeds, for_signal
 from fishfmu.scenario.keys import parse_assignments
@@ -144,36 +144,48 @@ def serve_cmd(
     user: str | None = typer.Option(None, "--user", help="Only this user may connect (password from the environment "
                                     "variable FISHFMU_OPCUA_PASSWORD); anonymous sessions are refused."),
     certificate: Path | None = typer.Option(None, "--certificate", help="The server's certificate (DER or PEM): "
-                                            "only Basic256Sha256 SignAndEncrypt is offered then."),
+                                            "only signed and encrypted policies are offered then."),
     private_key: Path | None = typer.Option(None, "--private-key", help="The server's private key (PEM)."),
+    pki: Path | None = typer.Option(None, "--pki", help="Folder for the server's certificate (made on first use) and "
+                                    "the trusted clients' (DIR/trusted), instead of --certificate etc."),
     trusted_clients: Path | None = typer.Option(None, "--trusted-clients", help="Folder of the client certificates "
                                                 "that may connect (with --certificate)."),
     out: Path | None = typer.Option(None, "--out", help="Output folder (default: out/<scenario name>)."),
     set_: list[str] = typer.Option([], "--set", help="Override a scenario value (repeatable)."),
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier run in --out."),
     report: bool = typer.Option(True, "--report/--no-report", help="Write the HTML/PNG report."),
+    wait_for_start: bool = typer.Option(False, "--wait-for-start", help="The line waits, in state 'waiting', until "
+                                        "a client calls start()."),
+    users: Path | None = typer.Option(None, "--users", help="TOML file of users with roles (operator: write, call; "
+                                      "viewer: read) and `fishfmu hash-password` hashes."),
+    allow_anonymous_write: bool = typer.Option(False, "--allow-anonymous-write", help="Lab bench: anonymous clients "
+                                               "may write and call methods (by default they only read)."),
+    modbus: str | None = typer.Option(None, "--modbus", help="HOST:PORT of a Modbus TCP server beside OPC UA (the "
+                                      "register map: fishfmu signal-list)."),
+    grace: float | None = typer.Option(None, "--grace", help="Seconds the server stays up after the run finished or "
+                                       "failed, unless a client calls stop() (0 to 86400; default 60)."),
 ) -> None:
     """Serve the line over OPC UA for a PLC (lockstep, or real time with --realtime); when it ends (its duration in
     real time, a client's stop(), Ctrl-C/SIGTERM) the run is written like any run."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
-    from fishfmu.serve import Certificates
     if lockstep and realtime is not None:
         raise InputError("--lockstep and --realtime exclude each other: give one")
-    given = [certificate, private_key, trusted_clients]
-    if any(g is not None for g in given) and not all(g is not None for g in given):
-        raise InputError("--certificate, --private-key and --trusted-clients go together")
-    certificates = Certificates(certificate, private_key, trusted_clients) if certificate is not None else None
+    certificates = serving.certificates_of(certificate, private_key, trusted_clients, pki, user,
+                                           users is not None or allow_anonymous_write)
     console = literal_console()
 
     def ready(line) -> None:  # noqa: ANN001
         mode = "lockstep (clients call step(n))" if line.realtime is None else f"real time x{line.realtime:g}"
-        console.print(f"serving {scenario} at {line.endpoint} (namespace urn:fishfmu, folder fishfmu), {mode}; "
-                      f"clients write: {', '.join(line.external) or 'nothing'}")
+        anonymous = {None: "refused", "viewer": "read only", "operator": "read, write and call"}[
+            line.users.anonymous_role]
+        console.print(f"serving {scenario} at {line.endpoint} (namespace urn:fishfmu, object fishfmu), {mode}; "
+                      f"clients write: {', '.join(line.external) or 'nothing'}; anonymous clients: {anonymous}")
 
     done = commands.serve(scenario, out, parse_assignments(set_), endpoint=endpoint, realtime=realtime,
                           allow_remote=allow_remote, user=user, certificates=certificates, overwrite=overwrite,
-                          report=report, on_ready=ready)
+                          report=report, on_ready=ready, wait_for_start=wait_for_start, grace_s=grace,
+                          users_file=users, allow_anonymous_write=allow_anonymous_write, pki=pki, modbus=modbus)
     result = done.result
     pacing = (result.served or {}).get("pacing")
     if pacing:
@@ -183,6 +195,8 @@ def serve_cmd(
     _finish(result, done.out_dir, done.stop_exit_code, console)
 
 
+app.command("hash-password")(serving.hash_password_cmd)
+app.command("signal-list")(serving.signal_list_cmd)
 app.command("export-fmu")(export.export_fmu_cmd)
 app.command("export-ssp")(export.export_ssp_cmd)
 

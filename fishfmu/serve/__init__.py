@@ -7,14 +7,18 @@ folder, serves the line until its run ends and writes the run like any run, thro
 - :mod:`fishfmu.serve.options`: the endpoint (loopback only unless ``allow_remote``; a port of 1-65535 that is
   free), the real-time factor (0.001 to 1000), certificates and keys, all checked before the output folder is
   made (bad options are exit 2 naming the option);
-- :mod:`fishfmu.serve.address_space`: what a client sees: a folder ``fishfmu`` in the namespace ``urn:fishfmu``
-  with one variable per signal of the run (every connected variable, constant input, external input and
-  ``[record]``ed variable, named as the scenario names it: ``plant.pe_c4.blocked``, ``drive_c1.belt_speed``) and
-  every output of the plant (each belt's ``speed``, ``load_force`` and ``load_mass``, each photo-eye's
-  ``blocked``), recorded or not: a PLC always needs its sensors; ``fishfmu.time_s``, ``fishfmu.run_state``
-  (``running``, ``finished``, ``stopped``, ``failed: ...``), the fish counts, and the methods ``step(n)``,
-  ``stop()`` and ``reset()``.  Only the inputs of ``[opcua] inputs`` are writable; a write an input cannot take
-  and a method called with bad arguments get an OPC UA status;
+- :mod:`fishfmu.serve.model`: the information model, made once from the scenario: an object per component (each
+  conveyor, photo-eye, camera and device under ``plant``, each FMU instance) with its signals (types, units, ranges,
+  states, descriptions) and the line table's parameters; :mod:`fishfmu.serve.signal_list` writes it as CSV;
+- :mod:`fishfmu.serve.address_space`: the model's nodes in the namespace ``urn:fishfmu`` as OPC UA clients look for
+  them (AnalogItemType, EngineeringUnits and EURange in namespace 0, TwoStateDiscreteType, an enumeration), the
+  methods (``step(n)``, ``start()``, ``pause()``, ``resume()``, ``set_speed(factor)``, ``stop()``, ``reset([seed])``)
+  with their arguments checked, the run's events.  Only the inputs of ``[opcua] inputs`` are writable; a write an
+  input cannot take and a method called with bad arguments get an OPC UA status;
+- :mod:`fishfmu.serve.modbus_map` and :mod:`fishfmu.serve.modbus`: the same signals over Modbus TCP
+  (``--modbus``), its register map and lockstep step-request register;
+- :mod:`fishfmu.serve.status`: the run's states (waiting, running, paused, finished, stopped, failed) and its
+  clock against the wall (lag, late steps, the real-time factor reached), the grace time after the end;
 - :mod:`fishfmu.serve.line`: the co-simulation stepped in a worker thread, in lockstep (a client's ``step(n)``)
   or in real time (:mod:`fishfmu.serve.pacing`: p50/p99/max lateness and overruns go to ``run_info.json``,
   ``served``); the run ends at ``run.duration_s``, a client's ``stop()`` or a signal;

@@ -1,11 +1,14 @@
 """The served line's address space: what an OPC UA client of ``fishfmu serve`` sees and may write.
 
-A folder ``fishfmu`` under Objects, in the namespace ``urn:fishfmu``: one variable per signal (node id ``s=<its
-name>``) with its OPC UA data type, an ``EngineeringUnits`` property where a unit is known and ``EURange`` from a
-declared min/max; ``fishfmu.time_s``, ``fishfmu.run_state`` and the fish counts; the methods ``step(n)``,
-``stop()`` and ``reset()``, whose arguments are checked here (what they do is the line's,
-:class:`fishfmu.serve.line.LineServer`).  Only the external inputs are writable, and a write one cannot take is
-refused item by item with its status before asyncua stores it.
+The nodes of the information model (:mod:`fishfmu.serve.model`) in the namespace ``urn:fishfmu``: the object
+``fishfmu`` under Objects, an object per component under it, each signal a variable (node id ``s=<its name>``) of
+the type OPC UA clients look for: a Real an AnalogItemType (with an ``EURange``) or a BaseAnalogType (without),
+its ``EngineeringUnits`` (UNECE code) and ``EURange`` properties in namespace 0 where Part 8 puts them; a Boolean
+a TwoStateDiscreteType (``TrueState``/``FalseState``); a code a MultiStateValueDiscreteType (``EnumValues``,
+``ValueAsText``).  A component's parameters are its properties.  ``fishfmu.time_s``, ``fishfmu.run_state`` and the
+fish counts are on the root object, with the methods ``step(n)``, ``stop()`` and ``reset()``, whose arguments are
+checked here (what they do is the line's, :class:`fishfmu.serve.line.LineServer`).  Only the external inputs are
+writable, and a write one cannot take is refused item by item with its status before asyncua stores it.
 """
 
 from __future__ import annotations
@@ -19,19 +22,15 @@ import numpy as np
 from asyncua import ua
 
 from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING
-from plant.sim.ports import PlantPorts, signal_of
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
-from fishfmu.scenario.wiring import PLANT
+from fishfmu.serve.model import (NAMESPACE, PARAMETER, ROOT, STATUS_ITEMS, UNECE, Component, InformationModel, Item,
+                                 information_model, variable_type)
+from fishfmu.serve.options import realtime_problem
+from fishfmu.serve.status import InvalidState
 
-NAMESPACE = "urn:fishfmu"
-FOLDER = "fishfmu"
 UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
-
-# UNECE Recommendation 20 codes for the units the line uses (OPC UA Part 8, EUInformation.UnitId)
-_UNECE = {"m": "MTR", "m/s": "MTS", "s": "SEC", "N": "NEW", "kg": "KGM", "rpm": "RPM", "1/min": "RPM",
-          "rad/s": "2A", "A": "AMP", "V": "VLT", "W": "WTT", "Hz": "HTZ", "K": "KEL", "degC": "CEL"}
 _FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT,
                 "fishfmu.fish_rejected": REJECTED}
 
@@ -55,6 +54,11 @@ _NOTHING = object()
 """No value published yet."""
 
 
+def _same(a: Any, b: Any) -> bool:
+    """``a == b``, NaN equal to NaN (an undefined KPI stays NaN without being written again)."""
+    return a == b or (isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b))
+
+
 def _variant(value: Any, vtype: Any) -> Any:
     """``value`` as an OPC UA Variant of its node's type (a Real signal holding an int is still a Double)."""
     cast = {ua.VariantType.Double: float, ua.VariantType.Int32: int, ua.VariantType.Boolean: bool,
@@ -62,33 +66,101 @@ def _variant(value: Any, vtype: Any) -> Any:
     return ua.Variant(cast(value), vtype)
 
 
-def _signal_info(checked: CheckedScenario, keys: list[str]
-                 ) -> dict[str, tuple[str, str | None, tuple[float, float] | None]]:
-    """Per signal: its type, unit and declared (min, max) where both are given."""
-    out = {}
-    for key in keys:
-        comp, _, var = key.partition(".")
-        if comp == PLANT:
-            out[key] = (signal_of(var).type, signal_of(var).unit, None)
-            continue
-        v = checked.opened[comp].variables[var]
-        md_var = next((m for m in checked.opened[comp].model_description.modelVariables if m.name == var), None)
-        lo, hi = getattr(md_var, "min", None), getattr(md_var, "max", None)
-        rng = (float(lo), float(hi)) if lo is not None and hi is not None else None
-        out[key] = (v.type, v.unit, rng)
-    return out
+
+_DATA_TYPES = {ua.VariantType.Double: ua.ObjectIds.Double, ua.VariantType.Int32: ua.ObjectIds.Int32,
+               ua.VariantType.Boolean: ua.ObjectIds.Boolean, ua.VariantType.String: ua.ObjectIds.String}
 
 
-def served_signals(checked: CheckedScenario, names: list[str]) -> list[str]:
-    """Every signal in the address space: the run's signals ``names``, then the plant's outputs it does not record
-    (a PLC always needs its sensors)."""
-    plant_outputs = [f"{PLANT}.{port}" for port in PlantPorts.of(checked.scenario.line).outputs()]
-    return [*names, *(k for k in plant_outputs if k not in names)]
+def _eu_information(unit: str) -> Any:
+    code = UNECE.get(unit)
+    return ua.EUInformation(NamespaceUri=UNITS_NAMESPACE, UnitId=_unit_id(code) if code else -1,
+                            DisplayName=ua.LocalizedText(unit), Description=ua.LocalizedText(unit))
 
 
-def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str]) -> dict[str, Any]:
-    """What the address space shows of the co-simulation ``c`` (None: not built) in the run state ``state``."""
-    values: dict[str, Any] = {"fishfmu.time_s": c.t_s if c is not None else 0.0, "fishfmu.run_state": state}
+def _variable(idx: int, key: str, parent: str | ua.NodeId, name: str, value: ua.Variant, data_type: int,
+              type_def: int, description: str, *, prop: bool = False, writable: bool = False,
+              name_ns: int | None = None) -> Any:
+    """The AddNodesItem of a variable (or a property, ``prop``) ``key`` under ``parent``."""
+    node = ua.AddNodesItem()
+    node.RequestedNewNodeId = ua.NodeId(key, idx)
+    node.BrowseName = ua.QualifiedName(name, idx if name_ns is None else name_ns)
+    node.NodeClass = ua.NodeClass.Variable
+    node.ParentNodeId = parent if isinstance(parent, ua.NodeId) else ua.NodeId(parent, idx)
+    node.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasProperty if prop else ua.ObjectIds.HasComponent)
+    node.TypeDefinition = ua.NodeId(type_def)
+    attrs = ua.VariableAttributes()
+    attrs.Description, attrs.DisplayName = ua.LocalizedText(description), ua.LocalizedText(name)
+    attrs.DataType = ua.NodeId(data_type)
+    attrs.Value = value
+    attrs.ValueRank = ua.ValueRank.OneDimension if isinstance(value.Value, list) else ua.ValueRank.Scalar
+    attrs.ArrayDimensions = [0] if isinstance(value.Value, list) else None
+    attrs.WriteMask = attrs.UserWriteMask = 0
+    access = ua.AccessLevel.CurrentRead.mask | (ua.AccessLevel.CurrentWrite.mask if writable else 0)
+    attrs.AccessLevel = attrs.UserAccessLevel = access
+    attrs.Historizing = False
+    node.NodeAttributes = attrs
+    return node
+
+
+def _object(idx: int, c: Component, parent: ua.NodeId) -> Any:
+    node = ua.AddNodesItem()
+    node.RequestedNewNodeId = ua.NodeId(c.key, idx)
+    node.BrowseName = ua.QualifiedName(c.name, idx)
+    node.NodeClass = ua.NodeClass.Object
+    node.ParentNodeId = parent
+    node.ReferenceTypeId = ua.NodeId(ua.ObjectIds.Organizes if c.key == ROOT else ua.ObjectIds.HasComponent)
+    node.TypeDefinition = ua.NodeId(ua.ObjectIds.BaseObjectType)
+    attrs = ua.ObjectAttributes()
+    attrs.Description, attrs.DisplayName = ua.LocalizedText(c.description), ua.LocalizedText(c.name)
+    attrs.EventNotifier = 1 if c.key == ROOT else 0  # the root object sends the run's events
+    attrs.WriteMask = attrs.UserWriteMask = 0
+    node.NodeAttributes = attrs
+    return node
+
+
+def node_items(idx: int, model: InformationModel, external: list[str]) -> list[Any]:
+    """The AddNodesItems of the whole model, parents before children."""
+    objects = ua.NodeId(ua.ObjectIds.ObjectsFolder)
+    nodes = [_object(idx, c, objects if c.key == ROOT else ua.NodeId(c.parent, idx)) for c in model.components]
+    for item in model.items:
+        vtype, initial = _VARIANT_TYPES[item.type]
+        value = ua.Variant(item.value if item.value is not None else initial, vtype)
+        nodes.append(_variable(idx, item.key, item.component, item.name, value, _DATA_TYPES[vtype],
+                               getattr(ua.ObjectIds, variable_type(item)), item.description, prop=item.direction == PARAMETER,
+                               writable=item.key in external))
+        props: list[tuple[str, ua.Variant, int]] = []
+        if item.unit:
+            props.append(("EngineeringUnits", ua.Variant(_eu_information(item.unit)), ua.ObjectIds.EUInformation))
+        if item.range is not None and item.type == "Real":  # Part 8: an analog item's
+            rng = ua.Range(Low=float(item.range[0]), High=float(item.range[1]))
+            props.append(("EURange", ua.Variant(rng), ua.ObjectIds.Range))
+        if item.two_states:
+            props += [(state, ua.Variant(ua.LocalizedText(text)), ua.ObjectIds.LocalizedText)
+                      for state, text in zip(("TrueState", "FalseState"), item.two_states)]
+        if item.enumeration:
+            values = [ua.EnumValueType(Value=v, DisplayName=ua.LocalizedText(t), Description=ua.LocalizedText(t))
+                      for v, t in item.enumeration]
+            props.append(("EnumValues", ua.Variant(values), ua.ObjectIds.EnumValueType))
+            props.append(("ValueAsText", ua.Variant(ua.LocalizedText(_text_of(item, initial))),
+                          ua.ObjectIds.LocalizedText))
+        if item.direction != PARAMETER:
+            nodes += [_variable(idx, f"{item.key}.{name}", ua.NodeId(item.key, idx), name, value, dtype,
+                                ua.ObjectIds.PropertyType, name, prop=True, name_ns=0)
+                      for name, value, dtype in props]
+    return nodes
+
+
+def _text_of(item: Item, value: Any) -> str:
+    """An enumeration's text for ``value``."""
+    return dict(item.enumeration or ()).get(int(value), str(value))
+
+
+def shown_values(c: CoSimulation | None, state: str, names: list[str], served: list[str],
+                 status: dict[str, Any]) -> dict[str, Any]:
+    """What the address space shows of the co-simulation ``c`` (None: not built) in the run state ``state``, with
+    the run's ``status`` values (its clock, its KPIs) by node id."""
+    values: dict[str, Any] = {"fishfmu.time_s": c.t_s if c is not None else 0.0, "fishfmu.run_state": state,
+                              **status}
     if c is not None:
         # the last recorded row (inputs as sent, outputs as they are); before the first step the start values;
         # the plant's outputs not recorded as they are now
@@ -98,6 +170,82 @@ def shown_values(c: CoSimulation | None, state: str, names: list[str], served: l
         status = c.plant.state.status
         values.update((k, int(np.count_nonzero(status == s))) for k, s in _FISH_COUNTS.items())
     return values
+
+
+def _one_argument(args: tuple, types: set[Any], check: Callable[[Any], bool]) -> Any:
+    """The value of a method's one argument, or the refusal of a call without it, with more, or with a value of
+    another type or one ``check`` refuses."""
+    if not args:
+        return refused(ua.StatusCodes.BadArgumentsMissing)
+    if len(args) > 1:
+        return refused(ua.StatusCodes.BadTooManyArguments)
+    n = args[0]
+    if (not isinstance(n, ua.Variant) or n.VariantType not in types or n.is_array or isinstance(n.Value, bool)
+            or not isinstance(n.Value, (int, float))):
+        return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadTypeMismatch])
+    if not check(n.Value):
+        return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadOutOfRange])
+    return n.Value
+
+
+def _argument(name: str, type_id: int, text: str) -> Any:
+    return ua.Argument(Name=name, DataType=ua.NodeId(type_id), ValueRank=-1, Description=ua.LocalizedText(text))
+
+
+async def _add_methods(folder: Any, idx: int, lockstep: bool, line: Any) -> None:
+    """The root object's methods (see :data:`fishfmu.serve.model.METHODS`), each calling ``line``'s coroutine of
+    the same name; one the run's state does not allow (:class:`InvalidState`) gets BadInvalidState."""
+
+    def method(fn: Callable[..., Awaitable[Any]], allowed: bool = True) -> Callable[..., Awaitable[Any]]:
+        async def call(parent: Any, *args: Any) -> Any:
+            if not allowed:
+                return refused(ua.StatusCodes.BadInvalidState)
+            try:
+                return await fn(*args)
+            except InvalidState:
+                return refused(ua.StatusCodes.BadInvalidState)
+        return call
+
+    def no_arguments(fn: Callable[[], Awaitable[Any]], out: bool = False) -> Callable[..., Awaitable[Any]]:
+        async def call(*args: Any) -> Any:
+            if args:
+                return refused(ua.StatusCodes.BadTooManyArguments)
+            value = await fn()
+            return [ua.Variant(value, ua.VariantType.Double)] if out else []
+        return call
+
+    async def step(*args: Any) -> Any:
+        n = _one_argument(args, _INTEGER_TYPES, lambda v: isinstance(v, int) and v >= 0)
+        return n if isinstance(n, ua.CallMethodResult) else [ua.Variant(await line.step(n), ua.VariantType.Double)]
+
+    async def reset(*args: Any) -> Any:
+        seed = _one_argument(args, _INTEGER_TYPES, lambda v: isinstance(v, int) and 0 <= v < 2**32) if args else None
+        if isinstance(seed, ua.CallMethodResult):
+            return seed
+        return [ua.Variant(await line.reset(seed), ua.VariantType.Double)]
+
+    async def set_speed(*args: Any) -> Any:
+        factor = _one_argument(args, {ua.VariantType.Double, ua.VariantType.Float, *_INTEGER_TYPES},
+                               lambda v: realtime_problem(float(v)) is None)
+        if isinstance(factor, ua.CallMethodResult):
+            return factor
+        await line.set_speed(float(factor))
+        return []
+
+    t_out = _argument("time_s", ua.ObjectIds.Double, "simulated time afterwards, s")
+    table = {"step": (method(step, lockstep), [_argument("n", ua.ObjectIds.Int32, "communication steps to advance "
+                                                                                   "(0 or more)")], [t_out]),
+             "start": (method(no_arguments(line.start)), [], []),
+             "pause": (method(no_arguments(line.pause)), [], []),
+             "resume": (method(no_arguments(line.resume)), [], []),
+             "stop": (method(no_arguments(line.stop)), [], []),
+             "reset": (method(reset), [_argument("seed", ua.ObjectIds.UInt32, "optional: the seed of the run to "
+                                                                                "start (default: the scenario's)")],
+                       [t_out]),
+             "set_speed": (method(set_speed, not lockstep),
+                           [_argument("factor", ua.ObjectIds.Double, "real-time factor, 0.001 to 1000")], [])}
+    for name, (fn, inputs, outputs) in table.items():
+        await folder.add_method(ua.NodeId(f"{ROOT}.{name}", idx), ua.QualifiedName(name, idx), fn, inputs, outputs)
 
 
 def refused(code: Any, per_argument: list[Any] | None = None) -> Any:
@@ -111,7 +259,10 @@ class AddressSpace:
 
     def __init__(self, checked: CheckedScenario, served: list[str], external: list[str]) -> None:
         self.checked, self.served, self.external = checked, served, external
+        self.model = information_model(checked, served, STATUS_ITEMS)
         self.nodes: dict[str, Any] = {}
+        self.as_text: dict[str, tuple[Any, Item]] = {}
+        """An enumeration's ValueAsText node, by its variable."""
         self.types: dict[str, Any] = {}
         self.ranges: dict[str, tuple[float, float] | None] = {}
         self.last_written: dict[str, Any] = {}
@@ -120,69 +271,34 @@ class AddressSpace:
         """Each other node's value as last published (see :meth:`publish`)."""
         self.server: Any = None
 
-    async def build(self, server: Any, lockstep: bool, step: Callable[[int], Awaitable[float]],
-                    stop: Callable[[], Awaitable[None]], reset: Callable[[], Awaitable[float]]) -> None:
-        """The folder, its variables and methods in ``server``; ``step(n)``, ``stop()`` and ``reset()`` do what
-        the methods of the same names are asked (with their arguments checked); ``step`` only in ``lockstep``."""
+    async def build(self, server: Any, lockstep: bool, line: Any) -> None:
+        """The model's objects, variables and methods in ``server``; each method calls the coroutine of the same
+        name of ``line`` (:class:`fishfmu.serve.line.LineServer`) with its arguments checked; ``step`` only in
+        ``lockstep``, ``set_speed`` only in real time."""
         self.server = server
         idx = await server.register_namespace(NAMESPACE)
-        folder = await server.nodes.objects.add_folder(ua.NodeId(FOLDER, idx), ua.QualifiedName(FOLDER, idx))
-        types = _signal_info(self.checked, self.served)
-        extra = {"fishfmu.time_s": ("Real", "s", None), "fishfmu.run_state": ("String", None, None),
-                 **{k: ("Integer", None, None) for k in _FISH_COUNTS}}
-        for name in [*extra, *self.served]:
-            kind, unit, rng = extra[name] if name in extra else types[name]
-            vtype, initial = _VARIANT_TYPES[kind]
-            node = await folder.add_variable(ua.NodeId(name, idx), ua.QualifiedName(name, idx),
-                                             ua.Variant(initial, vtype))
-            if unit:
-                code = _UNECE.get(unit)
-                eu = ua.EUInformation(NamespaceUri=UNITS_NAMESPACE, UnitId=_unit_id(code) if code else -1,
-                                      DisplayName=ua.LocalizedText(unit), Description=ua.LocalizedText(unit))
-                await node.add_property(idx, "EngineeringUnits", eu)
-            if rng is not None:
-                await node.add_property(idx, "EURange", ua.Range(Low=float(rng[0]), High=float(rng[1])))
-            self.nodes[name], self.types[name], self.ranges[name] = node, vtype, rng
-            if name in self.external:
-                await node.set_writable()
+        results = await server.iserver.isession.add_nodes(node_items(idx, self.model, self.external))
+        for r in results:
+            r.StatusCode.check()
+        folder = server.get_node(ua.NodeId(ROOT, idx))
+        for item in self.model.items:
+            if item.direction == PARAMETER:
+                continue
+            self.nodes[item.key] = server.get_node(ua.NodeId(item.key, idx))
+            self.types[item.key] = _VARIANT_TYPES[item.type][0]
+            self.ranges[item.key] = item.range
+            if item.enumeration:
+                self.as_text[item.key] = (server.get_node(ua.NodeId(f"{item.key}.ValueAsText", idx)), item)
         await self.restart_inputs()
         self._guard_writes(server)
 
-        async def _step(parent, *args):  # noqa: ANN001, ANN002 - asyncua's method signature
-            if not lockstep:  # the wall clock steps the line; a client's step would race it
-                return refused(ua.StatusCodes.BadInvalidState)
-            if not args:
-                return refused(ua.StatusCodes.BadArgumentsMissing)
-            if len(args) > 1:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            n = args[0]
-            if (not isinstance(n, ua.Variant) or n.VariantType not in _INTEGER_TYPES or n.is_array
-                    or not isinstance(n.Value, int) or isinstance(n.Value, bool)):
-                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadTypeMismatch])
-            if n.Value < 0:
-                return refused(ua.StatusCodes.BadInvalidArgument, [ua.StatusCodes.BadOutOfRange])
-            return [ua.Variant(await step(n.Value), ua.VariantType.Double)]
+        await _add_methods(folder, idx, lockstep, line)
+        self.event = await server.get_event_generator(ua.ObjectIds.BaseEventType, folder.nodeid)
 
-        async def _stop(parent, *args):  # noqa: ANN001, ANN002
-            if args:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            await stop()
-            return []
-
-        async def _reset(parent, *args):  # noqa: ANN001, ANN002
-            if args:
-                return refused(ua.StatusCodes.BadTooManyArguments)
-            return [ua.Variant(await reset(), ua.VariantType.Double)]
-
-        n_arg = ua.Argument(Name="n", DataType=ua.NodeId(ua.ObjectIds.Int32), ValueRank=-1,
-                            Description=ua.LocalizedText("communication steps to advance (0 or more)"))
-        t_out = ua.Argument(Name="time_s", DataType=ua.NodeId(ua.ObjectIds.Double), ValueRank=-1,
-                            Description=ua.LocalizedText("simulated time after the steps, s"))
-        await folder.add_method(ua.NodeId("fishfmu.step", idx), ua.QualifiedName("step", idx), _step, [n_arg],
-                                [t_out])
-        await folder.add_method(ua.NodeId("fishfmu.stop", idx), ua.QualifiedName("stop", idx), _stop, [], [])
-        await folder.add_method(ua.NodeId("fishfmu.reset", idx), ua.QualifiedName("reset", idx), _reset, [],
-                                [t_out])
+    async def announce(self, state: str) -> None:
+        """An event from the root object: the run's state is now ``state``."""
+        self.event.event.Severity = 700 if state.startswith("failed") else 300
+        await self.event.trigger(message=f"run_state: {state}")
 
     async def restart_inputs(self) -> None:
         """Every external input back at its start value (the scenario's), as the line takes it."""
@@ -190,6 +306,22 @@ class AddressSpace:
             start = self.checked.wiring.constants[key]
             await self.nodes[key].write_value(_variant(start, self.types[key]))
             self.last_written[key] = start
+
+    def input_value(self, key: str) -> Any:
+        """The external input ``key`` as clients last wrote it (used from the next step on)."""
+        return self.server.iserver.aspace.read_attribute_value(self.nodes[key].nodeid,
+                                                               ua.AttributeIds.Value).Value.Value
+
+    async def write_input(self, key: str, value: Any) -> bool:
+        """Write the external input ``key`` as a client's write would (another protocol's, e.g. Modbus): False,
+        and nothing written, when an OPC UA write of it would be refused."""
+        data = ua.DataValue(_variant(value, self.types[key]))
+        if isinstance(value, float) and self.types[key] != ua.VariantType.Double:
+            return False
+        if self.write_refusal(key, data) is not None:
+            return False
+        await self.server.write_attribute_value(self.nodes[key].nodeid, data)
+        return True
 
     def changed_inputs(self) -> list[tuple[str, Any]]:
         """The external inputs a client changed since the last call, with their values (read from the address
@@ -212,12 +344,16 @@ class AddressSpace:
         made steps late while a PLC's writes waited for it.  A node's timestamp is that of its last change."""
         now = datetime.now(timezone.utc)
         for name, value in values.items():
-            if name in self.external or value is None or self.published.get(name, _NOTHING) == value:
+            if name in self.external or value is None or _same(self.published.get(name, _NOTHING), value):
                 continue
             self.published[name] = value
             await self.server.write_attribute_value(
                 self.nodes[name].nodeid, ua.DataValue(_variant(value, self.types[name]), SourceTimestamp=now,
                                                       ServerTimestamp=now))
+            if name in self.as_text:
+                node, item = self.as_text[name]
+                await self.server.write_attribute_value(node.nodeid, ua.DataValue(
+                    ua.Variant(ua.LocalizedText(_text_of(item, value))), SourceTimestamp=now, ServerTimestamp=now))
 
     def write_refusal(self, key: str, value: Any) -> Any:
         """The status a write of the DataValue ``value`` to the external input ``key`` is refused with, or None.

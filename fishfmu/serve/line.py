@@ -18,16 +18,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import math
 import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from plant.errors import InputError, SimulationError
+from plant.contract.kpis import KPI_KEYS
 from plant.sim.plant import ON_LINE
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, scenario_fish
@@ -36,11 +39,15 @@ from fishfmu.cosim.results import RunResult
 from fishfmu.cosim.runner import collect, run_end
 from fishfmu.cosim.stop import StopRequest
 from fishfmu.scenario.wiring import signal_names
-from fishfmu.serve.address_space import NAMESPACE, AddressSpace, served_signals, shown_values
+from fishfmu.serve.access import Account, LineUsers, hash_password, read_users
+from fishfmu.serve.address_space import NAMESPACE, AddressSpace, shown_values
+from fishfmu.serve.model import KPIS, served_signals
 from fishfmu.serve.options import (DEFAULT_ENDPOINT, PASSWORD_ENV, Certificates, endpoint_problem,
-                                   realtime_problem)
+                                   modbus_host_port, modbus_problem, realtime_problem)
 from fishfmu.serve.pacing import Pacing
 from fishfmu.serve.server import make_server, start_server
+from fishfmu.serve.status import (DEFAULT_GRACE_S, FINISHED, PAUSED, RUNNING, STOPPED, WAITING, InvalidState,
+                                  RunClock, grace_problem)
 
 POLL_S = 0.05
 """How often the event loop looks for a signal (a Python signal handler cannot wake it) and a due step."""
@@ -53,7 +60,9 @@ class LineServer:
 
     def __init__(self, checked: CheckedScenario, endpoint: str = DEFAULT_ENDPOINT, allow_remote: bool = False,
                  realtime: float | None = None, user: str | None = None,
-                 certificates: Certificates | None = None) -> None:
+                 certificates: Certificates | None = None, wait_for_start: bool = False,
+                 grace_s: float = DEFAULT_GRACE_S, users_file: Path | None = None,
+                 allow_anonymous_write: bool = False, modbus: str | None = None) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
@@ -61,15 +70,31 @@ class LineServer:
         if problem:
             raise InputError(problem[1], where=problem[0])
         self.certificates = certificates
-        self.user, self._password = user, None
-        if user is not None:
-            self._password = os.environ.get(PASSWORD_ENV)
-            if not self._password:
+        self.user = user
+        if user is not None:  # one operator, no anonymous sessions
+            password = os.environ.get(PASSWORD_ENV)
+            if not password:
                 raise InputError(f"--user {user} needs the password in the environment variable {PASSWORD_ENV}",
                                  where="--user")
+            self.users = LineUsers({user: Account(user, "operator", hash_password(password))}, None)
+        else:
+            self.users = LineUsers(read_users(users_file) if users_file is not None else {},
+                                   "operator" if allow_anonymous_write else "viewer")
         problem = realtime_problem(realtime)
         if problem:
             raise InputError(problem, where="--realtime")
+        problem = grace_problem(grace_s)
+        if problem:
+            raise InputError(problem, where="--grace")
+        self.wait_for_start, self.grace_s = wait_for_start, grace_s
+        problem = modbus_problem(modbus, allow_remote) if modbus is not None else None
+        if problem:
+            raise InputError(problem, where="--modbus")
+        self.modbus_at, self.modbus, self.allow_anonymous_write = modbus, None, allow_anonymous_write
+        self.clock = RunClock()
+        self.kpis: dict[str, Any] = {}
+        """The run's KPIs once it has ended (served under fishfmu.kpis)."""
+        self._announced: str | None = None
         self.checked, self.endpoint, self.realtime = checked, endpoint, realtime
         self.scenario = checked.scenario
         self.fish = scenario_fish(self.scenario)
@@ -82,7 +107,7 @@ class LineServer:
         """Every change clients made to an external input in this run (since the last reset), with the simulated
         time from which it was used."""
         self.pacing = Pacing(realtime or 1.0, self.scenario.run.comm_step_s)
-        self.state = "running"
+        self.state = RUNNING
         self.error: str | None = None
         self.resets = 0
         self.stop_requested = threading.Event()
@@ -107,15 +132,15 @@ class LineServer:
         the plant.  ``on_ready(self)`` is called once clients can connect.  Raises InputError naming --endpoint
         when the server cannot listen there, and a bug in a step as itself."""
         t0 = time.perf_counter()
-        self.start()
+        self.build_line()
         if self.cosim is not None:  # else an FMU failed while the line was built: a failed run
             asyncio.run(self.serve(on_ready, stop))
-        ended = self.state == "finished" or self.stop_requested.is_set()
+        ended = self.state == FINISHED or self.stop_requested.is_set()
         status = "failed" if self.error else "ok" if ended else "partial"
         return self.result(status, time.perf_counter() - t0)
 
     # ---- the co-simulation (in the worker thread) --------------------------------------------------
-    def start(self) -> None:
+    def build_line(self) -> None:
         """Build the co-simulation (its FMUs instantiated and initialised) before serving it; an FMU failing in
         that leaves ``cosim`` None and the state failed."""
         self._worker.submit(self._start_cosim).result()
@@ -130,7 +155,7 @@ class LineServer:
             self._build_failed = exc
             self.state, self.error = f"failed: {exc}", str(exc)
             return
-        self.state, self.error = "running", None
+        self.state, self.error = WAITING if self.wait_for_start else RUNNING, None
         self._end = run_end(self.scenario)
 
     def close(self) -> None:
@@ -154,7 +179,7 @@ class LineServer:
             return False
         # the run ends where `fishfmu run` ends it (one rule: its duration, or once every fish has left)
         if self._end.reached(self.cosim.steps, self.cosim.t_s, lambda: self.cosim.plant.state.status):
-            self.state = "finished"
+            self.state = FINISHED
         return True
 
     def _interrupted(self) -> bool:
@@ -165,7 +190,7 @@ class LineServer:
         interrupt (stop(), reset(), a signal) and after ``budget_s`` of wall time.  The steps made."""
         done, until = 0, time.monotonic() + budget_s
         try:
-            while done < n and self.cosim is not None and self.state == "running" and not self._interrupted():
+            while done < n and self.cosim is not None and self.state == RUNNING and not self._interrupted():
                 self._take_writes()
                 if not self._step_once():
                     break
@@ -185,8 +210,10 @@ class LineServer:
         """Lockstep: ``n`` communication steps (fewer at the end of the run, or when stop(), reset() or a signal
         comes first); the new time.  Progress is published every PUBLISH_EVERY_S while it steps."""
         async with self._lock:
+            if self.state in (WAITING, PAUSED):
+                raise InvalidState(self.state)
             left = n
-            while left > 0 and self.state == "running" and not self._interrupted():
+            while left > 0 and self.state == RUNNING and not self._interrupted():
                 done = await self._in_worker(self._run_steps, left, PUBLISH_EVERY_S)
                 left -= done
                 if done == 0 or left == 0:
@@ -200,19 +227,24 @@ class LineServer:
         self.stop_requested.set()
         self._interrupt.set()  # a step(n) under way ends after its current step
         async with self._lock:
-            if self.state == "running":
-                self.state = "stopped"
+            if self.state in (RUNNING, WAITING, PAUSED):
+                self.state = STOPPED
             await self._publish()
 
-    async def reset(self) -> float:
-        """A client's reset(): the run starts over; what clients wrote in the run discarded is forgotten."""
+    async def reset(self, seed: int | None = None) -> float:
+        """A client's reset(): the run starts over (with the scenario's seed, or ``seed``); what clients wrote in
+        the run discarded is forgotten."""
         self._interrupt.set()
         async with self._lock:
+            if seed is not None and seed != self.scenario.run.seed:
+                self._reseed(seed)
             await self._in_worker(self._start_cosim)
+            self.clock, self.kpis = RunClock(), {}
+            self.clock.enter(self.state)
             self._interrupt.clear()
             # the run written is the one after the reset: what clients wrote before it is gone with it
             self.written.clear()
-            self.pacing.lateness_s.clear()
+            self.pacing.clear()
             self.behind = None
             self.resets += 1
             self._restarted = True  # real time: pacing starts over from now
@@ -220,30 +252,87 @@ class LineServer:
             await self._publish()
             return self.cosim.t_s if self.cosim is not None else 0.0
 
+    def _reseed(self, seed: int) -> None:
+        """The run after a reset(seed): the scenario with that seed (its batch of fish sampled from it)."""
+        run = self.scenario.run.model_copy(update={"seed": seed})
+        self.scenario = self.scenario.model_copy(update={"run": run})
+        self.checked = dataclasses.replace(self.checked, scenario=self.scenario)
+        self.fish = scenario_fish(self.scenario)
+
+    async def start(self) -> None:
+        """A client's start(): a run waiting for it (--wait-for-start) runs."""
+        await self._change(WAITING, RUNNING)
+
+    async def pause(self) -> None:
+        """A client's pause(): the line stops advancing until resume()."""
+        await self._change(RUNNING, PAUSED)
+
+    async def resume(self) -> None:
+        await self._change(PAUSED, RUNNING)
+
+    async def set_speed(self, factor: float) -> None:
+        """A client's set_speed(factor): real time paced to ``factor`` from the next step on."""
+        async with self._lock:
+            self.pacing.factor = factor
+            self.realtime = factor
+            self._restarted = True  # the due times start over from now at the new pace
+            await self._publish()
+
+    async def _change(self, before: str, after: str) -> None:
+        async with self._lock:
+            if self.state != before:
+                raise InvalidState(self.state)
+            self.state = after
+            self._restarted = True  # real time: the due times start over from now
+            await self._publish()
+
     async def _publish(self) -> None:
-        await self.space.publish(shown_values(self.cosim, self.state, self.names, self.served))
+        """Show the line, its clock and its state; announce a change of state (an event) and, once the run has
+        ended, its KPIs."""
+        if self.state != self._announced:
+            self.clock.enter(self.state)
+            if self.cosim is not None and self.state == FINISHED and not self.kpis:
+                res = await self._in_worker(self._result, "ok", 0.0)
+                self.kpis = {f"{KPIS}.{k}": (float(v) if isinstance(v, (int, float)) and v is not None else math.nan)
+                             for k, v in res.kpis.items() if k in KPI_KEYS}
+        t_s = self.cosim.t_s if self.cosim is not None else 0.0
+        status = {"fishfmu.lag_s": self.pacing.lag_s, "fishfmu.lag_max_s": self.pacing.lag_max_s,
+                  "fishfmu.late_steps": self.pacing.late_steps,
+                  "fishfmu.realtime_factor": self.realtime or 0.0,
+                  "fishfmu.realtime_factor_reached": self.clock.factor_reached(t_s),
+                  **(self.kpis or {f"{KPIS}.{k}": math.nan for k in KPI_KEYS})}
+        values = shown_values(self.cosim, self.state, self.names, self.served, status)
+        await self.space.publish(values)
+        if self.modbus is not None:
+            self.modbus.publish(values)
+        if self.state != self._announced:
+            self._announced = self.state
+            await self.space.announce(self.state)
 
     # ---- serving --------------------------------------------------------------------------------
     def _ending(self) -> bool:
-        """Serving ends: a client's stop(), a signal, or a bug in a step."""
+        """Serving ends: a client's stop(), a signal, a bug in a step, or the grace time after the run finished or
+        failed (a PLC reads that, and the KPIs, before the server goes)."""
         return (self.stop_requested.is_set() or self._crash is not None
-                or (self._signal is not None and self._signal.requested))
+                or (self._signal is not None and self._signal.requested) or self.clock.grace_over(self.grace_s))
 
     async def serve(self, on_ready: Any = None, stop: StopRequest | None = None) -> None:
         """Serve until the run ends (real time), a client calls stop(), or ``stop.requested`` (a signal).
         Raises InputError naming --endpoint when the server cannot listen there."""
         self._signal, self._lock = stop, asyncio.Lock()
-        server = await make_server(self.endpoint, self.user, self._password, self.certificates)
+        server = await make_server(self.endpoint, self.users, self.certificates)
         if self.cosim is None and self._build_failed is None:
             await self._in_worker(self._start_cosim)
         if self.cosim is None:  # an FMU failed while the line was built: nothing to serve
             return
-        await self.space.build(server, self.realtime is None, self.step, self.stop, self.reset)
+        await self.space.build(server, self.realtime is None, self)
         await self._publish()
         if stop is not None and stop.requested:  # a signal while starting: nothing to serve
             return
         await start_server(server, self.endpoint)
         try:
+            if self.modbus_at is not None:
+                await self._start_modbus()
             if on_ready is not None:
                 on_ready(self)
             if self.realtime is None:
@@ -253,12 +342,22 @@ class LineServer:
                 await self._run_realtime()
             self._interrupt.set()
             async with self._lock:  # a step(n) under way ends after its current step
-                if self.state == "running" and self.stop_requested.is_set():
-                    self.state = "stopped"
+                if self.state == RUNNING and self.stop_requested.is_set():
+                    self.state = STOPPED
         finally:
+            if self.modbus is not None:
+                await self.modbus.stop()
             await server.stop()
         if self._crash is not None:
             raise self._crash
+
+    async def _start_modbus(self) -> None:
+        """The Modbus TCP server beside OPC UA (:mod:`fishfmu.serve.modbus`; pymodbus imported only for it)."""
+        from fishfmu.serve.modbus import ModbusObserver  # pymodbus: only when --modbus is given
+        host, port = modbus_host_port(self.modbus_at)
+        self.modbus = ModbusObserver(self.space.model, host, port, self.allow_anonymous_write, self)
+        await self.modbus.start()
+        self.modbus.publish(dict(self.space.published))  # every value so far, not only the next changes
 
     async def _sleep_until(self, due: float) -> bool:
         """Wait for the monotonic time ``due``, looking for the end of serving and a reset every POLL_S;
@@ -274,18 +373,20 @@ class LineServer:
         dt_wall = self.pacing.step_wall_s
         start, k, warned = time.monotonic(), 0, False
         while not self._ending():
-            if self._restarted:
+            if self._restarted:  # a reset, start(), resume() or set_speed(): due times from now at the pace set
+                dt_wall = self.pacing.step_wall_s
                 start, k, warned, self._restarted = time.monotonic(), 0, False, False
-            if self.state != "running":  # the run's end, or a failure
-                break
+            if self.state != RUNNING:  # waiting, paused, or ended (for the grace time): nothing to pace
+                await asyncio.sleep(POLL_S)
+                continue
             due = start + k * dt_wall
             if not await self._sleep_until(due):
                 continue
             now = time.monotonic()
             async with self._lock:
-                if self._restarted or self._ending() or self.state != "running":
+                if self._restarted or self._ending() or self.state != RUNNING:
                     continue
-                self.pacing.lateness_s.append(now - due)
+                self.pacing.record(now - due)
                 await self._in_worker(self._run_steps, 1, math.inf)
                 await self._publish()
             k += 1
@@ -317,7 +418,7 @@ class LineServer:
         res.served = {"endpoint": self.endpoint, "mode": "lockstep" if self.realtime is None else "realtime",
                       "namespace": NAMESPACE, "external_inputs": self.external, "writes": self.written,
                       "resets": self.resets,
-                      "ended": ("the scenario's end" if self.state == "finished" else
+                      "ended": ("the scenario's end" if self.state == FINISHED else
                                 "stop() called by a client" if self.stop_requested.is_set() else
                                 self.error or "a signal"),
                       **({"pacing": self.pacing.summary()} if self.realtime is not None else {}),

@@ -63,6 +63,20 @@ def endpoint_problem(endpoint: str, allow_remote: bool) -> str | None:
     return None
 
 
+def modbus_host_port(where: str) -> tuple[str, int] | None:
+    """The host and port of a Modbus TCP ``HOST:PORT``, or None when it is not one."""
+    return host_port(f"opc.tcp://{where}")
+
+
+def modbus_problem(where: str, allow_remote: bool) -> str | None:
+    """Why the Modbus server must not listen at ``HOST:PORT``, or None (the rules of the OPC UA endpoint; a port
+    below 1024, Modbus's 502, needs privileges)."""
+    if modbus_host_port(where) is None:
+        return f"'{where}' is not HOST:PORT with a port of 1 to 65535 (Modbus TCP: 502 needs privileges)"
+    problem = endpoint_problem(f"opc.tcp://{where}", allow_remote)
+    return problem or listen_problem(f"opc.tcp://{where}")
+
+
 def listen_problem(endpoint: str) -> str | None:
     """Why nothing can listen at ``endpoint`` now (the port taken, the address not this machine's), or None.
     Binds each address as asyncio's server will (SO_REUSEADDR) and lets it go again."""
