@@ -51,7 +51,7 @@ from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
 from plant.sim.devices import DeviceActuators
-from plant.sim.sensors import beams_blocked, belt_loads, sphere_centres, spine_point_local
+from plant.sim.sensors import beams_blocked, belt_loads, outline_reach_m, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
 
@@ -157,6 +157,7 @@ class Plant:
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
         self._member = model.member_index
+        self._outline_reach_m = outline_reach_m(model)
         self._fish_of_body = np.repeat(self._member, 5)
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
                                    dtype=float)
@@ -351,7 +352,7 @@ class Plant:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2,
                                 self._belt_dir)
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
-                                self._beams, self._beam_span)
+                                self._beams, self._beam_span, self._outline_reach_m)
         readings = self._camera_readings()
         self._devices.work_on_fish_j(self._device_vel_end, BELT_MASS_KG)
         return PlantOutputs(
