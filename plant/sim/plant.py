@@ -166,6 +166,7 @@ class Plant:
         self._laws = stack_laws([m.prepared.laws for m in members])
         self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
         self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
+        self._joint_stiffness = {}  # connector -> its 6x6 stiffness as last written (see _relinearize_joints)
         self._joint_bodies = np.array([(5 * i + j, 5 * i + j + 1) for i in range(len(members)) for j in range(4)],
                                       dtype=np.int64).reshape(-1, 2)
         self._pose_bodies = np.array([[5 * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
@@ -275,12 +276,13 @@ class Plant:
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
                                                self._omega_local[b], np.repeat(self.status[self._member] == ON_LINE, 4),
                                                self._comm_step_s, self._k_now, self._offset_now)
-        if not np.any(changed):
+        if not changed.any():
             return
         mbs = self.model.mbs
         for j in np.flatnonzero(changed):
             conn = self.model.fish[j // 4].connectors[j % 4]
-            stiffness = np.array(mbs.GetObjectParameter(conn, "stiffness"))
+            if (stiffness := self._joint_stiffness.get(conn)) is None:  # read once: only its rotational part changes
+                stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
             stiffness[3:, 3:] = np.diag(k_new[j])
             mbs.SetObjectParameter(conn, "stiffness", stiffness)
             mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
