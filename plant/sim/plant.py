@@ -279,13 +279,17 @@ class Plant:
         if not changed.any():
             return
         mbs = self.model.mbs
+        # often only one of the two moves (a joint staying stiff shifts its offset): write only that one
+        new_k, new_offset = (k_new != self._k_now).any(axis=1), (off_new != self._offset_now).any(axis=1)
         for j in np.flatnonzero(changed):
             conn = self.model.fish[j // 4].connectors[j % 4]
-            if (stiffness := self._joint_stiffness.get(conn)) is None:  # read once: only its rotational part changes
-                stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
-            stiffness[3:, 3:] = np.diag(k_new[j])
-            mbs.SetObjectParameter(conn, "stiffness", stiffness)
-            mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
+            if new_k[j]:
+                if (stiffness := self._joint_stiffness.get(conn)) is None:  # read once: only its rotations' part changes
+                    stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
+                stiffness[3:, 3:] = np.diag(k_new[j])
+                mbs.SetObjectParameter(conn, "stiffness", stiffness)
+            if new_offset[j]:
+                mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
         self._k_now[changed] = k_new[changed]
         self._offset_now[changed] = off_new[changed]
 
