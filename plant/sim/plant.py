@@ -156,8 +156,7 @@ class Plant:
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
-        self._member = model.member_index
-        self._outline_reach_m = outline_reach_m(model)
+        self._member, self._outline_reach_m = model.member_index, outline_reach_m(model)
         self._fish_of_body = np.repeat(self._member, 5)
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
                                    dtype=float)
@@ -166,7 +165,6 @@ class Plant:
         self._laws = stack_laws([m.prepared.laws for m in members])
         self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
         self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
-        self._joint_stiffness = {}  # connector -> its 6x6 stiffness as last written (see _relinearize_joints)
         self._joint_bodies = np.array([(5 * i + j, 5 * i + j + 1) for i in range(len(members)) for j in range(4)],
                                       dtype=np.int64).reshape(-1, 2)
         self._pose_bodies = np.array([[5 * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
@@ -181,7 +179,7 @@ class Plant:
         ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self._params.numerics.step_s))
         self._solver.InitializeSolver(model.mbs, ss)
         self._t_model0 = self.t_s
-        self._adhesion_force = None
+        self._adhesion_force, self._joint_stiffness = None, {}  # connector -> its 6x6 stiffness, read once
         self._read_state()
 
     def _rebuild(self, t: float) -> None:
@@ -270,28 +268,22 @@ class Plant:
 
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
-        if len(self._joint_bodies) == 0:
-            return
         a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
                                                self._omega_local[b], np.repeat(self.status[self._member] == ON_LINE, 4),
                                                self._comm_step_s, self._k_now, self._offset_now)
-        if not changed.any():
-            return
         mbs = self.model.mbs
-        # often only one of the two moves (a joint staying stiff shifts its offset): write only that one
         new_k, new_offset = (k_new != self._k_now).any(axis=1), (off_new != self._offset_now).any(axis=1)
         for j in np.flatnonzero(changed):
             conn = self.model.fish[j // 4].connectors[j % 4]
-            if new_k[j]:
-                if (stiffness := self._joint_stiffness.get(conn)) is None:  # read once: only its rotations' part changes
+            if new_k[j]:  # only what moved is written; the 6x6 matrix read once, only its rotations' block moves
+                if (stiffness := self._joint_stiffness.get(conn)) is None:
                     stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
                 stiffness[3:, 3:] = np.diag(k_new[j])
                 mbs.SetObjectParameter(conn, "stiffness", stiffness)
             if new_offset[j]:
                 mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
-        self._k_now[changed] = k_new[changed]
-        self._offset_now[changed] = off_new[changed]
+        self._k_now[changed], self._offset_now[changed] = k_new[changed], off_new[changed]
 
     def _update_friction(self, speeds: np.ndarray) -> None:
         """Direction-dependent friction: each fish's friction material from the way it slips now."""
