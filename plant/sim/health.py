@@ -65,22 +65,26 @@ class _LineBounds:
     """(right, left): no guide comes further in than these."""
 
 
-_bounds_cache: list = [None, None]  # [line, its _LineBounds]: one line a run; holding it keeps its id unique
+_bounds_cache: tuple = (None, None)  # (line, its _LineBounds): one line a run; holding it keeps its id unique
 
 
 def _line_bounds(line) -> _LineBounds:
-    if _bounds_cache[0] is not line:
-        starts = np.array([c.x_start_m for c in line.conveyors])
-        ends = np.array([c.x_end_m for c in line.conveyors])
-        z_top = np.array([c.z_top_m for c in line.conveyors])
-        slope = np.tan(np.radians([c.incline_deg for c in line.conveyors]))
-        highest = float(np.max(z_top + np.maximum(0.0, (ends - starts) * slope)))
-        if line.guides is None:
-            inside = (-0.5 * line.guide_width_m, 0.5 * line.guide_width_m)
-        else:
-            inside = (max(y for _, y in line.guides.right), min(y for _, y in line.guides.left))
-        _bounds_cache[:] = [line, _LineBounds(starts, ends, z_top, slope, highest, inside)]
-    return _bounds_cache[1]
+    global _bounds_cache
+    cached = _bounds_cache  # one read: plants in threads each see a whole pair
+    if cached[0] is line:
+        return cached[1]
+    starts = np.array([c.x_start_m for c in line.conveyors])
+    ends = np.array([c.x_end_m for c in line.conveyors])
+    z_top = np.array([c.z_top_m for c in line.conveyors])
+    slope = np.tan(np.radians([c.incline_deg for c in line.conveyors]))
+    highest = float(np.max(z_top + np.maximum(0.0, (ends - starts) * slope)))
+    if line.guides is None:
+        inside = (-0.5 * line.guide_width_m, 0.5 * line.guide_width_m)
+    else:
+        inside = (max(y for _, y in line.guides.right), min(y for _, y in line.guides.left))
+    bounds = _LineBounds(starts, ends, z_top, slope, highest, inside)
+    _bounds_cache = (line, bounds)
+    return bounds
 
 
 def floor_below(line, x_m: np.ndarray) -> np.ndarray:
