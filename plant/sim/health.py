@@ -51,14 +51,48 @@ MAX_SPEED_MPS = 25.0
 """Anything faster than this in a fish plant is a numerical blow-up, not physics."""
 
 
-def floor_below(line, x_m: np.ndarray) -> np.ndarray:
-    """Lowest belt top of ``line`` (a :class:`plant.contract.line.Line`) within 0.1 m of each x: where a fish
-    can lie, drape or hang over a drum (``inf`` where no belt is that near)."""
-    x = np.asarray(x_m, dtype=float)[:, None]
+@dataclass(frozen=True)
+class _LineBounds:
+    """What the health checks read of a line, as arrays (made once per line, not every step)."""
+
+    starts: np.ndarray
+    ends: np.ndarray
+    z_top: np.ndarray
+    slope: np.ndarray
+    highest_top_m: float
+    """The highest point of any belt top (as :func:`floor_below` works it out): no floor lies above it."""
+    y_inside_m: tuple[float, float]
+    """(right, left): no guide comes further in than these."""
+
+
+_bounds_cache: tuple = (None, None)  # (line, its _LineBounds): one line a run; holding it keeps its id unique
+
+
+def _line_bounds(line) -> _LineBounds:
+    global _bounds_cache
+    cached = _bounds_cache  # one read: plants in threads each see a whole pair
+    if cached[0] is line:
+        return cached[1]
     starts = np.array([c.x_start_m for c in line.conveyors])
     ends = np.array([c.x_end_m for c in line.conveyors])
     z_top = np.array([c.z_top_m for c in line.conveyors])
     slope = np.tan(np.radians([c.incline_deg for c in line.conveyors]))
+    highest = float(np.max(z_top + np.maximum(0.0, (ends - starts) * slope)))
+    if line.guides is None:
+        inside = (-0.5 * line.guide_width_m, 0.5 * line.guide_width_m)
+    else:
+        inside = (max(y for _, y in line.guides.right), min(y for _, y in line.guides.left))
+    bounds = _LineBounds(starts, ends, z_top, slope, highest, inside)
+    _bounds_cache = (line, bounds)
+    return bounds
+
+
+def floor_below(line, x_m: np.ndarray) -> np.ndarray:
+    """Lowest belt top of ``line`` (a :class:`plant.contract.line.Line`) within 0.1 m of each x: where a fish
+    can lie, drape or hang over a drum (``inf`` where no belt is that near)."""
+    x = np.asarray(x_m, dtype=float)[:, None]
+    lb = _line_bounds(line)
+    starts, ends, z_top, slope = lb.starts, lb.ends, lb.z_top, lb.slope
     z = z_top[None, :] + np.clip(x - starts[None, :], 0.0, (ends - starts)[None, :]) * slope[None, :]
     near = (x >= starts[None, :] - 0.1) & (x <= ends[None, :] + 0.1)
     return np.where(near, z, np.inf).min(axis=1)
@@ -75,7 +109,7 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
     that takes fish off the line (through a gate's gap, out of a pusher's or diverter's opening).  Beyond a guide a
     body may be only at an opening in it, or when its fish is going out through one (some of it beyond the guide
     there): anywhere else a fish outside the guides went through a wall."""
-    if len(pos) == 0:
+    if len(pos) == 0 or _all_clear(pos, vel, _line_bounds(line)):
         return
     bad = ~np.all(np.isfinite(pos), axis=1) | ~np.all(np.isfinite(vel), axis=1)
     if np.any(bad):
@@ -112,6 +146,19 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
         i = int(np.flatnonzero(below)[0])
         raise SimulationError(f"fish '{fish_ids[fish_of[i]]}' fell through a belt "
                               f"(z = {pos[i, 2]:.3f} m at x = {pos[i, 0]:.3f} m)", t_s)
+
+
+def _all_clear(pos: np.ndarray, vel: np.ndarray, lb: _LineBounds) -> bool:
+    """True when no body can fail :func:`check_health`, from the bounding box of the positions and the top speed
+    (a few numpy passes, every step): all finite (min and max carry a NaN or an infinity), slower than the
+    limit, inside the narrowest guides and less than 8 cm below the highest belt top; otherwise the full check
+    looks closer."""
+    lo, hi = pos.min(axis=0), pos.max(axis=0)
+    top_speed2 = float(np.max(np.einsum("ij,ij->i", vel, vel)))  # NaN or inf stays so
+    margin = 1e-9  # rounding: the full check decides anything this near a bound
+    return bool(np.isfinite(lo).all() and np.isfinite(hi).all() and top_speed2 < (MAX_SPEED_MPS - margin) ** 2
+                and lo[1] > lb.y_inside_m[0] - 0.05 + margin and hi[1] < lb.y_inside_m[1] + 0.05 - margin
+                and lo[2] > lb.highest_top_m - 0.08 + margin)
 
 
 RESERVE_MIN_J = 8.0

@@ -95,8 +95,11 @@ def linearize(law: JointLaws, theta_now: np.ndarray, theta_next: np.ndarray) -> 
     running into its limit is already stiff when it gets there); the offset makes the linear
     spring give the exact torque now.
     """
-    k = np.maximum(tangent(law, theta_now), tangent(law, theta_next))
-    offset = theta_now - torque(law, theta_now) / k
+    gap = law.k_limit - law.k_soft
+    phi_now, slope_now = _phi(law, np.abs(theta_now))  # once for both the tangent and the torque now
+    _, slope_next = _phi(law, np.abs(theta_next))
+    k = np.maximum(law.k_soft + gap * slope_now, law.k_soft + gap * slope_next)  # tangent(now), tangent(next)
+    offset = theta_now - (law.k_soft * theta_now + gap * phi_now * np.sign(theta_now)) / k  # torque(now) / k
     return k, offset
 
 
@@ -117,16 +120,16 @@ def relinearized(laws: JointLaws, rot_a: np.ndarray, rot_b: np.ndarray, omega_a:
     w_b_in_a = np.einsum("nij,nj->ni", rel, omega_b)
     theta_next = theta + (w_b_in_a - omega_a) * dt_s
     soft_until = laws.limit_rad * (1.0 - laws.transition)
-    near = np.any((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until), axis=1)
+    near = ((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until)).any(axis=1)
     near &= active
     k_new = laws.k_soft.copy()
     off_new = np.zeros_like(offset_now)
-    if np.any(near):
+    if near.any():  # the array's own methods: np.any's dispatch costs more than the test on 4 joints a fish
         sub = JointLaws(laws.limit_rad[near], laws.k_soft[near], laws.k_limit[near], laws.transition,
                         laws.damping[near])
         k_new[near], off_new[near] = linearize(sub, theta[near], theta_next[near])
-    changed = (np.any(np.abs(k_new - k_now) > 0.02 * k_now, axis=1)
-               | np.any(np.abs(off_new - offset_now) > 0.005, axis=1))
+    changed = ((np.abs(k_new - k_now) > 0.02 * k_now).any(axis=1)
+               | (np.abs(off_new - offset_now) > 0.005).any(axis=1))
     return changed, k_new, off_new
 
 

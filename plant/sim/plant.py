@@ -51,7 +51,7 @@ from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
 from plant.sim.devices import DeviceActuators
-from plant.sim.sensors import beams_blocked, belt_loads, sphere_centres, spine_point_local
+from plant.sim.sensors import beams_blocked, belt_loads, outline_reach_m, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
 
@@ -156,7 +156,7 @@ class Plant:
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
-        self._member = model.member_index
+        self._member, self._outline_reach_m = model.member_index, outline_reach_m(model)
         self._fish_of_body = np.repeat(self._member, 5)
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
                                    dtype=float)
@@ -179,7 +179,7 @@ class Plant:
         ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self._params.numerics.step_s))
         self._solver.InitializeSolver(model.mbs, ss)
         self._t_model0 = self.t_s
-        self._adhesion_force = None
+        self._adhesion_force, self._joint_stiffness = None, {}  # connector -> its 6x6 stiffness, read once
         self._read_state()
 
     def _rebuild(self, t: float) -> None:
@@ -268,23 +268,22 @@ class Plant:
 
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
-        if len(self._joint_bodies) == 0:
-            return
         a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
                                                self._omega_local[b], np.repeat(self.status[self._member] == ON_LINE, 4),
                                                self._comm_step_s, self._k_now, self._offset_now)
-        if not np.any(changed):
-            return
         mbs = self.model.mbs
+        new_k, new_offset = (k_new != self._k_now).any(axis=1), (off_new != self._offset_now).any(axis=1)
         for j in np.flatnonzero(changed):
             conn = self.model.fish[j // 4].connectors[j % 4]
-            stiffness = np.array(mbs.GetObjectParameter(conn, "stiffness"))
-            stiffness[3:, 3:] = np.diag(k_new[j])
-            mbs.SetObjectParameter(conn, "stiffness", stiffness)
-            mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
-        self._k_now[changed] = k_new[changed]
-        self._offset_now[changed] = off_new[changed]
+            if new_k[j]:  # only what moved is written; the 6x6 matrix read once, only its rotations' block moves
+                if (stiffness := self._joint_stiffness.get(conn)) is None:
+                    stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
+                stiffness[3:, 3:] = np.diag(k_new[j])
+                mbs.SetObjectParameter(conn, "stiffness", stiffness)
+            if new_offset[j]:
+                mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
+        self._k_now[changed], self._offset_now[changed] = k_new[changed], off_new[changed]
 
     def _update_friction(self, speeds: np.ndarray) -> None:
         """Direction-dependent friction: each fish's friction material from the way it slips now."""
@@ -351,7 +350,7 @@ class Plant:
         load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2,
                                 self._belt_dir)
         blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
-                                self._beams, self._beam_span)
+                                self._beams, self._beam_span, self._outline_reach_m)
         readings = self._camera_readings()
         self._devices.work_on_fish_j(self._device_vel_end, BELT_MASS_KG)
         return PlantOutputs(

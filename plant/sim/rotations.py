@@ -23,37 +23,47 @@ def rotvec_to_matrix(rv: np.ndarray) -> np.ndarray:
     th2 = np.einsum("...i,...i->...", rv, rv)
     th = np.sqrt(th2)
     small = th < 1e-6
-    safe = np.where(small, 1.0, th)
-    a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    if small.any():  # the series near zero (rare after the first step: this runs for every body every step)
+        safe = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
+        b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    else:
+        a = np.sin(th) / th
+        b = (1.0 - np.cos(th)) / (th * th)
     x, y, z = rv[..., 0], rv[..., 1], rv[..., 2]
+    xx, yy, zz = x * x, y * y, z * z
+    ax, ay, az = a * x, a * y, a * z
+    bx = b * x
+    bxy, bxz, byz = bx * y, bx * z, b * y * z
     out = np.empty(rv.shape[:-1] + (3, 3))
-    out[..., 0, 0] = 1.0 - b * (y * y + z * z)
-    out[..., 1, 1] = 1.0 - b * (x * x + z * z)
-    out[..., 2, 2] = 1.0 - b * (x * x + y * y)
-    bxy, bxz, byz = b * x * y, b * x * z, b * y * z
-    out[..., 0, 1] = bxy - a * z
-    out[..., 1, 0] = bxy + a * z
-    out[..., 0, 2] = bxz + a * y
-    out[..., 2, 0] = bxz - a * y
-    out[..., 1, 2] = byz - a * x
-    out[..., 2, 1] = byz + a * x
+    out[..., 0, 0] = 1.0 - b * (yy + zz)
+    out[..., 1, 1] = 1.0 - b * (xx + zz)
+    out[..., 2, 2] = 1.0 - b * (xx + yy)
+    out[..., 0, 1] = bxy - az
+    out[..., 1, 0] = bxy + az
+    out[..., 0, 2] = bxz + ay
+    out[..., 2, 0] = bxz - ay
+    out[..., 1, 2] = byz - ax
+    out[..., 2, 1] = byz + ax
     return out
 
 
 def matrix_to_rotvec(rot: np.ndarray) -> np.ndarray:
     """Logarithm of (n, 3, 3) rotation matrices -> (n, 3) rotation vectors (angle in [0, pi])."""
     rot = np.asarray(rot, dtype=float)
-    cos = np.clip((np.trace(rot, axis1=-2, axis2=-1) - 1.0) / 2.0, -1.0, 1.0)
+    cos = np.clip((rot[..., 0, 0] + rot[..., 1, 1] + rot[..., 2, 2] - 1.0) / 2.0, -1.0, 1.0)
     th = np.arccos(cos)
     w = np.stack([rot[..., 2, 1] - rot[..., 1, 2], rot[..., 0, 2] - rot[..., 2, 0], rot[..., 1, 0] - rot[..., 0, 1]], -1)
     sin = np.sin(th)
     small = sin < 1e-6
-    scale = np.where(small, 0.5 + th**2 / 12.0, th / (2.0 * np.where(small, 1.0, sin)))
+    if small.any():
+        scale = np.where(small, 0.5 + th**2 / 12.0, th / (2.0 * np.where(small, 1.0, sin)))
+    else:
+        scale = th / (2.0 * sin)
     out = w * scale[..., None]
     # near pi the antisymmetric part vanishes: take the axis from the symmetric part
     near_pi = (th > np.pi - 1e-3)
-    if np.any(near_pi):
+    if near_pi.any():
         for i in np.flatnonzero(near_pi):
             m = (rot[i] + np.eye(3)) / 2.0
             axis = m[np.argmax(np.diag(m))]

@@ -28,13 +28,15 @@ def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.n
 
 
 def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, half_len: np.ndarray,
-                      radius: np.ndarray, beams_xz: np.ndarray, span_y_m: np.ndarray) -> np.ndarray:
+                      radius: np.ndarray, beams_xz: np.ndarray, span_y_m: np.ndarray,
+                      pairs: np.ndarray | None = None) -> np.ndarray:
     """(n_beams,) True where a beam at (x, z), spanning y from ``span_y_m[:, 1]`` to ``span_y_m[:, 0]`` (between
     the guides there: (left, right) per beam), cuts a fish cross-section.
 
     A cross-section is a capsule: the segment ``centre +- s * axis`` (|s| <= half_len, axis = the
     body's dorsal direction) thickened by ``radius``.  The beam runs along y, so only the distance
-    in the x-z plane counts: minimise it over s (a quadratic) and compare with the radius.
+    in the x-z plane counts: minimise it over s (a quadratic) and compare with the radius.  ``pairs``
+    (n_beams, n_sections), when given: only these (beam, cross-section) pairs are looked at.
     """
     if len(beams_xz) == 0 or len(section_centres) == 0:
         return np.zeros(len(beams_xz), dtype=bool)
@@ -50,24 +52,37 @@ def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, hal
     span = np.asarray(span_y_m, dtype=float).reshape(-1, 2)
     hit = ((ex * ex + ez * ez < radius[None, :] ** 2) & (y < span[:, :1] + radius[None, :])
            & (y > span[:, 1:] - radius[None, :]))
+    if pairs is not None:
+        hit &= pairs
     return hit.any(axis=1)
 
 
+def outline_reach_m(model: PlantModel) -> float:
+    """The farthest any point of a body's outline lies from the body's centre along any direction (its
+    cross-section's offset along the body, half its length and its radius): a body whose centre is farther than
+    this from a beam along x cannot cut it."""
+    if len(model.section_body) == 0:
+        return 0.0
+    return float(np.max(np.abs(model.section_x) + model.section_half_len + model.section_radius))
+
+
 def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: np.ndarray, beams_xz: np.ndarray,
-                  span_y_m: np.ndarray) -> np.ndarray:
+                  span_y_m: np.ndarray, reach_m: float | None = None) -> np.ndarray:
     """(n_beams,) True where a beam cuts the outline of a body of a fish on the line (``body_on``), from the
-    bodies' positions and rotations; only bodies within 0.5 m of a beam along x are looked at."""
+    bodies' positions and rotations.  Each beam is tested only against the bodies near it: those whose centre
+    lies within ``reach_m`` (:func:`outline_reach_m`, worked out when not given) of it along x."""
     if len(beams_xz) == 0 or len(model.section_body) == 0:
         return np.zeros(len(beams_xz), dtype=bool)
-    near = body_on & (np.min(np.abs(pos[:, 0][:, None] - beams_xz[None, :, 0]), axis=1) < 0.5)
-    sel = near[model.section_body]
-    if not np.any(sel):
+    reach = (outline_reach_m(model) if reach_m is None else reach_m) + 1e-9  # 1e-9: rounding of the centres
+    near = body_on[:, None] & (np.abs(pos[:, :1] - beams_xz[None, :, 0]) < reach)  # (bodies, beams)
+    sel = np.flatnonzero(np.any(near, axis=1)[model.section_body])
+    if not len(sel):
         return np.zeros(len(beams_xz), dtype=bool)
     b = model.section_body[sel]
     r = rot[b]
     centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
     return photoeyes_blocked(centres, r[:, :, 1], model.section_half_len[sel], model.section_radius[sel], beams_xz,
-                             span_y_m)
+                             span_y_m, near[b].T)
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
