@@ -30,6 +30,15 @@ from fishfmu.analysis.extension_fit import CandidateFit, FitContext
 from fishfmu.analysis.fragments import plant_tables, plant_value
 from fishfmu.analysis.levels import FRICTION, RIGOR
 
+@dataclass(frozen=True)
+class Terms:
+    """What turning fitted values into a cause's own terms needs besides them: the model they were fitted on (the
+    level responses' base for run-level effects) and each belt's typical setpoint."""
+
+    base: PlantParams
+    setpoint_mps: dict[str, float]
+
+
 Group = Literal["transfers", "pairs"] | None
 """Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.residuals.RunResiduals.squares`):
 None all (lags of fish alone and pairs), ``transfers`` lags of fish alone after a transfer, ``pairs`` the
@@ -73,6 +82,11 @@ class Candidate:
     synthetic: Callable[[PlantParams, dict[str, float], float], None] | None = None
     """``synthetic(params, drive, strength)`` switches the effect on for a synthetic dataset (None: not one
     of :data:`fishfmu.analysis.synthetic.EFFECTS`)."""
+    terms: Callable[[dict[str, float], "Terms"], dict[str, float]] | None = None
+    """``terms(values, context)``: the fitted values in the cause's own physical terms (friction at 1 h and 48 h,
+    stiffness at the peak, speed lost per 10 kg ...), what a process engineer and a benchmark's truth compare."""
+    primary: str = ""
+    """The one of ``terms`` that says how strong the cause is (what parameter recovery is judged on)."""
 
     def __post_init__(self) -> None:
         if len(self.groups) != len(self.parameters):

@@ -30,8 +30,9 @@ from plant.contract.measured import Dataset, Run
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import Calibration, calibrate_with_pool
+from fishfmu.analysis.candidate import Terms
 from fishfmu.analysis.candidates import CANDIDATES, fragment
-from fishfmu.analysis.extension_fit import MIN_GAIN, CandidateFit, FitContext  # noqa: F401 (MIN_GAIN: the report reads it here)
+from fishfmu.analysis.extension_fit import MIN_GAIN, NOT_CONFIRMED, CandidateFit, FitContext  # noqa: F401 (MIN_GAIN: the report reads it here)
 from fishfmu.analysis.levels import FRICTION, RIGOR, run_levels
 from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
                                         drop_lags)
@@ -78,10 +79,21 @@ class Diagnosis:
     """Each fit run's own best friction and rigor levels, with its hours: the signature of run-level effects."""
     drop_lags: pd.DataFrame = field(default_factory=pd.DataFrame)
     """Per run, the median time a fish dropped alone has lost to the infeed (:func:`drop_lag_table`)."""
+    terms: dict[str, float] = field(default_factory=dict)
+    """The named cause's fitted values in its own physical terms (:attr:`~fishfmu.analysis.candidate.Candidate.terms`)."""
 
     @property
     def fits(self) -> list[CandidateFit]:
         return [self.fit] if self.fit is not None else []
+
+    @property
+    def extension(self) -> str:
+        """``confirmed`` (the named cause's extension beats the base on held-out runs: the fragment carries it),
+        ``not confirmed`` (:data:`~fishfmu.analysis.extension_fit.NOT_CONFIRMED`: the fragment carries it as
+        comments only) or ``none`` (no cause named)."""
+        if self.fit is None:
+            return "none"
+        return "confirmed" if self.fit.confirmed else "not confirmed"
 
 
 def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
@@ -122,7 +134,8 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     timing["total"] = time.perf_counter() - t0
     return Diagnosis(judgement.cause, judgement, fit, _fragment(cal, base, fit),
                      {b.run_id: b.track_rms_m for b in cal.baseline}, {b.run_id: b.track_rms_m for b in cal.after},
-                     timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset))
+                     timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset),
+                     _terms(fit, cal, dataset))
 
 
 def _fit_cause(cause: str, ctx: FitContext) -> CandidateFit | None:
@@ -144,8 +157,34 @@ def drop_lag_table(dataset: Dataset) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def setpoints_mps(dataset: Dataset) -> dict[str, float]:
+    """Each belt's typical setpoint: the median over the runs' logs of the setpoints it ran at (stopped: left out)."""
+    belts = pd.concat([r.belts for r in dataset.runs if len(r.belts)], ignore_index=True) if dataset.runs else None
+    if belts is None or belts.empty:
+        return {}
+    running = belts[belts["setpoint_mps"] > 0.0]
+    return {str(c): float(v) for c, v in running.groupby("conveyor_id")["setpoint_mps"].median().items()}
+
+
+def _terms(fit: CandidateFit | None, cal: Calibration, dataset: Dataset) -> dict[str, float]:
+    """The named cause's fitted values in its own terms (run-level effects: about the model their levels were
+    simulated around)."""
+    cand = CANDIDATES.get(fit.name) if fit is not None else None
+    if cand is None or cand.terms is None or not fit.values:
+        return {}
+    return cand.terms(fit.values, Terms(cal.level_base or cal.params, setpoints_mps(dataset)))
+
+
 def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) -> str:
     """The calibration and the named cause as one scenario fragment: every value that differs from ``base``."""
     if winner is None:
         return cal.fragment(base) + fragment("none", {}, base)
-    return CANDIDATES[winner.name].extended_fragment(cal, base, winner)
+    extended = CANDIDATES[winner.name].extended_fragment(cal, base, winner)
+    if winner.confirmed:
+        return extended
+    # the cause is named by its signature, but its model does not beat the base on held-out runs: handed over as
+    # the calibration alone, the fitted extension kept as comments for whoever wants to try it
+    lo, hi = winner.heldout_gain_ci95
+    return (cal.fragment(base) + f"# {winner.name}: {NOT_CONFIRMED} (held-out gain {winner.heldout_gain:.1%}, 95 % "
+            f"interval {lo:.1%} to {hi:.1%}); the extended model as fitted, not applied:\n"
+            + "".join(line if line.startswith("#") else f"# {line}" for line in extended.splitlines(keepends=True)))

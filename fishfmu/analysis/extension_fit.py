@@ -31,6 +31,10 @@ from fishfmu.analysis.resim import resimulate_many
 MIN_GAIN = 0.02
 """The named cause's fitted model is reported as carrying over to held-out runs when it removes at least this
 fraction of their error with its 95 % interval above zero."""
+NOT_CONFIRMED = "named by its signature, model extension not confirmed"
+"""What a named cause is when its fitted extension does not beat the base on held-out runs: the data show the cause,
+the model of it does not pay, and the extension is never handed over as a fix (``fragment.toml`` carries it as
+comments only)."""
 
 
 @dataclass
@@ -48,6 +52,9 @@ class CandidateFit:
     """Error per run and grid value (plant candidates)."""
     gain_by_run: dict[str, float] = field(default_factory=dict)
     """Held-out error each run's residuals lose with the candidate (in the squares of ``error_unit``)."""
+    at_grid_end: dict[str, str] = field(default_factory=dict)
+    """Parameters fitted at an end of the values searched (``lowest`` or ``highest``): the data may want a value
+    beyond what was tried, and the report says so rather than give the end as the answer."""
 
     def score(self, s: HeldOut) -> "CandidateFit":
         """Takes the held-out score (gain, interval, per run, RMS before and after)."""
@@ -56,7 +63,8 @@ class CandidateFit:
         return self
 
     @property
-    def significant(self) -> bool:
+    def confirmed(self) -> bool:
+        """The extension beats the base on held-out runs: a gain of at least ``MIN_GAIN``, its interval above zero."""
         return bool(self.heldout_gain >= MIN_GAIN and self.heldout_gain_ci95[0] > 0.0)
 
     def carried_by(self) -> tuple[str, float] | None:
@@ -83,6 +91,21 @@ class FitContext:
     say: Callable[[str], None]
 
 
+def grid_ends(values: dict[str, float], grids: dict[str, np.ndarray]) -> dict[str, str]:
+    """The parameters whose fitted value is at the lowest or highest of the values searched (a grid of one value is
+    no search)."""
+    out = {}
+    for name, grid in grids.items():
+        g = np.asarray(grid, dtype=float)
+        if name not in values or len(g) < 2:
+            continue
+        if np.isclose(values[name], g.max()):
+            out[name] = f"highest value searched ({g.max():.4g})"
+        elif np.isclose(values[name], g.min()):
+            out[name] = f"lowest value searched ({g.min():.4g})"
+    return out
+
+
 # ------------------------------------------------------------------------------------- run-level effects
 def fit_levels(cand, ctx: FitContext) -> CandidateFit:
     """A run-level candidate's fit from its level model, judged on the rows its levels change against the constant
@@ -92,7 +115,9 @@ def fit_levels(cand, ctx: FitContext) -> CandidateFit:
     reference = fit_model(MODELS["constant"], on, ctx.rng)
     fit = CandidateFit(cand.name, values=dict(model.values), ci95=dict(model.ci95),
                        error_unit="x noise (the rows it is judged on: lags, drops or photo-eye passages, each "
-                                  "over its noise)")
+                                  "over its noise)",
+                       at_grid_end=grid_ends(model.values, dict(zip(MODELS[cand.level_model].parameters,
+                                                                    MODELS[cand.level_model].grids(on)))))
     return fit.score(heldout_score(on.runs, reference.cv_ss - model.cv_ss, reference.cv_ss,
                                    int(np.count_nonzero(on.row_weight)), ctx.rng))
 
@@ -130,6 +155,7 @@ def grid_fit(cand, base: dict[str, RunResiduals], grid: dict[float, dict[str, Ru
             i = rng.integers(0, len(runs), len(runs))
             boot.append(vertex(values, ss[g][:, i].sum(axis=1) / np.maximum(nn[g][:, i].sum(axis=1), 1)))
         fit.ci95[pname] = (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
+    fit.at_grid_end = grid_ends(fit.values, {p: values for p in cand.parameters})
     fit.grid = pd.DataFrame([{"value": v, "run_id": r, "ss": sum(ss[g][i, j] for g in groups),
                               "n": int(sum(nn[g][i, j] for g in groups))}
                              for i, v in enumerate(values) for j, r in enumerate(runs)])

@@ -14,7 +14,7 @@ import pandas as pd
 
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidate import Candidate
+from fishfmu.analysis.candidate import Candidate, Terms
 from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test
 from fishfmu.analysis.extension_fit import fit_on_grid
 
@@ -47,8 +47,13 @@ def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTe
     return covariate_test("adhesion", quantity, covariate, d, "within", rng)
 
 
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """The force pulling a touching pair of contact spheres together [N]."""
+    return {"bond_force_n": float(values.get("force_n", 0.0))}
+
+
 CANDIDATE = Candidate(
     "adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N", 0.0, (2.0, 6.0), (0.0, 50.0),
     "plant", apply, ("extensions.adhesion.force_n",), test=test,
     decides="more batches dumped onto the infeed, with fish side by side both touching and with a gap",
-    fit=fit_on_grid, groups=("pairs",), synthetic=hide)
+    fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n")

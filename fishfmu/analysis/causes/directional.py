@@ -13,7 +13,7 @@ import pandas as pd
 
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidate import Candidate
+from fishfmu.analysis.candidate import Candidate, Terms
 from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test, robust
 from fishfmu.analysis.extension_fit import fit_on_grid
 
@@ -39,9 +39,16 @@ def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTe
                           "heading relative to the belt's motion", d, "within", rng)
 
 
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """Friction slipping head first over friction slipping tail first."""
+    a = values.get("asymmetry", 0.0)
+    return {"head_tail_friction_ratio": float((1.0 - a) / (1.0 + a))}
+
+
 CANDIDATE = Candidate(
     "directional_friction", "fish-belt friction by slip direction: head first x(1 - a), tail first x(1 + a)",
     ("asymmetry",), "", 0.0, (0.25, 0.5), (-0.75, 0.75), "plant", apply,
     ("extensions.direction_friction.head", "extensions.direction_friction.tail"),
     test=test, decides="more fish dropped alone onto the infeed, both head downstream and head upstream",
-    fit=fit_on_grid, groups=("transfers",), synthetic=hide)
+    fit=fit_on_grid, groups=("transfers",), synthetic=hide, terms=terms,
+    primary="head_tail_friction_ratio")

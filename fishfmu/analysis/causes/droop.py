@@ -13,7 +13,7 @@ import pandas as pd
 
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidate import Candidate
+from fishfmu.analysis.candidate import Candidate, Terms
 from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test
 from fishfmu.analysis.extension_fit import CandidateFit, FitContext
 from fishfmu.analysis.fitting import folds, heldout_score
@@ -108,8 +108,20 @@ def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
     return out
 
 
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """The share of each belt's speed lost per 10 kg of fish carried (its typical setpoint), and their mean over
+    the belts (the part that follows the force bringing fish up to speed is not in it)."""
+    out = {}
+    for key, per_kg in values.items():
+        if key.startswith("droop_per_kg[") and key[13:-1] in ctx.setpoint_mps:
+            out[f"speed_lost_per_10kg[{key[13:-1]}]"] = float(10.0 * per_kg / ctx.setpoint_mps[key[13:-1]])
+    if out:
+        out["speed_lost_per_10kg"] = float(np.mean(list(out.values())))
+    return out
+
+
 CANDIDATE = Candidate(
     "drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N", 0.0, (),
     (0.0, 0.01), "drive", apply, ("belt_slip",), test=test,
     decides="drive logs of runs whose belts carry varying loads (batches dumped onto the infeed)",
-    fit=fit, synthetic=hide)
+    fit=fit, synthetic=hide, terms=terms, primary="speed_lost_per_10kg")

@@ -12,7 +12,7 @@ import pandas as pd
 
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidate import Candidate
+from fishfmu.analysis.candidate import Candidate, Terms
 from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test, log_hours_shapes, robust
 from fishfmu.analysis.extension_fit import fit_levels
 
@@ -38,11 +38,21 @@ def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTe
     return covariate_test("mucus_friction", "slip of fish dropped alone [s]", "hours post mortem", d, "rows", rng)
 
 
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """Fish-belt friction at 1 h and at 48 h post mortem (the model's fish-belt friction x the fitted level x the
+    drying factor), and how much it rises between them (x)."""
+    level = values.get("friction_level", 1.0) * ctx.base.friction.fish_belt
+    gain, tau = values.get("gain", 0.0), values.get("time_constant_h", 24.0)
+    at = {h: level * (1.0 + gain * (1.0 - np.exp(-h / tau))) for h in (1.0, 48.0)}
+    return {"friction_1h": float(at[1.0]), "friction_48h": float(at[48.0]), "rise_1h_to_48h": float(at[48.0] / at[1.0])}
+
+
 CANDIDATE = Candidate(
     "mucus_friction", "relative change of belt friction once the mucus has dried, and how fast it dries",
-    ("gain", "time_constant_h"), "", 0.0, (), (-0.8, 8.0), "plant", apply,
+    ("gain", "time_constant_h"), "", 0.0, (), (0.0, 8.0), "plant", apply,
     ("extensions.mucus_friction.gain", "extensions.mucus_friction.time_constant_h"),
     test=test,
     decides="more runs of fish dropped one at a time onto the infeed, at more ages post mortem (fresh batches, under "
             "8 h, most of all)",
-    fit=fit_levels, groups=("transfers", "transfers"), level_model="mucus_friction", synthetic=hide)
+    fit=fit_levels, groups=("transfers", "transfers"), level_model="mucus_friction", synthetic=hide, terms=terms,
+    primary="rise_1h_to_48h")

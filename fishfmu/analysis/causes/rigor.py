@@ -12,7 +12,7 @@ import pandas as pd
 
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidate import Candidate
+from fishfmu.analysis.candidate import Candidate, Terms
 from fishfmu.analysis.covariates import CovariateTest, Design, bump_shapes, covariate_test
 from fishfmu.analysis.extension_fit import fit_levels
 from fishfmu.analysis.levels import rigor_limit_loss
@@ -48,6 +48,14 @@ def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTe
                           d, "rows", rng)
 
 
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """How many times stiffer the joints are at the peak of rigor than without it (the constant stiffening every run
+    has is the base), and when the peak is."""
+    k0 = values.get("joint_stiffening", 0.0)
+    return {"stiffness_factor_at_peak": float((1.0 + k0 + values.get("stiffness_gain", 0.0)) / (1.0 + k0)),
+            "peak_h": float(values.get("peak_h", float("nan")))}
+
+
 CANDIDATE = Candidate(
     "rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it), when rigor peaks and "
     "how long it lasts", ("stiffness_gain", "peak_h", "width_h"), "x", 0.0, (), (0.0, 50.0), "plant", apply,
@@ -55,4 +63,5 @@ CANDIDATE = Candidate(
      "extensions.rigor_mortis.width_h"),
     test=test,
     decides="more runs at ages between 4 and 48 h post mortem with fish riding alone past the photo-eyes",
-    fit=fit_levels, groups=("transfers", "transfers", "transfers"), level_model="rigor_mortis", synthetic=hide)
+    fit=fit_levels, groups=("transfers", "transfers", "transfers"), level_model="rigor_mortis", synthetic=hide,
+    terms=terms, primary="stiffness_factor_at_peak")
