@@ -29,7 +29,7 @@ def _calibration() -> SimpleNamespace:
 def _diagnosis(gain: float, ci95: tuple[float, float]) -> Diagnosis:
     fit = CandidateFit("directional_friction", {"asymmetry": 0.3}, {"asymmetry": (0.1, 0.5)}, heldout_gain=gain,
                        heldout_gain_ci95=ci95, heldout_rms_before=0.02, heldout_rms_after=0.02 * (1 - gain) ** 0.5,
-                       gain_by_run={"r1": gain, "r2": gain})
+                       gain_by_run={"r1": gain, "r2": gain}, base_by_run={"r1": 1.0, "r2": 1.0})
     test = CovariateTest("directional_friction", "slip of fish dropped alone [s]", "heading", 40, 4, heldout_gain=0.2,
                          heldout_gain_ci95=(0.1, 0.3), explained=0.2, p_value=0.001, shape="cos(heading)",
                          slope=-0.02, effect=0.04)
@@ -126,3 +126,18 @@ def test_a_value_fitted_at_the_end_of_its_grid_is_said_to_be_there():
     fit = CandidateFit("mucus_friction", {"gain": 0.5, "time_constant_h": 72.0}, heldout_gain=0.1,
                        heldout_gain_ci95=(0.05, 0.2), at_grid_end=ends)
     assert "time_constant_h is the highest value searched (72): the data may want a value beyond it" in fit_text(fit)
+
+
+def test_the_report_shows_each_held_out_run_with_the_base_and_the_extended_model(tmp_path):
+    import json
+
+    from fishfmu.analysis.diagnose_report import write_diagnosis
+    d = _diagnosis(-0.03, (-0.08, 0.01))
+    paths = write_diagnosis(d, tmp_path)
+    doc = json.loads(paths["json"].read_text())
+    # per run: the base's held-out error and what the extension removes (here it adds 3 %)
+    assert doc["heldout"]["base_by_run"] == {"r1": 1.0, "r2": 1.0}
+    assert doc["heldout"]["gain_by_run"] == {"r1": -0.03, "r2": -0.03}
+    assert (tmp_path / "heldout_directional_friction.png").stat().st_size > 1000
+    assert "heldout_directional_friction.png" not in paths  # a figure inside the report, not a result file
+    assert NOT_CONFIRMED in paths["report"].read_text()

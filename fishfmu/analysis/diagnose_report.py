@@ -98,7 +98,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "terms": d.terms,
         "extension": {"status": d.extension, "applied": d.extension == "confirmed", "text": extension_text(d)},
         "heldout": ({"rms_before": f.heldout_rms_before, "rms_after": f.heldout_rms_after, "unit": f.error_unit,
-                     "gain": f.heldout_gain, "gain_ci95": list(f.heldout_gain_ci95), "gain_by_run": f.gain_by_run}
+                     "gain": f.heldout_gain, "gain_ci95": list(f.heldout_gain_ci95), "gain_by_run": f.gain_by_run,
+                     "base_by_run": f.base_by_run}
                     if f else {"gain": 0.0}),
         "track_rms_m": {"before": float(np.mean(base_rms)) if base_rms else None,
                         "after": float(np.mean(after_rms)) if after_rms else None,
@@ -178,7 +179,28 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
         ax.set_xlabel(f"{f.name} strength [{CANDIDATES[f.name].unit}]")
         ax.set_ylabel("RMS residual [m]")
         figs[f"fit_{f.name}.png"] = _img(fig, out / f"fit_{f.name}.png")
+    for f in d.fits:
+        if f.base_by_run:
+            figs[f"heldout_{f.name}.png"] = heldout_figure(f, d.extension, out / f"heldout_{f.name}.png")
     return figs
+
+
+def heldout_figure(f: CandidateFit, status: str, path: Path) -> str:
+    """Each run held out: its error with the base model and with the extended one (chosen on the other runs), side
+    by side, as RMS per row where the rows are counted, else the root of the run's error."""
+    runs = sorted(f.base_by_run)
+    before = np.sqrt(np.maximum([f.base_by_run[r] for r in runs], 0.0))
+    after = np.sqrt(np.maximum([f.base_by_run[r] - f.gain_by_run.get(r, 0.0) for r in runs], 0.0))
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(runs) + 2.5), 3.6), layout="constrained")
+    x = np.arange(len(runs))
+    ax.bar(x - 0.2, before, 0.4, label="base (calibrated)", color="0.6")
+    ax.bar(x + 0.2, after, 0.4, label=f"extended with {f.name}", color="tab:blue")
+    ax.set_xticks(x, runs, rotation=45 if len(runs) > 8 else 0)
+    ax.set_ylabel(f"held-out error, root of the run's\nsum of squares [{f.error_unit.split(' (')[0]}]")
+    ax.set_title(f"each run held out: {f.name} extension {status}, gain {f.heldout_gain:.0%} "
+                 f"[{f.heldout_gain_ci95[0]:.0%}, {f.heldout_gain_ci95[1]:.0%}]", fontsize=10)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
+    return _img(fig, path)
 
 
 def write_diagnosis(d: Diagnosis, out: Path) -> dict[str, Path]:

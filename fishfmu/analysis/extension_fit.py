@@ -52,6 +52,8 @@ class CandidateFit:
     """Error per run and grid value (plant candidates)."""
     gain_by_run: dict[str, float] = field(default_factory=dict)
     """Held-out error each run's residuals lose with the candidate (in the squares of ``error_unit``)."""
+    base_by_run: dict[str, float] = field(default_factory=dict)
+    """Held-out error of each run with the base (calibrated) model, in the same units as ``gain_by_run``."""
     at_grid_end: dict[str, str] = field(default_factory=dict)
     """Parameters fitted at an end of the values searched (``lowest`` or ``highest``): the data may want a value
     beyond what was tried, and the report says so rather than give the end as the answer."""
@@ -59,6 +61,7 @@ class CandidateFit:
     def score(self, s: HeldOut) -> "CandidateFit":
         """Takes the held-out score (gain, interval, per run, RMS before and after)."""
         self.heldout_gain, self.heldout_gain_ci95, self.gain_by_run = s.gain, s.ci95, s.by_run
+        self.base_by_run = s.base_by_run
         self.heldout_rms_before, self.heldout_rms_after = s.rms_before, s.rms_after
         return self
 

@@ -54,6 +54,8 @@ class HeldOut:
     gain: float
     ci95: tuple[float, float]
     by_run: dict[str, float]
+    base_by_run: dict[str, float]
+    """Per run, the reference's held-out error (``e0``): with ``by_run``, the reference and the model side by side."""
     rms_before: float
     rms_after: float
 
@@ -65,5 +67,6 @@ def heldout_score(run_ids: list[str], u: np.ndarray, e0: np.ndarray, n_rows: int
     u, e0 = np.asarray(u, dtype=float), np.asarray(e0, dtype=float)
     gain, ci = gain_with_ci(u, e0, rng, n_boot)
     n = max(int(n_rows), 1)
-    return HeldOut(gain, ci, {str(r): float(v) for r, v in zip(run_ids, u)}, float(np.sqrt(e0.sum() / n)),
+    return HeldOut(gain, ci, {str(r): float(v) for r, v in zip(run_ids, u)},
+                   {str(r): float(v) for r, v in zip(run_ids, e0)}, float(np.sqrt(e0.sum() / n)),
                    float(np.sqrt(max(e0.sum() - u.sum(), 0.0) / n)))
