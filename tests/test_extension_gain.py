@@ -86,7 +86,8 @@ def test_fitted_values_in_the_causes_own_terms_against_hand_values():
     r = CANDIDATES["rigor_mortis"].terms({"joint_stiffening": 2.0, "stiffness_gain": 27.0, "peak_h": 20.0}, ctx)
     assert r == {"stiffness_factor_at_peak": pytest.approx(10.0), "peak_h": 20.0}
     # droop: 1 mm/s per kg on a 0.25 m/s belt is 4 % per 10 kg, 2 mm/s per kg on 0.5 m/s as well
-    dr = CANDIDATES["drive_droop"].terms({"belt_slip": 0.0, "droop_per_kg[c1]": 0.001, "droop_per_kg[c2]": 0.002}, ctx)
+    dr = CANDIDATES["drive_droop"].terms({"belt_slip": 0.0, "speed_lost_per_kg[c1]": 0.001,
+                                          "speed_lost_per_kg[c2]": 0.002}, ctx)
     assert dr["speed_lost_per_10kg"] == pytest.approx(0.04)
     assert CANDIDATES["directional_friction"].terms({"asymmetry": 0.5}, ctx) == {
         "head_tail_friction_ratio": pytest.approx(1 / 3)}
@@ -141,3 +142,23 @@ def test_the_report_shows_each_held_out_run_with_the_base_and_the_extended_model
     assert (tmp_path / "heldout_directional_friction.png").stat().st_size > 1000
     assert "heldout_directional_friction.png" not in paths  # a figure inside the report, not a result file
     assert NOT_CONFIRMED in paths["report"].read_text()
+
+
+def test_droop_in_the_data_s_terms_counts_the_loss_that_follows_the_force_as_well():
+    from fishfmu.analysis.candidates import CANDIDATES
+    from fishfmu.analysis.extension_fit import FitContext
+    rng = np.random.default_rng(1)
+    rows = []
+    for run in ("r1", "r2", "r3"):
+        m = rng.uniform(0.0, 10.0, 40)
+        force = 3.0 * m + rng.normal(0.0, 1.0, 40)  # the force bringing fish up to speed: 3 N per kg carried
+        # the belt loses 1 mm/s per newton of that force, nothing per kg on its own
+        rows.append(pd.DataFrame({"run_id": run, "conveyor_id": "c1", "load_mass_kg": m, "load_force_n": force,
+                                  "residual_mps": 0.05 - 0.001 * force}))
+    ctx = FitContext(None, None, pd.concat(rows, ignore_index=True), None, np.random.default_rng(0), lambda s: None)
+    fit = CANDIDATES["drive_droop"].fit(CANDIDATES["drive_droop"], ctx)
+    assert fit.values["belt_slip[c1]"] == pytest.approx(0.001, rel=1e-6)
+    assert fit.values["droop_per_kg[c1]"] == pytest.approx(0.0, abs=1e-9)
+    # against the mass carried: 1 mm/s per N x 3 N per kg (the sample's own slope of force on mass, about 3)
+    slope = np.polyfit(ctx.drive["load_mass_kg"], ctx.drive["load_force_n"], 1)[0]
+    assert fit.values["speed_lost_per_kg[c1]"] == pytest.approx(0.001 * slope, rel=1e-6)

@@ -105,16 +105,24 @@ def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
         for k, key in ((0, f"{pname}[{c}]"), (1, f"droop_per_kg[{c}]")):
             out.values[key] = per[c][k]
             out.ci95[key] = tuple(float(np.percentile([b[c][k] for b in boot], q)) for q in (2.5, 97.5))
+        # the whole fitted loss against the mass carried: the force bringing fish up to speed grows with the mass
+        # too, and the two terms share the droop between them (what a speed lost per kg is, in the data's loads)
+        rc = d[d["conveyor_id"] == c]
+        var_m = float(np.var(rc["load_mass_kg"]))
+        share = float(np.cov(rc["load_force_n"], rc["load_mass_kg"], bias=True)[0, 1]) / var_m if var_m > 1e-12 else 0.0
+        out.values[f"speed_lost_per_kg[{c}]"] = per[c][1] + per[c][0] * share
     return out
 
 
 def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
-    """The share of each belt's speed lost per 10 kg of fish carried (its typical setpoint), and their mean over
-    the belts (the part that follows the force bringing fish up to speed is not in it)."""
+    """The share of each belt's speed lost per 10 kg of fish carried (its typical setpoint; both fitted terms, the
+    one per kg and the one per newton bringing fish up to speed, against the mass in the data's loads), and their
+    mean over the belts."""
     out = {}
     for key, per_kg in values.items():
-        if key.startswith("droop_per_kg[") and key[13:-1] in ctx.setpoint_mps:
-            out[f"speed_lost_per_10kg[{key[13:-1]}]"] = float(10.0 * per_kg / ctx.setpoint_mps[key[13:-1]])
+        belt = key[key.find("[") + 1:-1]
+        if key.startswith("speed_lost_per_kg[") and belt in ctx.setpoint_mps:
+            out[f"speed_lost_per_10kg[{belt}]"] = float(10.0 * per_kg / ctx.setpoint_mps[belt])
     if out:
         out["speed_lost_per_10kg"] = float(np.mean(list(out.values())))
     return out
