@@ -41,7 +41,7 @@ from plant.contract.measured import Dataset, Run
 from plant.fish.population import DEFAULT_HOURS_POST_MORTEM
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.candidates import plant_tables, plant_value
+from fishfmu.analysis.fragments import plant_tables, plant_value
 from fishfmu.analysis.drive_response import DriveResponseFit, fit_drive_responses
 from fishfmu.analysis.fitting import gain_with_ci
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels

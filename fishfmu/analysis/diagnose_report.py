@@ -15,7 +15,7 @@ import pandas as pd  # noqa: E402
 
 from fishfmu.analysis.calibrate_report import calibration_document  # noqa: E402
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
-from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, CandidateFit, Diagnosis  # noqa: E402
+from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, NOT_CONFIRMED, CandidateFit, Diagnosis  # noqa: E402
 from fishfmu.analysis.signatures import ALPHA, SUGGESTIVE, CovariateTest, significant  # noqa: E402
 from fishfmu.output.atomic import json_safe, write_figure_atomic, write_json_atomic, write_text_atomic  # noqa: E402
 
@@ -23,12 +23,27 @@ from fishfmu.output.atomic import json_safe, write_figure_atomic, write_json_ato
 def fit_text(f: CandidateFit) -> str:
     values = ", ".join(f"{k} = {v:.4g} [{f.ci95[k][0]:.4g}, {f.ci95[k][1]:.4g}]" if k in f.ci95 else f"{k} = {v:.4g}"
                        for k, v in f.values.items())
-    carries = f.heldout_gain >= MIN_GAIN and f.heldout_gain_ci95[0] > 0.0
-    return (f"Fitted on the calibrated model: {values or 'no parameter'}. On held-out runs the extended model removes "
-            f"{f.heldout_gain:.1%} of the error (95 % interval {f.heldout_gain_ci95[0]:.1%} to "
-            f"{f.heldout_gain_ci95[1]:.1%}; RMS {f.heldout_rms_before:.4g} -> {f.heldout_rms_after:.4g} "
-            f"{f.error_unit})" + ("." if carries else ": the fitted model does not carry over clearly (the cause is "
-                                                     "named by its test, the model of it is weaker)."))
+    gain = (f"On held-out runs the extended model removes {f.heldout_gain:.1%} of the error (95 % interval "
+            f"{f.heldout_gain_ci95[0]:.1%} to {f.heldout_gain_ci95[1]:.1%}; RMS {f.heldout_rms_before:.4g} -> "
+            f"{f.heldout_rms_after:.4g} {f.error_unit})")
+    ends = "".join(f" {k} is the {v}: the data may want a value beyond it (at a physical bound: none of it)."
+                   for k, v in f.at_grid_end.items())
+    if f.confirmed:
+        return f"Fitted on the calibrated model: {values or 'no parameter'}.{ends} {gain}."
+    return (f"{NOT_CONFIRMED[0].upper()}{NOT_CONFIRMED[1:]}: {gain}, less than {MIN_GAIN:.0%} with its interval above "
+            f"zero, so the extension is no fix (fragment.toml carries it as comments only). As fitted: "
+            f"{values or 'no parameter'}.{ends}")
+
+
+def extension_text(d: Diagnosis) -> str:
+    """One line on the named cause's extension: confirmed on held-out runs, not confirmed, or none."""
+    if d.fit is None:
+        return "none (no cause named)"
+    lo, hi = d.fit.heldout_gain_ci95
+    gain = f"held-out gain {d.fit.heldout_gain:.1%} [{lo:.1%}, {hi:.1%}]"
+    if d.extension == "confirmed":
+        return f"confirmed: {gain} (fragment.toml carries it)"
+    return f"{d.cause} {NOT_CONFIRMED}: {gain} (fragment.toml: calibration only, the extension as comments)"
 
 
 def decision_text(d: Diagnosis) -> str:
@@ -78,10 +93,13 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "undecided": d.judgement.undecided,
         "candidates": [test_entry(t) for t in ranked],
         "ranking": [t.candidate for t in ranked],
-        "parameters": ({k: {"value": v, "ci95": list(f.ci95.get(k, (None, None)))} for k, v in f.values.items()}
-                       if f else {}),
+        "parameters": ({k: {"value": v, "ci95": list(f.ci95.get(k, (None, None))), "at_grid_end": f.at_grid_end.get(k)}
+                        for k, v in f.values.items()} if f else {}),
+        "terms": d.terms,
+        "extension": {"status": d.extension, "applied": d.extension == "confirmed", "text": extension_text(d)},
         "heldout": ({"rms_before": f.heldout_rms_before, "rms_after": f.heldout_rms_after, "unit": f.error_unit,
-                     "gain": f.heldout_gain, "gain_ci95": list(f.heldout_gain_ci95), "gain_by_run": f.gain_by_run}
+                     "gain": f.heldout_gain, "gain_ci95": list(f.heldout_gain_ci95), "gain_by_run": f.gain_by_run,
+                     "base_by_run": f.base_by_run}
                     if f else {"gain": 0.0}),
         "track_rms_m": {"before": float(np.mean(base_rms)) if base_rms else None,
                         "after": float(np.mean(after_rms)) if after_rms else None,
@@ -103,22 +121,25 @@ def _img(fig, path: Path) -> str:
 
 
 def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
-    """One panel per candidate: its quantity against its covariate, as the tests read them."""
+    """One panel per candidate, two rows of three (one row of five overlapped its labels): its quantity against its
+    covariate, as the tests read them, titled with the cause, its p-value and whether it is significant."""
     rows = d.judgement.rows
     tests = {t.candidate: t for t in d.judgement.tests}
-    fig, axes = plt.subplots(1, 5, figsize=(20, 3.4))
+    fig, grid = plt.subplots(2, 3, figsize=(14, 8.5), layout="constrained")
+    axes = grid.ravel()
 
     def title(ax, name: str) -> None:
         t = tests.get(name)
-        ax.set_title(f"{name}\n" + (f"p = {t.p_value:.3f}" if t is not None and t.judged else "not judged"),
-                     fontsize=9)
+        verdict = "not judged" if t is None or not t.judged else (
+            f"p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.0%}" + (" - significant" if significant(t) else ""))
+        ax.set_title(f"{name}\n{verdict}", fontsize=10, fontweight="bold" if name == d.cause else "normal")
 
     drops, passages, drive = rows.get("drops"), rows.get("passages"), rows.get("drive")
     if drops is not None and len(drops):
         axes[0].plot(drops["hours_post_mortem"], 1e3 * drops["slip_s"], ".", alpha=0.5)
         axes[2].plot(drops["heading"], 1e3 * drops["slip_s"], ".", alpha=0.5)
     axes[0].set(xscale="log", xlabel="hours post mortem", ylabel="slip of a drop alone [ms]")
-    axes[2].set(xlabel="cos(heading) at the drop (+1 head downstream)", ylabel="slip of a drop alone [ms]")
+    axes[2].set(xlabel="cos(heading) at the drop\n(+1 head downstream)", ylabel="slip of a drop alone [ms]")
     if passages is not None and len(passages):
         axes[1].plot(passages["hours_post_mortem"], passages["blocked"], ".", alpha=0.5)
     axes[1].set(xscale="log", xlabel="hours post mortem", ylabel="blocked share of a passage")
@@ -129,9 +150,11 @@ def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
     parts = [g[g["touching"] == 1.0]["growth"].to_numpy(float) for g in (pairs, model) if g is not None]
     if parts and any(len(p) for p in parts):
         axes[4].boxplot([p for p in parts], tick_labels=["measured", "model"][:len(parts)])
-    axes[4].set(ylabel="touching pairs: separation gained / belts' speed difference")
+    axes[4].set(ylabel="touching pairs: separation gained\n/ belts' speed difference")
     for ax, name in zip(axes, ("mucus_friction", "rigor_mortis", "directional_friction", "drive_droop", "adhesion")):
         title(ax, name)
+    axes[5].axis("off")
+    axes[5].text(0.0, 0.95, f"cause: {d.cause}\nextension: {d.extension}", va="top", fontsize=11, wrap=True)
     return {"signatures.png": _img(fig, out / "signatures.png")}
 
 
@@ -156,7 +179,28 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
         ax.set_xlabel(f"{f.name} strength [{CANDIDATES[f.name].unit}]")
         ax.set_ylabel("RMS residual [m]")
         figs[f"fit_{f.name}.png"] = _img(fig, out / f"fit_{f.name}.png")
+    for f in d.fits:
+        if f.base_by_run:
+            figs[f"heldout_{f.name}.png"] = heldout_figure(f, d.extension, out / f"heldout_{f.name}.png")
     return figs
+
+
+def heldout_figure(f: CandidateFit, status: str, path: Path) -> str:
+    """Each run held out: its error with the base model and with the extended one (chosen on the other runs), side
+    by side, as RMS per row where the rows are counted, else the root of the run's error."""
+    runs = sorted(f.base_by_run)
+    before = np.sqrt(np.maximum([f.base_by_run[r] for r in runs], 0.0))
+    after = np.sqrt(np.maximum([f.base_by_run[r] - f.gain_by_run.get(r, 0.0) for r in runs], 0.0))
+    fig, ax = plt.subplots(figsize=(max(5.0, 0.6 * len(runs) + 2.5), 3.6), layout="constrained")
+    x = np.arange(len(runs))
+    ax.bar(x - 0.2, before, 0.4, label="base (calibrated)", color="0.6")
+    ax.bar(x + 0.2, after, 0.4, label=f"extended with {f.name}", color="tab:blue")
+    ax.set_xticks(x, runs, rotation=45 if len(runs) > 8 else 0)
+    ax.set_ylabel(f"held-out error, root of the run's\nsum of squares [{f.error_unit.split(' (')[0]}]")
+    ax.set_title(f"each run held out: {f.name} extension {status}, gain {f.heldout_gain:.0%} "
+                 f"[{f.heldout_gain_ci95[0]:.0%}, {f.heldout_gain_ci95[1]:.0%}]", fontsize=10)
+    fig.legend(loc="outside lower center", ncols=2, fontsize=8)
+    return _img(fig, path)
 
 
 def write_diagnosis(d: Diagnosis, out: Path) -> dict[str, Path]:

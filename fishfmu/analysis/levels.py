@@ -325,14 +325,16 @@ def _stiffness_values(resp: Responses) -> np.ndarray:
     return np.concatenate([[0.0], np.geomspace(0.3, resp.range("rigor")[1], 15)])
 
 
-MUCUS_GAINS = np.concatenate([np.linspace(-0.8, 2.0, 15), np.geomspace(2.5, 8.0, 6)])
+MUCUS_GAINS = np.concatenate([np.linspace(0.0, 2.0, 11), np.geomspace(2.5, 8.0, 6)])
 """Mucus gains searched: friction once dried up to 9 x that of a fresh fish (fresh slaughter mucus can make a
-fish slide on a belt it grips a day later)."""
+fish slide on a belt it grips a day later).  Never below zero: physics fixes the sign (the mucus dries, friction
+rises), as the candidate's test does (slips that fall with hours); a model with friction falling with age would
+fit a base mismatch, not mucus."""
 
 
-MUCUS_TIME_CONSTANTS_H = np.array([8.0, 24.0, 72.0])
+MUCUS_TIME_CONSTANTS_H = np.array([4.0, 8.0, 16.0, 24.0, 48.0, 96.0])
 """How fast the mucus dries, searched with the gain: within hours in a dry hall, over days on ice."""
-RIGOR_PEAKS_H = np.array([12.0, 24.0, 36.0])
+RIGOR_PEAKS_H = np.array([6.0, 12.0, 18.0, 24.0, 36.0, 48.0])
 RIGOR_WIDTHS_H = np.array([10.0, 20.0, 40.0])
 """When rigor is strongest and how long it lasts, searched with its strength: rigor's timing depends on the
 fish's stress at slaughter and its temperature, from half a day to two days to its peak."""

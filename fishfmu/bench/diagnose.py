@@ -27,6 +27,7 @@ from plant.contract.measured import read_dataset
 from plant.validation import read_toml
 
 from fishfmu.analysis.diagnose import diagnose
+from fishfmu.analysis.recovery import RECOVERED_WITHIN, recovery, truth_terms
 from fishfmu.analysis.synthetic import (EFFECTS, SMALL_KPI, SMALL_LINE, SMALL_RUNS, SMALL_SPEEDS, make_dataset,
                                         synthetic_base)
 
@@ -85,22 +86,26 @@ def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None
         split = splits.get(data.name, "all")
         if not data.is_dir() or (only is not None and split != only):
             continue
-        label = json.loads(truth_file.read_text())["effect"]
-        effect = TRUTH_NAMES.get(label, label)
+        truth = json.loads(truth_file.read_text())
+        effect = TRUTH_NAMES.get(truth["effect"], truth["effect"])
         t0 = time.perf_counter()
-        d = diagnose(read_dataset(data), workers=workers)
+        dataset = read_dataset(data)
+        d = diagnose(dataset, workers=workers)
+        truth_in_terms = truth_terms(effect, truth.get("magnitude", {}), dataset)
         rows.append({"dataset": data.name, "split": split, "effect": effect, "cause": d.cause,
                      "correct": d.cause == effect,
                      "tests": {t.candidate: {"p": t.p_value, "gain": t.heldout_gain, "ci95": list(t.heldout_gain_ci95),
                                              "effect": t.effect} for t in d.judgement.tests},
                      "fit": ({"gain": d.fit.heldout_gain, "ci95": list(d.fit.heldout_gain_ci95), "values": d.fit.values}
                              if d.fit else None),
+                     "extension": d.extension, "terms": d.terms, "truth_terms": truth_in_terms,
+                     "recovery": recovery(effect, d.terms, truth_in_terms) if d.cause == effect else {},
                      "calibration": d.calibration.changed(d.calibration.base) if d.calibration else {},
                      "wall_s": time.perf_counter() - t0})
         if on_row is not None:
             row = rows[-1]
-            on_row({k: row[k] for k in ("dataset", "split", "effect", "cause", "wall_s")}
-                   | {"p": {n: round(t["p"], 3) for n, t in row["tests"].items()}})
+            on_row({k: row[k] for k in ("dataset", "split", "effect", "cause", "extension", "wall_s")}
+                   | {"p": {n: round(t["p"], 3) for n, t in row["tests"].items()}} | {"recovery": row["recovery"]})
         if on_done is not None:
             on_done(labelled_document(rows, folder))
     return labelled_document(rows, folder)
@@ -139,4 +144,14 @@ def summary(doc: dict[str, Any]) -> list[str]:
             lines.append(f"no-effect datasets named as an effect: {part['false_positives']} of "
                          f"{part['no_effect_datasets']}; time per dataset {part['wall_s']['mean']:.0f} s on average, "
                          f"{part['wall_s']['max']:.0f} s at most")
+    rows = [r for r in doc.get("runs", []) if r.get("fit") is not None and r.get("cause") == r.get("effect")]
+    if rows:
+        lines.append("-- the named cause's extension against the base on held-out runs, its strength against the truth")
+        for r in rows:
+            rec = r.get("recovery") or {}
+            lo, hi = r["fit"]["ci95"]
+            lines.append(f"{r['dataset']}: {r['effect']} extension {r.get('extension', '?')}, held-out gain "
+                         f"{r['fit']['gain']:.1%} [{lo:.1%}, {hi:.1%}]" + (
+                             f"; {rec['term']} fitted {rec['fitted']:.3g}, truth {rec['truth']:.3g} (x{rec['ratio']:.2f}, "
+                             + ("within" if rec["within"] else "outside") + f" x{RECOVERED_WITHIN:g})" if rec else ""))
     return lines

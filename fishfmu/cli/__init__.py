@@ -365,7 +365,7 @@ def diagnose_cmd(
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.analysis.calibrate_report import summary_lines
-    from fishfmu.analysis.diagnose_report import candidate_lines, decision_text
+    from fishfmu.analysis.diagnose_report import candidate_lines, decision_text, extension_text
     done = commands.diagnose(dataset, out, scenario, workers, overwrite,
                              progress=lambda text: err_console.print(text), calibrate=calibrate)
     d, paths = done.diagnosis, done.paths
@@ -375,6 +375,7 @@ def diagnose_cmd(
     for line in candidate_lines(d):
         literal_console().print("candidate " + line)
     literal_console().print(labelled("cause:", d.cause, "bold"))
+    literal_console().print("extension: " + extension_text(d))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")
 

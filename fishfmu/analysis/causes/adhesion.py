@@ -1,0 +1,59 @@
+"""Adhesion: a force between fish in contact (slime holds touching fish together).
+
+Signature: touching pairs side by side when the leading one crosses a transfer: how much of the belts' speed
+difference their separation gained, against the touching pairs of the same runs re-simulated with the constant
+model (no force between fish beyond contact and friction); with adhesion the measured ones part less (sign -1).
+Extension: ``force_n`` per pair of touching contact spheres, fitted on a grid of simulated strengths on the runs
+with touching pairs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from plant.sim.params import PlantParams
+
+from fishfmu.analysis.candidate import Candidate, Terms
+from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test
+from fishfmu.analysis.extension_fit import fit_on_grid
+
+
+def apply(p: PlantParams, force_n: float) -> None:
+    p.extensions.adhesion.force_n = force_n
+
+
+def hide(p: PlantParams, drive: dict[str, float], s: float) -> None:
+    p.extensions.adhesion.force_n = 6.0 * s
+
+
+def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTest:
+    """Touching pairs of the measured runs against those of the same runs re-simulated, compared within each run by
+    rank (a pair held together and one that parted differ by rank, not by how far the parted one went); whether a
+    pair is measured or modelled is shuffled among the run's pairs."""
+    pairs, model_pairs = rows["pairs"], rows.get("model_pairs")
+    quantity = "rank within its run of the share of the belts' speed difference a touching pair's separation gained"
+    covariate = "contact between the fish (measured against the model)"
+    if model_pairs is None:
+        out = CovariateTest("adhesion", quantity, covariate, 0, 0)
+        out.note = "no re-simulation of the runs to compare the pairs with"
+        return out
+    both = pd.concat([pairs.assign(measured=1.0), model_pairs.assign(measured=0.0)], ignore_index=True)
+    both = both[(both["touching"] == 1.0) & both["run_id"].isin(set(pairs["run_id"]) & set(model_pairs["run_id"]))]
+    both = both.sort_values(["run_id", "measured"], kind="stable")
+    rank = both.groupby("run_id")["growth"].rank(pct=True).to_numpy(float)
+    d = Design(rank, both["run_id"].to_numpy(), both[["measured"]].to_numpy(float), ["measured (1) or modelled (0)"],
+               np.zeros((len(both), 0)), within=True, sign=-1)
+    return covariate_test("adhesion", quantity, covariate, d, "within", rng)
+
+
+def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
+    """The force pulling a touching pair of contact spheres together [N]."""
+    return {"bond_force_n": float(values.get("force_n", 0.0))}
+
+
+CANDIDATE = Candidate(
+    "adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N", 0.0, (2.0, 6.0), (0.0, 50.0),
+    "plant", apply, ("extensions.adhesion.force_n",), test=test,
+    decides="more batches dumped onto the infeed, with fish side by side both touching and with a gap",
+    fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n")

@@ -1,0 +1,255 @@
+"""The covariate test every candidate cause is judged by (``docs/diagnosis.md``), whatever its quantity.
+
+A candidate cause is a physical quantity that follows a covariate; its test (:func:`covariate_test`) compares, on
+runs held out one at a time, the constant (refitted on the other runs beside the candidate: one level and the
+nuisance terms, or a level per run where the covariate varies within runs) with the constant plus the covariate's
+term; the *held-out gain* is the share of the held-out error the term removes
+(:func:`fishfmu.analysis.fitting.heldout_score`).  The *p-value* is the chance of a term explaining at least as
+much of the data (fitted on all of it) if the quantity did not follow the covariate: the same fit on data where the
+covariate was shuffled where the null makes it exchangeable (``rows``: between rows; ``within``: within each run;
+``shift``: circular shifts within each group, for a covariate that is a time series).  Each candidate's module
+(:mod:`fishfmu.analysis.causes`) builds its :class:`Design` from the rows it reads and calls this test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fishfmu.analysis.fitting import heldout_score
+
+PERMUTATIONS = 999
+"""Shuffles per test: p-values resolve to 1/1000 where the data allow so many distinct shuffles."""
+
+
+# ------------------------------------------------------------------------------------------------- tests
+
+@dataclass
+class CovariateTest:
+    """One candidate's test: does letting its quantity follow its covariate beat the constant on held-out runs?"""
+
+    candidate: str
+    quantity: str
+    covariate: str
+    n_rows: int
+    n_runs: int
+    heldout_gain: float = float("nan")
+    """Share of the held-out error (each run predicted from the others) the covariate's term removes."""
+    heldout_gain_ci95: tuple[float, float] = (float("nan"), float("nan"))
+    explained: float = float("nan")
+    """Share of the constant's squared error the covariate's term removes, fitted on all rows (the test's
+    statistic)."""
+    p_value: float = float("nan")
+    """The chance of explaining at least this much if the quantity did not follow the covariate (permutations)."""
+    shape: str = ""
+    """The covariate's shape chosen on all runs (e.g. ``log hours to 24 h``)."""
+    slope: float = float("nan")
+    """The term's coefficient on all runs, in the quantity's unit per unit of the shape."""
+    effect: float = float("nan")
+    """The term's size over the shape's range in the data (slope x range), in the quantity's unit."""
+    min_effect: float = 0.0
+    """The smallest effect worth naming (see :class:`Design`)."""
+    gain_by_run: dict[str, float] = field(default_factory=dict)
+    note: str = ""
+    """Why it could not be judged, or what more runs would decide it."""
+
+    @property
+    def judged(self) -> bool:
+        return bool(np.isfinite(self.p_value))
+
+
+@dataclass(frozen=True)
+class Design:
+    """A test's rows: response ``y`` per row, its ``group`` (run), the covariate's candidate shapes (columns of
+    ``shapes``, one chosen per fit), and nuisance columns ``nuisance`` fitted in both models. ``within``: the
+    covariate varies inside a group, and each group's constant level is its own (rows centred per group);
+    otherwise one level for all groups."""
+
+    y: np.ndarray
+    group: np.ndarray
+    shapes: np.ndarray
+    shape_names: list[str]
+    nuisance: np.ndarray
+    within: bool
+    sign: int = 0
+    """+1 / -1: only a term of this sign counts (a physical direction), 0: either."""
+    min_effect: float = 0.0
+    """The smallest effect worth naming, in the response's unit over the shape's range (0: any)."""
+
+
+def _centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
+    out = a.astype(float).copy()
+    for g in np.unique(group):
+        m = group == g
+        out[m] -= out[m].mean(axis=0)
+    return out
+
+
+def _lstsq(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    return np.linalg.lstsq(x, y, rcond=None)[0] if x.shape[1] else np.zeros(0)
+
+
+def _group_sums(z: np.ndarray, y: np.ndarray, idx: np.ndarray, n_groups: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per group: Z'Z (n_groups x p x p) and Z'y (n_groups x p), the sufficient statistics of least squares."""
+    p = z.shape[1]
+    zz = np.zeros((n_groups, p, p))
+    zy = np.zeros((n_groups, p))
+    for i in range(p):
+        zy[:, i] = np.bincount(idx, weights=z[:, i] * y, minlength=n_groups)
+        for j in range(i, p):
+            zz[:, i, j] = zz[:, j, i] = np.bincount(idx, weights=z[:, i] * z[:, j], minlength=n_groups)
+    return zz, zy
+
+
+def _solve(a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Least squares from its normal equations, per fold (a: folds x p x p), singular ones by pseudo-inverse."""
+    return np.einsum("fij,fj->fi", np.linalg.pinv(a), c) if a.shape[-1] else np.zeros(c.shape)
+
+
+def _heldout_errors(d: Design, shapes: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[int]]:
+    """Per group: held-out squared error of the constant model and of the candidate (its shape chosen on the
+    other groups by their fit), and the chosen shape per group. Least squares through per-group sufficient
+    statistics: a fold's training sums are the totals less the group's."""
+    groups, idx = np.unique(d.group, return_inverse=True)
+    n = len(groups)
+    y = _centre(d.y, d.group) if d.within else d.y.astype(float)
+    s = _centre(shapes, d.group) if d.within else shapes
+    nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
+    ones = np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1))
+    base_x = np.column_stack([ones, nu])
+    yy = np.bincount(idx, weights=y * y, minlength=n)
+    yy_train = yy.sum() - yy
+
+    def errors(z: np.ndarray, sign: int) -> tuple[np.ndarray, np.ndarray]:
+        zz, zy = _group_sums(z, y, idx, n)
+        a, c = zz.sum(axis=0)[None] - zz, zy.sum(axis=0)[None] - zy
+        b = _solve(a, c)
+        if sign and z.shape[1] > base_x.shape[1]:
+            wrong = np.sign(b[:, -1]) == -sign
+            if wrong.any():  # a term of the wrong sign is no term: the base model's fit on those folds
+                q = base_x.shape[1]
+                b[wrong] = 0.0
+                b[wrong, :q] = _solve(a[wrong][:, :q, :q], c[wrong][:, :q])
+        held = yy - 2 * np.einsum("fi,fi->f", b, zy) + np.einsum("fi,fij,fj->f", b, zz, b)
+        train = yy_train - 2 * np.einsum("fi,fi->f", b, c) + np.einsum("fi,fij,fj->f", b, a, b)
+        return held, train
+
+    e0, _ = errors(base_x, 0)
+    best_held, best_train = np.full(n, np.inf), np.full(n, np.inf)
+    chosen = np.zeros(n, dtype=int)
+    for k in range(s.shape[1]):
+        held, train = errors(np.column_stack([base_x, s[:, k]]), d.sign)
+        better = train < best_train - 1e-15
+        best_held[better], best_train[better], chosen[better] = held[better], train[better], k
+    return e0, best_held, chosen.tolist()
+
+
+def _explained(d: Design, shapes: np.ndarray) -> float:
+    """Share of the constant model's squared error that the best shape's term removes, fitted on all rows: the
+    test statistic (the most powerful of a term's own fit; what it does on held-out runs is reported beside)."""
+    y = _centre(d.y, d.group) if d.within else d.y.astype(float)
+    s = _centre(shapes, d.group) if d.within else shapes
+    nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
+    base_x = np.column_stack([np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1)), nu])
+    r0 = y - base_x @ _lstsq(base_x, y)
+    ss0 = float(r0 @ r0)
+    if ss0 <= 0.0:
+        return 0.0
+    best = 0.0
+    for k in range(s.shape[1]):
+        # the shape's part not explained by the base: regress the base's residual on it
+        sk = s[:, k] - base_x @ _lstsq(base_x, s[:, k])
+        den = float(sk @ sk)
+        if den <= 1e-300:
+            continue
+        b = float(sk @ r0) / den
+        if d.sign and np.sign(b) == -d.sign:
+            continue
+        best = max(best, b * b * den / ss0)
+    return best
+
+
+def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
+    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time."""
+    groups = np.unique(d.group)
+    if shuffle == "between":
+        perm = rng.permutation(len(groups))
+        # the run -> covariate map permuted: each run takes another run's shape values (one value per run)
+        first = {g: np.flatnonzero(d.group == g)[0] for g in groups}
+        out = np.empty_like(d.shapes)
+        for g, h in zip(groups, groups[perm]):
+            out[d.group == g] = d.shapes[first[h]]
+        return out
+    if shuffle == "rows":  # every row takes another row's covariate: no run-level effect of any kind
+        return d.shapes[rng.permutation(len(d.shapes))]
+    out = d.shapes.copy()
+    for g in groups:
+        idx = np.flatnonzero(d.group == g)
+        if shuffle == "within":
+            out[idx] = d.shapes[rng.permutation(idx)]
+        else:  # "shift": circular shift in time (rows are in time order within a group)
+            out[idx] = np.roll(d.shapes[idx], int(rng.integers(1, max(len(idx), 2))), axis=0)
+    return out
+
+
+def covariate_test(candidate: str, quantity: str, covariate: str, d: Design, shuffle: str,
+                   rng: np.random.Generator, permutations: int = PERMUTATIONS) -> CovariateTest:
+    groups = np.unique(d.group)
+    out = CovariateTest(candidate, quantity, covariate, len(d.y), len(groups))
+    if len(groups) < 3 or len(d.y) < 8:
+        out.note = f"only {len(groups)} runs with {len(d.y)} rows of {quantity}: too few to judge"
+        return out
+    e0, e1, chosen = _heldout_errors(d, d.shapes)
+    score = heldout_score(list(groups), e0 - e1, e0, len(d.y), rng)
+    out.heldout_gain, out.heldout_gain_ci95, out.gain_by_run = score.gain, score.ci95, score.by_run
+    observed = _explained(d, d.shapes)
+    exceed = sum(_explained(d, _shuffled(d, rng, shuffle)) >= observed - 1e-12 for _ in range(permutations))
+    out.explained = observed
+    out.p_value = (1 + exceed) / (1 + permutations)
+    # the shape and coefficient fitted on all runs
+    y = _centre(d.y, d.group) if d.within else d.y.astype(float)
+    s = _centre(d.shapes, d.group) if d.within else d.shapes
+    nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
+    ones = np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1))
+    best = max(set(chosen), key=chosen.count)
+    b = _lstsq(np.column_stack([ones, nu, s[:, best]]), y)
+    out.shape, out.slope = d.shape_names[best], float(b[-1])
+    out.effect = abs(out.slope) * float(np.ptp(d.shapes[:, best]))
+    out.min_effect = d.min_effect
+    return out
+
+
+
+# ------------------------------------------------------------------------------------------------- shapes and responses
+
+def log_hours_shapes(h: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Monotone shapes of hours post mortem: log-time from 1 h saturating at 8, 24 or 72 h (drying)."""
+    h = np.maximum(h, 0.1)
+    cols, names = [], []
+    for end in (8.0, 24.0, 72.0):
+        cols.append(np.clip(np.log(h) / np.log(end), 0.0, 1.0))
+        names.append(f"log hours, from 1 h, level from {end:g} h")
+    return np.column_stack(cols), names
+
+
+def bump_shapes(h: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Shapes that come and go with hours post mortem (rigor sets in, holds, resolves): a bump in log-time
+    peaking at 6-36 h, narrow or wide, and a rise that does not resolve within the data."""
+    lh = np.log(np.maximum(h, 0.1))
+    cols, names = [], []
+    for peak in (6.0, 12.0, 24.0, 36.0):
+        for width in (0.7, 1.2):
+            cols.append(np.exp(-((lh - np.log(peak)) / width) ** 2))
+            names.append(f"bump peaking at {peak:g} h (width x{np.exp(width):.1f})")
+    return np.column_stack(cols), names
+
+
+def robust(y: np.ndarray) -> np.ndarray:
+    """Clip a response to its median +- 3 scaled MADs: one tracker glitch or a drop that bounced must not decide a
+    test."""
+    med = float(np.median(y))
+    mad = 1.4826 * float(np.median(np.abs(y - med))) or float(np.std(y)) or 1.0
+    return np.clip(y, med - 3 * mad, med + 3 * mad)
+
+

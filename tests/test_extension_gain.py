@@ -1,0 +1,164 @@
+"""The gain a named cause's extension must show before it is handed over as a fix (``docs/diagnosis.md``): a cause
+named by its signature whose fitted extension does not beat the base on held-out runs is reported as "named by its
+signature, model extension not confirmed" in diagnosis.json, the report's text and the command line's summary, and
+``fragment.toml`` carries the extension as comments only (a scenario built on it runs the calibrated model)."""
+
+from __future__ import annotations
+
+import tomllib
+from types import SimpleNamespace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from plant.sim.params import PlantParams
+
+from fishfmu.analysis.covariates import CovariateTest
+from fishfmu.analysis.diagnose import NOT_CONFIRMED, CandidateFit, Diagnosis, _fragment
+from fishfmu.analysis.diagnose_report import decision_text, diagnosis_document, extension_text
+from fishfmu.analysis.signatures import Judgement
+
+
+def _calibration() -> SimpleNamespace:
+    """A calibration that changed nothing (what the fragment of a named cause starts from)."""
+    return SimpleNamespace(params=PlantParams(), fit_runs=["r1", "r2"], fragment=lambda base: "# calibrated: nothing\n",
+                           drive_fragment=lambda: "")
+
+
+def _diagnosis(gain: float, ci95: tuple[float, float]) -> Diagnosis:
+    fit = CandidateFit("directional_friction", {"asymmetry": 0.3}, {"asymmetry": (0.1, 0.5)}, heldout_gain=gain,
+                       heldout_gain_ci95=ci95, heldout_rms_before=0.02, heldout_rms_after=0.02 * (1 - gain) ** 0.5,
+                       gain_by_run={"r1": gain, "r2": gain}, base_by_run={"r1": 1.0, "r2": 1.0})
+    test = CovariateTest("directional_friction", "slip of fish dropped alone [s]", "heading", 40, 4, heldout_gain=0.2,
+                         heldout_gain_ci95=(0.1, 0.3), explained=0.2, p_value=0.001, shape="cos(heading)",
+                         slope=-0.02, effect=0.04)
+    cal = _calibration()
+    return Diagnosis("directional_friction", Judgement([test], "directional_friction"), fit,
+                     _fragment(cal, PlantParams(), fit), {}, {}, {}, [], pd.DataFrame(), None, pd.DataFrame())
+
+
+def _plant_in(fragment: str) -> dict:
+    return tomllib.loads(fragment).get("plant", {})
+
+
+def test_an_extension_that_loses_on_held_out_runs_is_named_but_not_handed_over_as_a_fix():
+    d = _diagnosis(-0.03, (-0.08, 0.01))
+    assert d.extension == "not confirmed"
+    doc = diagnosis_document(d)
+    assert doc["extension"]["status"] == "not confirmed" and doc["extension"]["applied"] is False
+    assert NOT_CONFIRMED in doc["extension"]["text"] and NOT_CONFIRMED in extension_text(d)
+    assert NOT_CONFIRMED.capitalize() in decision_text(d) and "Fitted on the calibrated model" not in decision_text(d)
+    # the fragment sets nothing of the extension: a scenario built on it is the calibrated model
+    assert _plant_in(d.fragment) == {}
+    # ... and says what was fitted, as comments: head first x(1 - 0.3), tail first x(1 + 0.3)
+    assert "# head = 0.7" in d.fragment and "# tail = 1.3" in d.fragment
+
+
+def test_a_gain_too_small_or_uncertain_is_not_confirmed_either():
+    assert _diagnosis(0.01, (0.005, 0.02)).extension == "not confirmed"  # below the 2 % worth having
+    assert _diagnosis(0.10, (-0.01, 0.2)).extension == "not confirmed"  # its interval reaches below zero
+
+
+def test_an_extension_that_beats_the_base_on_held_out_runs_is_the_fix():
+    d = _diagnosis(0.30, (0.10, 0.45))
+    assert d.extension == "confirmed"
+    doc = diagnosis_document(d)
+    assert doc["extension"] == {"status": "confirmed", "applied": True, "text": extension_text(d)}
+    assert NOT_CONFIRMED not in decision_text(d)
+    friction = _plant_in(d.fragment)["extensions"]["direction_friction"]
+    assert friction["head"] == 0.7 and friction["tail"] == 1.3
+
+
+# ---------------------------------------------------------------- parameter recovery in the candidate's own terms
+
+def test_fitted_values_in_the_causes_own_terms_against_hand_values():
+    from fishfmu.analysis.candidate import Terms
+    from fishfmu.analysis.candidates import CANDIDATES
+    ctx = Terms(PlantParams(), {"c1": 0.25, "c2": 0.5})
+    mu0 = PlantParams().friction.fish_belt
+    # mucus: friction x1.2 level, +150 % once dry with tau 24 h: at 1 h x(1 + 1.5 (1 - e^-1/24)) = x1.0612
+    m = CANDIDATES["mucus_friction"].terms({"friction_level": 1.2, "gain": 1.5, "time_constant_h": 24.0}, ctx)
+    assert m["friction_1h"] == pytest.approx(1.2 * mu0 * 1.061207, rel=1e-5)
+    assert m["friction_48h"] == pytest.approx(1.2 * mu0 * (1 + 1.5 * 0.864665), rel=1e-5)
+    assert m["rise_1h_to_48h"] == pytest.approx((1 + 1.5 * 0.864665) / 1.061207, rel=1e-5)
+    # rigor: joints (1 + 2 + 27) / (1 + 2) = 10 times stiffer at the peak than the constant stiffening alone
+    r = CANDIDATES["rigor_mortis"].terms({"joint_stiffening": 2.0, "stiffness_gain": 27.0, "peak_h": 20.0}, ctx)
+    assert r == {"stiffness_factor_at_peak": pytest.approx(10.0), "peak_h": 20.0}
+    # droop: 1 mm/s per kg on a 0.25 m/s belt is 4 % per 10 kg, 2 mm/s per kg on 0.5 m/s as well
+    dr = CANDIDATES["drive_droop"].terms({"belt_slip": 0.0, "speed_lost_per_kg[c1]": 0.001,
+                                          "speed_lost_per_kg[c2]": 0.002}, ctx)
+    assert dr["speed_lost_per_10kg"] == pytest.approx(0.04)
+    assert CANDIDATES["directional_friction"].terms({"asymmetry": 0.5}, ctx) == {
+        "head_tail_friction_ratio": pytest.approx(1 / 3)}
+
+
+def test_the_generators_truth_in_the_same_terms_and_the_recovery_judged_within_a_factor_of_1_5():
+    from fishfmu.analysis.recovery import recovery, truth_terms
+    dataset = SimpleNamespace(runs=[SimpleNamespace(fish=pd.DataFrame({"weight_kg": [1.0, 1.5, 2.0]}))])
+    # log-time drying from 0.2 at 1 h to 0.65 at 48 h: 0.2 at 1 h, 0.65 at 48 h, x3.25
+    t = truth_terms("mucus_friction", {"mucus_mu_start": 0.2, "mucus_mu_end": 0.65, "mucus_h_start": 1.0,
+                                       "mucus_h_end": 48.0}, dataset)
+    assert t == {"friction_1h": pytest.approx(0.2), "friction_48h": pytest.approx(0.65),
+                 "rise_1h_to_48h": pytest.approx(3.25)}
+    # a drying that ends at 24 h is 0.2 + 0.45 ln(12) / ln(24) at 12 h; at 48 h it is done
+    t24 = truth_terms("mucus_friction", {"mucus_mu_start": 0.2, "mucus_mu_end": 0.65, "mucus_h_start": 1.0,
+                                         "mucus_h_end": 24.0}, dataset)
+    assert t24["friction_48h"] == pytest.approx(0.65)
+    # adhesion: 0.8 x g x a fifth of the median fish (1.5 kg)
+    assert truth_terms("adhesion", {"adhesion_bond_frac": 0.8}, dataset) == {
+        "bond_force_n": pytest.approx(0.8 * 9.81 * 0.3)}
+    assert truth_terms("rigor_mortis", {"rigor_stiff_mult": 12.0, "rigor_full_h": 3.0, "rigor_resolve_start_h": 36.0},
+                       dataset) == {"stiffness_factor_at_peak": 12.0, "peak_h": 19.5}
+    # the rise fitted x1.3 against x3.25: outside; x2.5: within x1.5
+    assert recovery("mucus_friction", {"rise_1h_to_48h": 1.3}, t)["within"] is False
+    rec = recovery("mucus_friction", {"rise_1h_to_48h": 2.5}, t)
+    assert rec["within"] is True and rec["ratio"] == pytest.approx(2.5 / 3.25)
+    assert recovery("drive_droop", {"speed_lost_per_10kg": 0.01}, {"speed_lost_per_10kg": 0.03})["within"] is False
+
+
+def test_a_value_fitted_at_the_end_of_its_grid_is_said_to_be_there():
+    from fishfmu.analysis.diagnose_report import fit_text
+    from fishfmu.analysis.extension_fit import grid_ends
+    grids = {"gain": np.array([0.0, 0.5, 1.0]), "time_constant_h": np.array([8.0, 24.0, 72.0]), "level": np.array([1.0])}
+    ends = grid_ends({"gain": 0.5, "time_constant_h": 72.0, "level": 1.0}, grids)
+    assert ends == {"time_constant_h": "highest value searched (72)"}  # a grid of one value is no search
+    assert grid_ends({"gain": 0.0}, grids) == {"gain": "lowest value searched (0)"}
+    fit = CandidateFit("mucus_friction", {"gain": 0.5, "time_constant_h": 72.0}, heldout_gain=0.1,
+                       heldout_gain_ci95=(0.05, 0.2), at_grid_end=ends)
+    assert "time_constant_h is the highest value searched (72): the data may want a value beyond it" in fit_text(fit)
+
+
+def test_the_report_shows_each_held_out_run_with_the_base_and_the_extended_model(tmp_path):
+    import json
+
+    from fishfmu.analysis.diagnose_report import write_diagnosis
+    d = _diagnosis(-0.03, (-0.08, 0.01))
+    paths = write_diagnosis(d, tmp_path)
+    doc = json.loads(paths["json"].read_text())
+    # per run: the base's held-out error and what the extension removes (here it adds 3 %)
+    assert doc["heldout"]["base_by_run"] == {"r1": 1.0, "r2": 1.0}
+    assert doc["heldout"]["gain_by_run"] == {"r1": -0.03, "r2": -0.03}
+    assert (tmp_path / "heldout_directional_friction.png").stat().st_size > 1000
+    assert "heldout_directional_friction.png" not in paths  # a figure inside the report, not a result file
+    assert NOT_CONFIRMED in paths["report"].read_text()
+
+
+def test_droop_in_the_data_s_terms_counts_the_loss_that_follows_the_force_as_well():
+    from fishfmu.analysis.candidates import CANDIDATES
+    from fishfmu.analysis.extension_fit import FitContext
+    rng = np.random.default_rng(1)
+    rows = []
+    for run in ("r1", "r2", "r3"):
+        m = rng.uniform(0.0, 10.0, 40)
+        force = 3.0 * m + rng.normal(0.0, 1.0, 40)  # the force bringing fish up to speed: 3 N per kg carried
+        # the belt loses 1 mm/s per newton of that force, nothing per kg on its own
+        rows.append(pd.DataFrame({"run_id": run, "conveyor_id": "c1", "load_mass_kg": m, "load_force_n": force,
+                                  "residual_mps": 0.05 - 0.001 * force}))
+    ctx = FitContext(None, None, pd.concat(rows, ignore_index=True), None, np.random.default_rng(0), lambda s: None)
+    fit = CANDIDATES["drive_droop"].fit(CANDIDATES["drive_droop"], ctx)
+    assert fit.values["belt_slip[c1]"] == pytest.approx(0.001, rel=1e-6)
+    assert fit.values["droop_per_kg[c1]"] == pytest.approx(0.0, abs=1e-9)
+    # against the mass carried: 1 mm/s per N x 3 N per kg (the sample's own slope of force on mass, about 3)
+    slope = np.polyfit(ctx.drive["load_mass_kg"], ctx.drive["load_force_n"], 1)[0]
+    assert fit.values["speed_lost_per_kg[c1]"] == pytest.approx(0.001 * slope, rel=1e-6)
