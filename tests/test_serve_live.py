@@ -115,6 +115,26 @@ def test_the_frame_at_a_known_step_is_the_plants_pose_then(served, plant_at_step
     assert f["run"]["fish_on_line"] == 2 and f["run"]["late_steps"] == 0
 
 
+def test_a_frame_is_due_again_after_a_step_a_change_of_state_or_a_reset():
+    """What makes the latest frame stale (the live view then takes one, between steps): a pause shows although no
+    step follows it."""
+    from fishfmu.serve.live import LiveView
+    sc = schema.load_scenario(SERVED, OVERRIDES)
+    running, paused = {"fishfmu.run_state": "running"}, {"fishfmu.run_state": "paused"}
+    with checked(sc, SERVED) as c, build(c, scenario_fish(sc)) as cosim, build(c, scenario_fish(sc)) as again:
+        live = LiveView("127.0.0.1", 1, sc.line, "t")
+        live.capture(cosim, running)
+        assert not live.stale(cosim, running) and json.loads(live.frame)["page"] == 1
+        assert live.stale(cosim, paused)
+        cosim.step()
+        assert live.stale(cosim, running)
+        live.capture(cosim, running)
+        assert json.loads(live.frame)["step"] == 1 and not live.stale(cosim, running)
+        assert live.stale(again, running)                                   # a reset's new run: a new page
+        live.capture(again, running)
+        assert json.loads(live.frame)["page"] == 2 and '"page":2' in live.html
+
+
 def test_the_live_view_is_read_only_and_a_bad_address_is_refused(served, tmp_path):
     _, base, proc = served
     before = _frame_of_step(base, STEPS, proc)
@@ -168,7 +188,7 @@ def test_the_live_page_draws_the_fish_where_the_plant_is_at_that_step(served, pl
 
 
 @needs_chromium
-def test_after_a_reset_the_open_page_loads_the_new_run_and_says_when_the_server_is_gone(served):
+def test_after_a_reset_the_open_page_loads_the_new_run_shows_a_pause_and_says_when_the_server_is_gone(served):
     url, base, proc = served
     page_number = "JSON.parse(document.getElementById('replay-header').textContent).live.page"
     with Browser(800, 500) as page:
@@ -184,6 +204,10 @@ def test_after_a_reset_the_open_page_loads_the_new_run_and_says_when_the_server_
             assert time.monotonic() < deadline, "the open page did not load the run after reset()"
             time.sleep(0.1)
         assert page.eval("document.getElementById('status').textContent").startswith("running · t = 0.00 s")
+        asyncio.run(_call(url, proc, "pause"))  # no step follows: the state alone must reach the page
+        while not page.eval("document.getElementById('status').textContent").startswith("paused · t = 0.00 s"):
+            assert time.monotonic() < deadline + 60, "the page did not show the pause"
+            time.sleep(0.1)
         asyncio.run(_call(url, proc, "stop"))
         proc.wait(timeout=120)
         while "no answer from the server" not in page.eval("document.getElementById('status').textContent"):

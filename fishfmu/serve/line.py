@@ -376,7 +376,7 @@ class LineServer:
         from fishfmu.serve.live import LiveView  # tornado: only when --live is given
         self.live = LiveView(*modbus_host_port(self.live_at), self.scenario.line, self.scenario.run.name)
         self.live.capture(self.cosim, self._values)
-        await self.live.start(lambda: self.live.stale(self.cosim) and not self._lock.locked(), self._catch_up_live)
+        await self.live.start(lambda: self.live.stale(self.cosim, self._values) and not self._lock.locked(), self._catch_up_live)
 
     async def _catch_up_live(self) -> None:
         async with self._lock:

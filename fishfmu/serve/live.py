@@ -96,6 +96,7 @@ class LiveView:
         self.frame = b"{}"
         self.page = 0
         self.captured_step = -1
+        self.captured_state: str | None = None
         self._cosim: Any = None
         self._travel_m = np.zeros(0)
         self._t_travel_s = 0.0
@@ -107,9 +108,10 @@ class LiveView:
         """A frame may be taken now (the last one is 1/FRAME_RATE_HZ old)."""
         return time.monotonic() - self._last_wall >= 1.0 / FRAME_RATE_HZ
 
-    def stale(self, c: Any) -> bool:
-        """The latest frame is not of the line's latest step (or of another run)."""
-        return c is not None and (c is not self._cosim or c.steps != self.captured_step)
+    def stale(self, c: Any, values: dict[str, Any]) -> bool:
+        """The latest frame is not of the line's latest step, of its run (a reset) or of its state (a pause)."""
+        return c is not None and (c is not self._cosim or c.steps != self.captured_step
+                                  or values.get("fishfmu.run_state") != self.captured_state)
 
     def capture(self, c: Any, values: dict[str, Any]) -> None:
         """Take the frame of ``c`` (between two steps: the caller holds the line); a new run (a reset) makes a new
@@ -126,10 +128,12 @@ class LiveView:
         frame = frame_of(c, self.line, self._travel_m, values, self.page)
         self.frame = json.dumps(frame, separators=(",", ":"), allow_nan=False).encode()
         self.captured_step, self._last_wall = c.steps, time.monotonic()
+        self.captured_state = values.get("fishfmu.run_state")
 
     async def start(self, stale: Callable[[], bool], catch_up: Callable[[], Awaitable[None]]) -> None:
         """Listen (on the serving event loop); a port taken since it was checked is bad input naming --live.
-        Every 1/FRAME_RATE_HZ s, when ``stale()`` (the line has stepped since the last frame and is not stepping),
+        Every 1/FRAME_RATE_HZ s, when ``stale()`` (the line has stepped or changed state since the last frame and is
+        not stepping),
         ``catch_up()`` takes its frame."""
         logging.getLogger("tornado.access").setLevel(logging.ERROR)  # no line per request on the console
         app = Application([(r"/", _Page, {"live": self}), (r"/frame", _Frame, {"live": self})])
