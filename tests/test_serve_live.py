@@ -165,8 +165,14 @@ def test_the_live_page_draws_the_fish_where_the_plant_is_at_that_step(served, pl
         while (page.eval("window.replay.frame()") or {}).get("step") != STEPS:
             assert time.monotonic() < deadline, "the page never showed the frame"
             time.sleep(0.05)
-        status = page.eval("document.getElementById('status').textContent")
+        # the frame is drawn (and its status written) at the browser's next animation frame
+        while not (status := page.eval("document.getElementById('status').textContent")).startswith("running"):
+            assert time.monotonic() < deadline, status
+            time.sleep(0.05)
         assert status.startswith("running · t = 0.90 s") and "2 on the line" in status
+        drawn_before = page.eval("window.replay.draws()")
+        time.sleep(0.5)                               # ten frames of the same step: nothing new to draw
+        assert page.eval("window.replay.draws()") == drawn_before
         page.eval("window.replay.setView('top')")
         vp, size = page.eval("window.replay.viewProjection()"), page.eval("window.replay.canvasSize()")
         expected = projected(plant_at_step["pos"], vp, size)

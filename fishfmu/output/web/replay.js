@@ -14,7 +14,7 @@ const ui = {
   layers: document.getElementById("layers"),
 };
 const state = { time: 0, playing: false, speed: 1, lastNow: null, dirty: true, showSim: true, showMeasured: true,
-               sliderHeld: false };
+               sliderHeld: false, draws: 0 };
 let data = null;      // decoded arrays (see loadData)
 let renderer = null;
 const camera = { yaw: -1.2, pitch: 0.55, dist: 6, target: [3, 0, 0], fovY: 0.7 };
@@ -79,8 +79,12 @@ function liveData(a) {
 
 // A frame of the server (fishfmu/serve/live.py, frame_of): poses (w, x, y, z quaternions), fish status, belts,
 // devices, photo-eyes and the run's status.  A frame of another page (a reset changed the fish): load it anew.
+// The same step in the same state again (a line in lockstep between steps, paused, ended) is not drawn again: a
+// browser on the line's own machine takes no more of its CPU than the line's motion needs.
 function applyFrame(f) {
   if (f.page !== header.live.page) { location.reload(); return; }
+  const last = data.frame;
+  if (last && !data.lost && last.step === f.step && last.run.run_state === f.run.run_state) return;
   data.pos.set(f.pos); data.quat.set(f.quat); data.status.set(f.status);
   data.beltTravel.set(f.belt_travel); data.beltSpeed.set(f.belt_speed);
   if (data.deviceP) data.deviceP.set(f.device_p);
@@ -192,6 +196,7 @@ function draw() {
                   measuredBlocked: showMeasured ? measuredPhotoeyesBlocked(t) : null });
   updateText(belts);
   state.dirty = false;
+  state.draws++;
 }
 
 function liveText(belts) {
@@ -352,6 +357,7 @@ const api = {
   playing: () => state.playing,
   speed: () => state.speed,
   render: () => draw(),
+  draws: () => state.draws,   // pictures drawn so far
   setLayer: (name, on) => { state[name === "measured" ? "showMeasured" : "showSim"] = on; syncLayerControls(); draw(); },
   show: (mode) => { setShow(mode); draw(); },
   showing: () => showMode(),
@@ -377,9 +383,9 @@ const api = {
   },
   photoeyesBlocked: () => photoeyesBlocked(state.time),
   // A live page: apply a frame of the server, the last one applied (null before the first), connection lost.
-  applyFrame: (f) => { applyFrame(f); draw(); },
+  applyFrame: (f) => applyFrame(f),   // drawn at the next animation frame
   frame: () => (data && data.frame ? { step: data.frame.step, t_s: data.frame.t_s, run: data.frame.run } : null),
-  lost: (why) => { data.lost = why; state.dirty = true; },
+  lost: (why) => { if (data.lost !== why) { data.lost = why; state.dirty = true; } },
   beltTravel: () => beltAt(state.time).travel,
   measuredFish: () => measuredAt(state.time),
   measuredDrawn: () => (state.showMeasured ? measuredAt(state.time) : []),
