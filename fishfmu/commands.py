@@ -170,7 +170,7 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
           report: bool = True, on_ready: Callable[[Any], None] | None = None, wait_for_start: bool = False,
           grace_s: float | None = None, users_file: str | Path | None = None,
           allow_anonymous_write: bool = False, pki: str | Path | None = None,
-          modbus: str | None = None) -> RunOutcome:
+          modbus: str | None = None, live: str | None = None) -> RunOutcome:
     """Serve a scenario's line over OPC UA (:mod:`fishfmu.serve`) until its run ends (real time), a client calls
     stop() or a signal comes, then write the run into ``out`` (default ``out/<name>``) as :func:`run` does.
     ``wait_for_start``: the line waits for a client's start(); ``grace_s``: how long the server stays up after the
@@ -178,7 +178,8 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
     their roles (:mod:`fishfmu.serve.access`); anonymous clients read only, unless ``allow_anonymous_write``;
     ``pki``: a folder for the server's certificate, made on first use, and the trusted clients'
     (:mod:`fishfmu.serve.pki`), instead of ``certificates``; ``modbus``: ``HOST:PORT`` of a Modbus TCP server
-    beside OPC UA (:mod:`fishfmu.serve.modbus`).
+    beside OPC UA (:mod:`fishfmu.serve.modbus`); ``live``: ``HOST:PORT`` of the live 3D view
+    (:mod:`fishfmu.serve.live`).
 
     Bad options (the endpoint, a port in use, the real-time factor, certificates, the user's password) are
     refused before the output folder is made; anything that fails after leaves ``run_info.json`` at ``failed``
@@ -198,7 +199,7 @@ def serve(scenario_file: str | Path, out: str | Path | None = None, overrides: d
         grace = {} if grace_s is None else {"grace_s": grace_s}
         line = LineServer(c, endpoint, allow_remote, realtime, user, certificates, wait_for_start,
                           users_file=Path(users_file) if users_file is not None else None,
-                          allow_anonymous_write=allow_anonymous_write, modbus=modbus, **grace)
+                          allow_anonymous_write=allow_anonymous_write, modbus=modbus, live=live, **grace)
         try:
             problem = serving.listen_problem(endpoint)
             if problem:

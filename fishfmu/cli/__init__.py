@@ -162,6 +162,8 @@ def serve_cmd(
                                                "may write and call methods (by default they only read)."),
     modbus: str | None = typer.Option(None, "--modbus", help="HOST:PORT of a Modbus TCP server beside OPC UA (the "
                                       "register map: fishfmu signal-list)."),
+    live: str | None = typer.Option(None, "--live", help="HOST:PORT of a web page that shows the running line in "
+                                    "3D with its status (read-only; loopback only unless --allow-remote)."),
     grace: float | None = typer.Option(None, "--grace", help="Seconds the server stays up after the run finished or "
                                        "failed, unless a client calls stop() (0 to 86400; default 60)."),
 ) -> None:
@@ -180,12 +182,13 @@ def serve_cmd(
         anonymous = {None: "refused", "viewer": "read only", "operator": "read, write and call"}[
             line.users.anonymous_role]
         console.print(f"serving {scenario} at {line.endpoint} (namespace urn:fishfmu, object fishfmu), {mode}; "
-                      f"clients write: {', '.join(line.external) or 'nothing'}; anonymous clients: {anonymous}")
+                      f"clients write: {', '.join(line.external) or 'nothing'}; anonymous clients: {anonymous}"
+                      + (f"; live view at http://{line.live_at}/" if line.live_at else ""))
 
     done = commands.serve(scenario, out, parse_assignments(set_), endpoint=endpoint, realtime=realtime,
                           allow_remote=allow_remote, user=user, certificates=certificates, overwrite=overwrite,
                           report=report, on_ready=ready, wait_for_start=wait_for_start, grace_s=grace,
-                          users_file=users, allow_anonymous_write=allow_anonymous_write, pki=pki, modbus=modbus)
+                          users_file=users, allow_anonymous_write=allow_anonymous_write, pki=pki, modbus=modbus, live=live)
     result = done.result
     pacing = (result.served or {}).get("pacing")
     if pacing:

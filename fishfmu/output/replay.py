@@ -330,34 +330,35 @@ def build_scene(line: Line, name: str, run: Run, p: dict[str, np.ndarray], measu
     packer.add("status", status.T.astype(np.int64))
     packer.add("belt_travel", travel_m, POS_UNIT_M)
     packer.add("belt_speed", speed_mps, POS_UNIT_M)
-    order = np.lexsort((p["section_x"], p["section_body"]))          # by body, then tail to head
-    packer.add("sec_body", p["section_body"][order].astype(np.int64))
-    for key in ("section_x", "section_half_height", "section_half_width"):
-        packer.add(key.replace("section", "sec"), p[key][order], 1e-4)
-    devices = _devices(line)
-    if devices:
+    header = line_header(line, name, run_id or run.id, p, packer)
+    if header["devices"]:
         packer.add("device_p", device_positions(line, p, stride), DEVICE_P_UNIT)
-
-    header: dict[str, Any] = {
-        "version": 1,
-        "name": name,
-        "run_id": run_id or run.id,
-        "duration_s": float(t_s[-1]) if len(t_s) else 0.0,
-        "line": line.model_dump(),
-        "parts": _part_triangles(line),
-        "devices": devices,
-        "guide_openings": [[side, round(x0, 6), round(x1, 6)] for side, x0, x1 in guide_openings(line)],
-        "chutes": [[side, round(x0, 6), round(x1, 6), CHUTE_DEPTH_M] for side, x0, x1 in pusher_openings(line)],
-        "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(n_fish),
-                 "body_fish": body_fish.astype(int).tolist()},
-        "photoeyes": _photoeye_intervals(run.photoeyes, [pe.id for pe in line.photoeyes]),
-        "measured": None,
-    }
+    header |= {"duration_s": float(t_s[-1]) if len(t_s) else 0.0,
+               "photoeyes": _photoeye_intervals(run.photoeyes, [pe.id for pe in line.photoeyes])}
     if measured is not None:
         header["measured"] = _add_measured(packer, measured, [pe.id for pe in line.photoeyes])
         header["duration_s"] = max(header["duration_s"], header["measured"]["t_end_s"])
     header["arrays"] = packer.index
     return header, packer.blob()
+
+
+def line_header(line: Line, name: str, run_id: str, p: dict[str, np.ndarray], packer: Packer) -> dict[str, Any]:
+    """What a page draws that does not move: the line, its parts and devices, the fish (ids, colours) and their
+    bodies' outlines (packed into ``packer``); a recorded page adds its frames, ``serve --live`` streams them."""
+    order = np.lexsort((p["section_x"], p["section_body"]))          # by body, then tail to head
+    packer.add("sec_body", p["section_body"][order].astype(np.int64))
+    for key in ("section_x", "section_half_height", "section_half_width"):
+        packer.add(key.replace("section", "sec"), p[key][order], 1e-4)
+    return {
+        "version": 1, "name": name, "run_id": run_id, "duration_s": 0.0,
+        "line": line.model_dump(),
+        "parts": _part_triangles(line), "devices": _devices(line),
+        "guide_openings": [[side, round(x0, 6), round(x1, 6)] for side, x0, x1 in guide_openings(line)],
+        "chutes": [[side, round(x0, 6), round(x1, 6), CHUTE_DEPTH_M] for side, x0, x1 in pusher_openings(line)],
+        "fish": {"ids": [str(f) for f in p["fish_id"]], "colours": fish_colours(len(p["fish_id"])),
+                 "body_fish": p["body_fish"].astype(int).tolist()},
+        "photoeyes": {}, "measured": None,
+    }
 
 
 def _part_triangles(line: Line) -> list[float]:
@@ -398,7 +399,8 @@ def render_html(header: dict[str, Any], blob: str) -> str:
     title = f"fishfmu replay: {header['name']} / {header['run_id']}"
     parts = {"__TITLE__": title.replace("&", "&amp;").replace("<", "&lt;"), "/*__STYLE__*/": _asset("replay.css"),
              "/*__HEADER__*/": header_json, "/*__DATA__*/": blob, "/*__RENDER__*/": _asset("render.js"),
-             "/*__SCRIPT__*/": _asset("replay.js")}
+             "/*__SCRIPT__*/": _asset("replay.js"),
+             "/*__LIVE__*/": _asset("live.js") if header.get("live") else ""}  # a recorded page fetches nothing
     template = _asset("replay.html")
     missing = [m for m in parts if template.count(m) != 1]
     if missing:

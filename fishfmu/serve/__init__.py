@@ -17,6 +17,8 @@ folder, serves the line until its run ends and writes the run like any run, thro
   input cannot take and a method called with bad arguments get an OPC UA status;
 - :mod:`fishfmu.serve.modbus_map` and :mod:`fishfmu.serve.modbus`: the same signals over Modbus TCP
   (``--modbus``), its register map and lockstep step-request register;
+- :mod:`fishfmu.serve.live`: ``--live``, a web page showing the running line in 3D (the replay's renderer) and its
+  status, fed with frames taken between steps (read-only; never pacing the line);
 - :mod:`fishfmu.serve.status`: the run's states (waiting, running, paused, finished, stopped, failed) and its
   clock against the wall (lag, late steps, the real-time factor reached), the grace time after the end;
 - :mod:`fishfmu.serve.line`: the co-simulation stepped in a worker thread, in lockstep (a client's ``step(n)``)

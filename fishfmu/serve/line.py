@@ -62,7 +62,7 @@ class LineServer:
                  realtime: float | None = None, user: str | None = None,
                  certificates: Certificates | None = None, wait_for_start: bool = False,
                  grace_s: float = DEFAULT_GRACE_S, users_file: Path | None = None,
-                 allow_anonymous_write: bool = False, modbus: str | None = None) -> None:
+                 allow_anonymous_write: bool = False, modbus: str | None = None, live: str | None = None) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
@@ -91,6 +91,10 @@ class LineServer:
         if problem:
             raise InputError(problem, where="--modbus")
         self.modbus_at, self.modbus, self.allow_anonymous_write = modbus, None, allow_anonymous_write
+        problem = modbus_problem(live, allow_remote, "live view") if live is not None else None
+        if problem:
+            raise InputError(problem, where="--live")
+        self.live_at, self.live, self._values = live, None, {}  # _values: what _publish showed last
         self.clock = RunClock()
         self.kpis: dict[str, Any] = {}
         """The run's KPIs once it has ended (served under fishfmu.kpis)."""
@@ -305,6 +309,9 @@ class LineServer:
         await self.space.publish(values)
         if self.modbus is not None:
             self.modbus.publish(values)
+        self._values = values
+        if self.live is not None and self.cosim is not None and self.live.due():
+            self.live.capture(self.cosim, values)
         if self.state != self._announced:
             self._announced = self.state
             await self.space.announce(self.state)
@@ -333,6 +340,8 @@ class LineServer:
         try:
             if self.modbus_at is not None:
                 await self._start_modbus()
+            if self.live_at is not None:
+                await self._start_live()
             if on_ready is not None:
                 on_ready(self)
             if self.realtime is None:
@@ -347,6 +356,8 @@ class LineServer:
         finally:
             if self.modbus is not None:
                 await self.modbus.stop()
+            if self.live is not None:
+                await self.live.stop()
             await server.stop()
         if self._crash is not None:
             raise self._crash
@@ -358,6 +369,19 @@ class LineServer:
         self.modbus = ModbusObserver(self.space.model, host, port, self.allow_anonymous_write, self)
         await self.modbus.start()
         self.modbus.publish(dict(self.space.published))  # every value so far, not only the next changes
+
+    async def _start_live(self) -> None:
+        """The live view (:mod:`fishfmu.serve.live`; tornado imported only for it), with the line's latest step
+        taken when no step's publication took it (the end of a step(n), a pause): never waiting for the line."""
+        from fishfmu.serve.live import LiveView  # tornado: only when --live is given
+        self.live = LiveView(*modbus_host_port(self.live_at), self.scenario.line, self.scenario.run.name)
+        self.live.capture(self.cosim, self._values)
+        await self.live.start(lambda: self.live.stale(self.cosim, self._values) and not self._lock.locked(), self._catch_up_live)
+
+    async def _catch_up_live(self) -> None:
+        async with self._lock:
+            if self.cosim is not None:
+                self.live.capture(self.cosim, self._values)
 
     async def _sleep_until(self, due: float) -> bool:
         """Wait for the monotonic time ``due``, looking for the end of serving and a reset every POLL_S;

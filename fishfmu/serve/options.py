@@ -68,11 +68,11 @@ def modbus_host_port(where: str) -> tuple[str, int] | None:
     return host_port(f"opc.tcp://{where}")
 
 
-def modbus_problem(where: str, allow_remote: bool) -> str | None:
-    """Why the Modbus server must not listen at ``HOST:PORT``, or None (the rules of the OPC UA endpoint; a port
-    below 1024, Modbus's 502, needs privileges)."""
+def modbus_problem(where: str, allow_remote: bool, what: str = "Modbus TCP") -> str | None:
+    """Why the Modbus server (or ``what`` else listens at a ``HOST:PORT``: the live view) must not listen at
+    ``where``, or None (the rules of the OPC UA endpoint; a port below 1024, Modbus's 502, needs privileges)."""
     if modbus_host_port(where) is None:
-        return f"'{where}' is not HOST:PORT with a port of 1 to 65535 (Modbus TCP: 502 needs privileges)"
+        return f"'{where}' is not HOST:PORT with a port of 1 to 65535 ({what}: a port below 1024 needs privileges)"
     problem = endpoint_problem(f"opc.tcp://{where}", allow_remote)
     return problem or listen_problem(f"opc.tcp://{where}")
 

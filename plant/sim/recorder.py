@@ -153,6 +153,13 @@ def pose_record(recorder: RunRecorder, state: PlantState) -> dict[str, np.ndarra
     poses = recorder.poses()
     if poses is None:
         return None
+    poses.update(body_outlines(state))
+    return poses
+
+
+def body_outlines(state: PlantState) -> dict[str, np.ndarray]:
+    """What is needed to draw the bodies of every fish (the arrays of poses.npz besides the poses): ``fish_id``,
+    ``body_fish`` and the outlines as cross-sections (``section_*``, see :func:`pose_record`)."""
     body, x, half_h, half_w = [], [], [], []
     for k, geometry in enumerate(state.geometry):
         for i, b in enumerate(geometry.bodies):
@@ -161,12 +168,11 @@ def pose_record(recorder: RunRecorder, state: PlantState) -> dict[str, np.ndarra
                 x.append(sx)
                 half_h.append(hh)
                 half_w.append(hw)
-    poses.update({
+    return {
         "fish_id": np.array(list(state.fish_ids)),
         "body_fish": np.repeat(np.arange(len(state.fish_ids)), 5).astype(np.int32),
         "section_body": np.array(body, dtype=np.int32),
         "section_x": np.array(x, dtype=np.float32),
         "section_half_height": np.array(half_h, dtype=np.float32),
         "section_half_width": np.array(half_w, dtype=np.float32),
-    })
-    return poses
+    }

@@ -14,7 +14,7 @@ const ui = {
   layers: document.getElementById("layers"),
 };
 const state = { time: 0, playing: false, speed: 1, lastNow: null, dirty: true, showSim: true, showMeasured: true,
-               sliderHeld: false };
+               sliderHeld: false, draws: 0 };
 let data = null;      // decoded arrays (see loadData)
 let renderer = null;
 const camera = { yaw: -1.2, pitch: 0.55, dist: 6, target: [3, 0, 0], fovY: 0.7 };
@@ -50,6 +50,7 @@ async function loadData() {
   for (const [name, entry] of Object.entries(header.arrays)) {
     a[name] = decodeInts(raw, entry, name === "t" || name === "m_t" ? Float64Array : Float32Array);
   }
+  if (header.live) return liveData(a);
   return {
     t: a.t, frames: a.t.length, pos: a.pos, quat: a.quat, status: a.status,
     bodies: header.fish.body_fish.length, bodyFish: header.fish.body_fish,
@@ -58,6 +59,37 @@ async function loadData() {
     sections: { body: a.sec_body, x: a.sec_x, hh: a.sec_half_height, hw: a.sec_half_width },
     measured: header.measured ? { t: a.m_t, xy: a.m_xy, yaw: a.m_yaw, fish: header.measured.fish } : null,
   };
+}
+
+// A live page (fishfmu serve --live): one frame, overwritten by each frame the server sends (applyFrame); the
+// arrays are laid out as a recorded run of one frame, so everything below draws it unchanged.
+function liveData(a) {
+  const B = header.fish.body_fish.length, D = (header.devices || []).length;
+  const quat = new Float32Array(4 * B);
+  for (let b = 0; b < B; b++) quat[4 * b] = 1;
+  return {
+    t: new Float64Array(1), frames: 1, pos: new Float32Array(3 * B), quat,
+    status: new Float32Array(header.fish.ids.length), bodies: B, bodyFish: header.fish.body_fish,
+    beltTravel: new Float32Array(header.line.conveyors.length), beltSpeed: new Float32Array(header.line.conveyors.length),
+    deviceP: D ? new Float32Array(D) : null,
+    sections: { body: a.sec_body, x: a.sec_x, hh: a.sec_half_height, hw: a.sec_half_width },
+    measured: null, blocked: {}, frame: null, lost: null,
+  };
+}
+
+// A frame of the server (fishfmu/serve/live.py, frame_of): poses (w, x, y, z quaternions), fish status, belts,
+// devices, photo-eyes and the run's status.  A frame of another page (a reset changed the fish): load it anew.
+// The same step in the same state again (a line in lockstep between steps, paused, ended) is not drawn again: a
+// browser on the line's own machine takes no more of its CPU than the line's motion needs.
+function applyFrame(f) {
+  if (f.page !== header.live.page) { location.reload(); return; }
+  const last = data.frame;
+  if (last && !data.lost && last.step === f.step && last.run.run_state === f.run.run_state) return;
+  data.pos.set(f.pos); data.quat.set(f.quat); data.status.set(f.status);
+  data.beltTravel.set(f.belt_travel); data.beltSpeed.set(f.belt_speed);
+  if (data.deviceP) data.deviceP.set(f.device_p);
+  data.t[0] = f.t_s; data.blocked = f.blocked; data.frame = f; data.lost = null;
+  state.time = f.t_s; state.dirty = true;
 }
 
 // The frame at or before t and the fraction towards the next one.
@@ -111,6 +143,7 @@ function devicePositions(t) {
 }
 
 function photoeyesBlocked(t, eyes = header.photoeyes) {
+  if (header.live && eyes === header.photoeyes) return Object.assign({}, data.blocked);
   const out = {};
   for (const [id, intervals] of Object.entries(eyes)) {
     out[id] = intervals.some(([on, off]) => t >= on && t < off);
@@ -163,9 +196,21 @@ function draw() {
                   measuredBlocked: showMeasured ? measuredPhotoeyesBlocked(t) : null });
   updateText(belts);
   state.dirty = false;
+  state.draws++;
+}
+
+function liveText(belts) {
+  const f = data.frame, r = f ? f.run : null, ms = (s) => (s === null ? "–" : `${(1000 * s).toFixed(1)} ms`);
+  const speeds = header.line.conveyors.map((c, i) => `${c.id} ${belts.speed[i].toFixed(2)}`).join(", ");
+  ui.status.textContent = data.lost ? `no answer from the server: ${data.lost}` : !r ? "waiting for the first frame" :
+    `${r.run_state} · t = ${f.t_s.toFixed(2)} s · lag ${ms(r.lag_s)} (max ${ms(r.lag_max_s)}) · ${r.late_steps} late steps` +
+    ` · x${(r.realtime_factor_reached || 0).toFixed(2)} reached · fish: ${r.fish_on_line} on the line, ${r.fish_waiting}` +
+    ` waiting, ${r.fish_left} left, ${r.fish_rejected} rejected · belts (m/s): ${speeds}`;
+  ui.clock.textContent = f ? `${f.t_s.toFixed(2)} s · step ${f.step}` : "";
 }
 
 function updateText(belts) {
+  if (header.live) { liveText(belts); return; }
   const t = state.time, { k } = frameAt(t), F = data.frames;
   let onLine = 0;
   for (let n = 0; n < header.fish.ids.length; n++) if (data.status[n * F + k] === 1) onLine++;
@@ -292,6 +337,10 @@ function describe() {
   legend += `<span class="swatch" style="background:#2a5"></span>photo-eye clear<span class="swatch" style="background:#e21"></span>blocked${m ? " (simulated)" : ""}`;
   if (m && m.photoeyes) legend += '<span class="swatch lamp"></span>lamp on top: measured beam blocked';
   ui.legend.innerHTML = legend;
+  if (header.live) {   // the line runs on the server: no time to choose, nothing to play
+    ui.title.textContent = `${header.name} · live · ${header.fish.ids.length} fish`;
+    for (const el of [ui.play, ui.time, ui.speed.parentElement]) el.hidden = true;
+  }
   ui.time.max = header.duration_s;
   ui.time.step = 0.01;
   ui.layers.hidden = !m;
@@ -308,6 +357,7 @@ const api = {
   playing: () => state.playing,
   speed: () => state.speed,
   render: () => draw(),
+  draws: () => state.draws,   // pictures drawn so far
   setLayer: (name, on) => { state[name === "measured" ? "showMeasured" : "showSim"] = on; syncLayerControls(); draw(); },
   show: (mode) => { setShow(mode); draw(); },
   showing: () => showMode(),
@@ -332,6 +382,10 @@ const api = {
     });
   },
   photoeyesBlocked: () => photoeyesBlocked(state.time),
+  // A live page: apply a frame of the server, the last one applied (null before the first), connection lost.
+  applyFrame: (f) => applyFrame(f),   // drawn at the next animation frame
+  frame: () => (data && data.frame ? { step: data.frame.step, t_s: data.frame.t_s, run: data.frame.run } : null),
+  lost: (why) => { if (data.lost !== why) { data.lost = why; state.dirty = true; } },
   beltTravel: () => beltAt(state.time).travel,
   measuredFish: () => measuredAt(state.time),
   measuredDrawn: () => (state.showMeasured ? measuredAt(state.time) : []),
@@ -360,6 +414,7 @@ api.ready = (async function start() {
     setView("3d");
     draw();
     requestAnimationFrame(tick);
+    if (header.live) window.ReplayLive.follow(api, header.live);
     document.body.dataset.ready = "1";
   } catch (err) {
     ui.status.textContent = `cannot show the replay: ${err.message}`;
