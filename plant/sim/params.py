@@ -111,7 +111,7 @@ class PlantParams(Strict):
         "the tail fin joined rigidly to the tail (the fin bends little against the tail at the scale of a "
         "belt and its gaps; tail and fin carry the paper's 22.8 % together, no mass floor; joints 1-3 of Table III "
         "unchanged, the tail-fin joint gone) and thin bodies' inertia raised to the full value their spheres "
-        "imply; meant for numerics.step_s = 0.0025 with numerics.sphere_spacing = 3 (docs/model.md, 'The joined "
+        "imply; meant for numerics.step_s = 0.002 with numerics.sphere_spacing = 3 (docs/model.md, 'The joined "
         "fish')"))
     friction: FrictionParams = Field(default_factory=FrictionParams)
     joints: JointParams = Field(default_factory=JointParams)
