@@ -12,6 +12,7 @@ from plant.sim.joints import JointLaws, joint_laws, linearize, tangent, torque
 from plant.sim.model import prepare_fish
 from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
+from plant.sim.simulate import simulate_plant
 from plant.fish.population import PopulationSpec, fish_size, sample_fish
 from tests.plant_helpers import fish, straight_line
 
@@ -219,3 +220,23 @@ def test_joined_fish_at_its_step_rests_on_the_belt_carried_at_belt_speed():
     assert (xs[-1] - xs[-51]) / 0.5 == pytest.approx(belt, rel=0.03)
     # on its side: the centres at half the local thickness, which is at most half the fish's width
     assert np.all(s.pos[:, 2] > 0.0) and np.all(s.pos[:, 2] < 0.5 * f.width_m + 0.005)
+
+
+def test_joined_fish_poses_and_outlines_name_four_bodies_per_fish():
+    """The recorded poses (what a run's poses.npz and the 3D replay read) have as many bodies as the model: the
+    joined fish's outline sections end at its fin tip on its fourth body."""
+    fishes = [fish("a", length_m=0.6, x_m=0.8), fish("b", length_m=0.5, x_m=2.0)]
+    params = PlantParams.model_validate({"fish_model": "joined4", "numerics": {"step_s": 0.002}})
+    run = simulate_plant(straight_line(("c1", 0.0, 3.0, 0.0)), fishes, {"c1": 0.3}, 0.5, params=params,
+                         stop_when_clear=False, record_poses=True)
+    p = run.poses
+    assert p["pos"].shape[1:] == (8, 3) and p["quat"].shape[1:] == (8, 4)
+    assert p["body_fish"].tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    # each fish's sections run from its snout (first body) to its fin tip (fourth body); a section's distance from
+    # the snout is its body's centre of mass (from the snout) minus its local x
+    for k, f in enumerate(fishes):
+        g = fish_geometry(f.length_m, f.height_m, f.width_m, f.weight_kg, fin_joined=True)
+        snout = g.bodies[0].com_from_snout_m - p["section_x"][p["section_body"] == 4 * k][0]
+        tip = g.bodies[3].com_from_snout_m - p["section_x"][p["section_body"] == 4 * k + 3][-1]
+        assert snout == pytest.approx(0.0, abs=1e-6)
+        assert tip == pytest.approx(f.length_m, rel=1e-5)
