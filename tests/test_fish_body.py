@@ -9,8 +9,10 @@ from plant.fish import fish_data
 from plant.fish.fish_body import _spheres_overlap_at_limits, fish_geometry
 from plant.fish.fish_data import length_regressions
 from plant.sim.joints import JointLaws, joint_laws, linearize, tangent, torque
+from plant.sim.model import prepare_fish
 from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
+from plant.sim.simulate import simulate_plant
 from plant.fish.population import PopulationSpec, fish_size, sample_fish
 from tests.plant_helpers import fish, straight_line
 
@@ -47,6 +49,49 @@ def test_body_masses_follow_table2_with_the_fin_raised_for_the_step(size):
     assert masses[:3] / mass == pytest.approx(fractions[:3])
     assert masses[4] / mass == pytest.approx(0.06)
     assert masses[3] / mass == pytest.approx(fractions[3] - (0.06 - fractions[4]))
+
+
+@pytest.mark.parametrize("size", SIZES)
+def test_joined_fish_has_four_bodies_with_the_tail_and_fin_share_of_table2(size):
+    length, height, width, mass = size
+    g = fish_geometry(length, height, width, mass, fin_joined=True)
+    t2 = fish_data.table2()
+    fractions = (t2["weight_kg"] / t2["weight_kg"].sum()).to_numpy()  # sample #16's bodies, no mass floor
+    masses = np.array([b.mass_kg for b in g.bodies])
+    assert [b.name for b in g.bodies] == ["head", "upper_body", "lower_body", "tail"]
+    assert len(g.joint_from_snout_m) == 3
+    assert masses.sum() == pytest.approx(mass)
+    assert masses[:3] / mass == pytest.approx(fractions[:3], abs=2e-3)
+    assert masses[3] / mass == pytest.approx(0.228, abs=1e-3)  # (0.761 + 0.083) / 3.698 kg of Table II
+    # the joined tail spans the paper's tail and fin: its centre of mass is theirs, weighted by Table II's masses
+    paper = fish_geometry(length, height, width, mass)
+    tail, fin = paper.bodies[3], paper.bodies[4]
+    expected = (fractions[3] * tail.com_from_snout_m + fractions[4] * fin.com_from_snout_m) / (fractions[3] + fractions[4])
+    assert g.bodies[3].com_from_snout_m == pytest.approx(expected, abs=1e-3 * length)
+    assert (g.bodies[3].s_start, g.bodies[3].s_end) == (tail.s_start, 1.0)
+    # the same contact spheres as the paper's fish, seen from the snout
+    def from_snout(bodies):
+        return sorted((round(b.com_from_snout_m - x, 9), round(y, 9), r) for b in bodies for x, y, r in b.spheres)
+    assert from_snout(g.bodies) == from_snout(paper.bodies)
+    # the joints left are Table III's first three
+    p = PlantParams()
+    laws = joint_laws(g, p.joints, p.numerics, 9.81)
+    t3 = fish_data.table3()
+    assert laws.limit_rad.shape == (3, 3)
+    assert np.degrees(laws.limit_rad[:, 1]) == pytest.approx(t3.swing1_deg.to_numpy()[:3])
+    assert np.degrees(laws.limit_rad[:, 2]) == pytest.approx(t3.swing2_deg.to_numpy()[:3])
+
+
+def test_joined_fish_thin_bodies_get_the_full_sphere_implied_inertia_and_the_paper_fish_half():
+    spec = fish(length_m=0.68, x_m=1.0)
+    for model, share in (("joined4", 1.0), ("paper5", 0.5)):
+        prep = prepare_fish(spec, PlantParams.model_validate({"fish_model": model}))
+        tail = prep.geometry.bodies[-1]  # the joined tail with its fin; the paper's fin
+        x = np.array([sx for sx, _, _ in tail.spheres])
+        y = np.array([sy for _, sy, _ in tail.spheres])
+        implied = share * tail.mass_kg * np.array([np.mean(x**2), np.mean(x**2 + y**2)])
+        assert prep.inertias[-1][1:] == pytest.approx(np.maximum(tail.inertia_kgm2[1:], implied), rel=1e-12)
+        assert np.all(prep.inertias[-1][1:] >= np.array(tail.inertia_kgm2[1:]))
 
 
 @pytest.mark.parametrize("size", SIZES)
@@ -153,3 +198,45 @@ def test_sampled_population_is_reproducible_and_inside_the_guides():
         ext_x = 0.5 * f.length_m * abs(np.cos(f.drop_yaw_rad)) + 0.5 * f.height_m * abs(np.sin(f.drop_yaw_rad))
         assert abs(f.drop_y_m) + ext_y <= 0.25
         assert f.drop_x_m - ext_x >= 0.0
+
+
+def test_joined_fish_at_its_step_rests_on_the_belt_carried_at_belt_speed():
+    """The four-body fish at 2.5 ms: it lies on its side with every body centre about half its thickness above the
+    belt, the belt carries its weight, and it rides at the belt's speed."""
+    belt = 0.4
+    f = fish(length_m=0.6, x_m=1.0)
+    params = PlantParams.model_validate({"fish_model": "joined4", "numerics": {"step_s": 0.0025}})
+    plant = Plant(straight_line(("c1", 0.0, 3.0, 0.0)), [f], params=params)
+    masses, xs = [], []
+    for _ in range(150):
+        out = plant.step({"c1": belt})
+        masses.append(out.belt_load_mass_kg["c1"])
+        xs.append(plant.state.fish_poses().x_m[0])
+    s = plant.state
+    assert s.bodies_per_fish == 4 and s.pos.shape == (4, 3)
+    pos, rot = s.body_poses()
+    assert pos.shape == (4, 3) and rot.shape == (4, 3, 3)
+    assert np.mean(masses[-50:]) == pytest.approx(f.weight_kg, rel=0.05)
+    assert (xs[-1] - xs[-51]) / 0.5 == pytest.approx(belt, rel=0.03)
+    # on its side: the centres at half the local thickness, which is at most half the fish's width
+    assert np.all(s.pos[:, 2] > 0.0) and np.all(s.pos[:, 2] < 0.5 * f.width_m + 0.005)
+
+
+def test_joined_fish_poses_and_outlines_name_four_bodies_per_fish():
+    """The recorded poses (what a run's poses.npz and the 3D replay read) have as many bodies as the model: the
+    joined fish's outline sections end at its fin tip on its fourth body."""
+    fishes = [fish("a", length_m=0.6, x_m=0.8), fish("b", length_m=0.5, x_m=2.0)]
+    params = PlantParams.model_validate({"fish_model": "joined4", "numerics": {"step_s": 0.002}})
+    run = simulate_plant(straight_line(("c1", 0.0, 3.0, 0.0)), fishes, {"c1": 0.3}, 0.5, params=params,
+                         stop_when_clear=False, record_poses=True)
+    p = run.poses
+    assert p["pos"].shape[1:] == (8, 3) and p["quat"].shape[1:] == (8, 4)
+    assert p["body_fish"].tolist() == [0, 0, 0, 0, 1, 1, 1, 1]
+    # each fish's sections run from its snout (first body) to its fin tip (fourth body); a section's distance from
+    # the snout is its body's centre of mass (from the snout) minus its local x
+    for k, f in enumerate(fishes):
+        g = fish_geometry(f.length_m, f.height_m, f.width_m, f.weight_kg, fin_joined=True)
+        snout = g.bodies[0].com_from_snout_m - p["section_x"][p["section_body"] == 4 * k][0]
+        tip = g.bodies[3].com_from_snout_m - p["section_x"][p["section_body"] == 4 * k + 3][-1]
+        assert snout == pytest.approx(0.0, abs=1e-6)
+        assert tip == pytest.approx(f.length_m, rel=1e-5)

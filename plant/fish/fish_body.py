@@ -44,6 +44,10 @@ MIN_SPHERE_RADIUS_M = 0.012
 """No contact sphere of a fish is smaller (its tail fin's): what a moving device must not pass in one integration step."""
 BODY_NAMES = ("head", "upper_body", "lower_body", "tail", "tail_fin")
 N_BODIES = 5
+"""The paper's rag-doll; the cuts, sphere layout and joint clearances are always worked out for it."""
+FISH_MODELS = {"paper5": 5, "joined4": 4}
+"""The fish models a scenario can choose (``plant.fish_model``) and their bodies per fish: the paper's five, or
+four with the tail fin joined rigidly to the tail (see :func:`fish_geometry`)."""
 _GRID = np.linspace(0.0, 1.0, 801)
 
 
@@ -198,7 +202,8 @@ def _with_min_fraction(fractions: np.ndarray, minimum: float) -> np.ndarray:
 def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: float,
                   joint_limits_rad: tuple[tuple[float, float], ...] | None = None,
                   sphere_spacing: float = 1.5, min_radius_m: float = MIN_SPHERE_RADIUS_M,
-                  min_body_fraction: float = 0.06, min_radius_fraction: float = 0.3) -> FishGeometry:
+                  min_body_fraction: float = 0.06, min_radius_fraction: float = 0.3,
+                  fin_joined: bool = False) -> FishGeometry:
     """Cut a fish of the given size into five bodies with masses, inertias and contact spheres.
 
     ``joint_limits_rad``: per joint (lateral, dorso-ventral) bending limits; spheres near each
@@ -209,6 +214,10 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
     radius, and these are the parts that other fish land on.
     ``min_body_fraction``: numerical mass scaling, see ``plant.sim.params.NumericsParams``; the paper's
     2.2 % tail fin is raised to it with mass taken from the tail body (total mass unchanged).
+    ``fin_joined``: four bodies, the tail fin part of the tail (model ``joined4``): the tail body runs from the
+    third cut to the fin's tip and carries the paper's tail and fin shares together (Table II, 22.8 % for sample
+    #16) with its own centre of mass and inertia from the outline; no mass floor (the fin is no body of its own);
+    the same contact spheres as the five-body fish; joints 1-3 of Table III.
     """
     if joint_limits_rad is None:
         t3 = fish_data.table3()
@@ -217,7 +226,8 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
     fractions = fish_data.table2()["fraction"].to_numpy()
     fractions = fractions / fractions.sum()
     cuts = (0.0, *cut_positions(), 1.0)
-    fractions = _with_min_fraction(fractions, min_body_fraction)
+    if not fin_joined:
+        fractions = _with_min_fraction(fractions, min_body_fraction)
 
     # Clearance of the spheres from each joint, in radii of the larger neighbouring sphere,
     # grown until the two bodies' spheres do not touch with the joint at its limits (+15 %).
@@ -235,8 +245,12 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
     else:
         raise ValueError("cannot place contact spheres clear of the joints at their limits")
 
+    if fin_joined:  # the tail and its fin one body: its spheres both's, its share both's
+        raw = [*raw[:3], raw[3] + raw[4]]
+        fractions = np.array([*fractions[:3], fractions[3] + fractions[4]])
+        cuts = (*cuts[:4], 1.0)
     bodies = []
-    for i in range(N_BODIES):
+    for i in range(len(raw)):
         s0, s1 = cuts[i], cuts[i + 1]
         m = mass_kg * float(fractions[i])
         xc, inertia = _body_mass_properties(s0, s1, length_m, height_m, width_m, m)

@@ -79,7 +79,8 @@ def fish_seen_from_above(model: PlantModel, pos: np.ndarray, rot: np.ndarray, sl
     positions ``pos`` and rotations ``rot`` and the system's outline cross-sections; ``tips`` the (slots, 2) bodies
     holding each fish's snout and tail tip and those points in their frames, ``mids`` the same (slots, 1) for the
     mid-length point."""
-    sel = np.flatnonzero(np.isin(model.section_body // 5, slots))
+    nb = model.bodies_per_fish
+    sel = np.flatnonzero(np.isin(model.section_body // nb, slots))
     b = model.section_body[sel]
     r = rot[b]
     centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
@@ -87,7 +88,7 @@ def fish_seen_from_above(model: PlantModel, pos: np.ndarray, rot: np.ndarray, sl
     def points(bodies: np.ndarray, local: np.ndarray, j: int) -> np.ndarray:
         return pos[bodies[:, j]] + np.einsum("nij,nj->ni", rot[bodies[:, j]], local[:, j])
 
-    return top_view(np.searchsorted(slots, b // 5), centres, r[:, :, 1], model.section_half_len[sel],
+    return top_view(np.searchsorted(slots, b // nb), centres, r[:, :, 1], model.section_half_len[sel],
                     model.section_radius[sel], fish, points(*tips, 0), points(*tips, 1), points(*mids, 0))
 
 

@@ -83,7 +83,7 @@ from exudyn.itemInterface import (  # noqa: E402
     LoadForceVector, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectGround, ObjectRigidBody)
 
 from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
-from plant.fish.fish_body import FishGeometry, fish_geometry  # noqa: E402
+from plant.fish.fish_body import FISH_MODELS, FishGeometry, fish_geometry  # noqa: E402
 from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
 from plant.contract.devices import BIN_DEPTH_M, device_shapes  # noqa: E402
 from plant.contract.line import Line  # noqa: E402
@@ -192,18 +192,25 @@ class PlantModel:
     """(n_devices, 6) indices of each device body's coordinates (origin at its home pose, rotation vector)."""
 
     @property
+    def bodies_per_fish(self) -> int:
+        """Every fish in the system has as many bodies (its slot s holds bodies nb s .. nb s + nb - 1)."""
+        return FISH_MODELS[self.params.fish_model]
+
+    @property
     def member_index(self) -> np.ndarray:
         """The run's fish index of each fish in the system."""
         return np.array([f.index for f in self.fish], dtype=np.int64)
 
 
-def _shaped_inertia(body, enabled: bool) -> np.ndarray:
+def _shaped_inertia(body, enabled: bool, share: float = 0.5) -> np.ndarray:
     """Principal inertias, raised where the body's spheres would make its rotation too stiff.
 
     A thin body (the tail fin) carries its contact spheres far from its own axes compared with
     its tiny inertia, so rolling on them is the fastest motion in the model.  Raising the
     inertia to what the sphere layout implies slows that motion down without changing mass,
-    centre of mass or how the fish moves as a whole.
+    centre of mass or how the fish moves as a whole.  ``share``: the part of the sphere-implied inertia about
+    the lateral and dorsal axes it is raised to (the joined fish takes all of it: its tail with the fin is
+    the longest thin body).
     """
     inertia = np.array(body.inertia_kgm2, dtype=float)
     if not enabled:
@@ -211,8 +218,8 @@ def _shaped_inertia(body, enabled: bool) -> np.ndarray:
     sp = np.array(body.spheres)
     m = body.mass_kg
     inertia[0] = max(inertia[0], m * float(np.mean(sp[:, 1] ** 2)))
-    inertia[1] = max(inertia[1], 0.5 * m * float(np.mean(sp[:, 0] ** 2)))
-    inertia[2] = max(inertia[2], 0.5 * m * float(np.mean(sp[:, 0] ** 2 + sp[:, 1] ** 2)))
+    inertia[1] = max(inertia[1], share * m * float(np.mean(sp[:, 0] ** 2)))
+    inertia[2] = max(inertia[2], share * m * float(np.mean(sp[:, 0] ** 2 + sp[:, 1] ** 2)))
     return inertia
 
 
@@ -254,9 +261,11 @@ def friction_pairings(fish_belt: float, fish_guide: float, fish_fish: float) -> 
 def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float, float] = (1.0, 1.0)) -> PreparedFish:
     """Cut a fish into bodies and work out its inertias and joint laws (once per run)."""
     num = params.numerics
+    joined = params.fish_model == "joined4"
     geo = fish_geometry(spec.length_m, spec.height_m, spec.width_m, spec.weight_kg,
-                        sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction)
-    inertias = tuple(_shaped_inertia(b, num.inertia_shaping) for b in geo.bodies)
+                        sphere_spacing=num.sphere_spacing, min_body_fraction=num.min_body_mass_fraction,
+                        fin_joined=joined)
+    inertias = tuple(_shaped_inertia(b, num.inertia_shaping, 1.0 if joined else 0.5) for b in geo.bodies)
     laws = joint_laws(geo, params.joints, num, params.gravity_mps2, list(inertias), *joint_factor)
     offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
     return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies))
@@ -264,9 +273,10 @@ def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float,
 
 def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, friction_level: int) -> Member:
     """A fish straight and at rest at a parking place, gravity off, joints at their soft stiffness."""
-    coords = np.zeros((5, 6))
+    n = len(prepared.geometry.bodies)
+    coords = np.zeros((n, 6))
     coords[:, :3] = park_m[None, :] + prepared.body_offsets_m
-    return Member(index, prepared, coords, np.zeros((5, 6)), False, prepared.laws.k_soft.copy(), np.zeros((4, 3)),
+    return Member(index, prepared, coords, np.zeros((n, 6)), False, prepared.laws.k_soft.copy(), np.zeros((n - 1, 3)),
                   friction_level)
 
 
@@ -403,7 +413,7 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
 def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """ODE2 indices and values that put the fish in ``slot`` of the model straight at ``mid_m`` with ``rotation``."""
     fm = model.fish[slot]
-    idx = slice(fm.first_body, fm.first_body + 5)
+    idx = slice(fm.first_body, fm.first_body + len(fm.prepared.geometry.bodies))
     pos = mid_m[None, :] + fm.prepared.body_offsets_m @ rotation.T
     rv = matrix_to_rotvec(rotation[None])[0]
     values = np.hstack([pos, np.repeat(rv[None, :], len(pos), axis=0)]) - model.body_ref[idx]

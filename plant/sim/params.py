@@ -14,6 +14,8 @@ This is the ``[plant]`` table of a scenario file.  Two kinds of numbers live her
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from plant.fish.extensions import Extensions
@@ -103,6 +105,14 @@ class NumericsParams(Strict):
 class PlantParams(Strict):
     """Everything the plant needs beyond the line and the fish."""
 
+    fish_model: Literal["paper5", "joined4"] = Field("paper5", description=(
+        "the fish's rigid bodies: 'paper5' the paper's five (head, upper body, lower body, tail, tail fin; the fin "
+        "raised to numerics.min_body_mass_fraction of the mass, the step held at 1.25 ms by it); 'joined4' four, "
+        "the tail fin joined rigidly to the tail (the fin bends little against the tail at the scale of a "
+        "belt and its gaps; tail and fin carry the paper's 22.8 % together, no mass floor; joints 1-3 of Table III "
+        "unchanged, the tail-fin joint gone) and thin bodies' inertia raised to the full value their spheres "
+        "imply; meant for numerics.step_s = 0.002 with numerics.sphere_spacing = 3 (docs/model.md, 'The joined "
+        "fish')"))
     friction: FrictionParams = Field(default_factory=FrictionParams)
     joints: JointParams = Field(default_factory=JointParams)
     numerics: NumericsParams = Field(default_factory=NumericsParams)

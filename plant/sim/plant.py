@@ -157,7 +157,7 @@ class Plant:
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
         self._member, self._outline_reach_m = model.member_index, outline_reach_m(model)
-        self._fish_of_body = np.repeat(self._member, 5)
+        self._fish_of_body = np.repeat(self._member, nb := model.bodies_per_fish)  # every fish of a run: as many
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
                                    dtype=float)
         self._body_inertia = np.array([np.asarray(i, dtype=float) for k in self._member
@@ -165,12 +165,12 @@ class Plant:
         self._laws = stack_laws([m.prepared.laws for m in members])
         self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
         self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
-        self._joint_bodies = np.array([(5 * i + j, 5 * i + j + 1) for i in range(len(members)) for j in range(4)],
+        self._joint_bodies = np.array([(nb * i + j, nb * i + j + 1) for i in range(len(members)) for j in range(nb - 1)],
                                       dtype=np.int64).reshape(-1, 2)
-        self._pose_bodies = np.array([[5 * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
+        self._pose_bodies = np.array([[nb * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
                                      dtype=np.int64).reshape(-1, 3)
         self._pose_local = np.array([[r[1] for r in self._spine_refs[m.index]] for m in members]).reshape(-1, 3, 3)
-        self._tip_bodies = np.array([[5 * i + r[0] for r in self._tip_refs[m.index]] for i, m in enumerate(members)],
+        self._tip_bodies = np.array([[nb * i + r[0] for r in self._tip_refs[m.index]] for i, m in enumerate(members)],
                                     dtype=np.int64).reshape(-1, 2)
         self._tip_local = np.array([[r[1] for r in self._tip_refs[m.index]] for m in members]).reshape(-1, 2, 3)
         self._solver = exu.MainSolverExplicit()
@@ -184,13 +184,13 @@ class Plant:
 
     def _rebuild(self, t: float) -> None:
         """A new system with the fish on the line (state carried over) and those due soon (parked)."""
-        members = []
+        members, nb = [], self.model.bodies_per_fish
         for slot, k in enumerate(self._member):
             if self.status[k] == ON_LINE:
-                b = slice(5 * slot, 5 * slot + 5)
+                b = slice(nb * slot, nb * (slot + 1))
                 coords = np.hstack([self._pos[b], matrix_to_rotvec(self._rot[b])])
                 vel = np.hstack([self._vel[b], self._omega_local[b]])
-                j = slice(4 * slot, 4 * slot + 4)
+                j = slice((nb - 1) * slot, (nb - 1) * (slot + 1))
                 members.append(Member(int(k), self._prepared[k], coords, vel, True, self._k_now[j].copy(),
                                       self._offset_now[j].copy(), int(self._level[k])))
         due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t + ADMIT_AHEAD_S))]
@@ -220,7 +220,7 @@ class Plant:
         rot = lying_orientation(spec.drop_yaw_rad, spec.side)
         mid = np.array([spec.drop_x_m, spec.drop_y_m, 0.0])
         sph = self.model.sphere_body
-        mine = (sph >= fm.first_body) & (sph < fm.first_body + 5)
+        mine = (sph >= fm.first_body) & (sph < fm.first_body + self.model.bodies_per_fish)
         local_body = sph[mine] - fm.first_body
         # sphere centres of the fish placed with its mid point at z = 0
         centres = (fm.prepared.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
@@ -269,13 +269,13 @@ class Plant:
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
         a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
+        on = np.repeat(self.status[self._member] == ON_LINE, joints_per_fish := self.model.bodies_per_fish - 1)
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
-                                               self._omega_local[b], np.repeat(self.status[self._member] == ON_LINE, 4),
-                                               self._comm_step_s, self._k_now, self._offset_now)
+                                               self._omega_local[b], on, self._comm_step_s, self._k_now, self._offset_now)
         mbs = self.model.mbs
         new_k, new_offset = (k_new != self._k_now).any(axis=1), (off_new != self._offset_now).any(axis=1)
         for j in np.flatnonzero(changed):
-            conn = self.model.fish[j // 4].connectors[j % 4]
+            conn = self.model.fish[j // joints_per_fish].connectors[j % joints_per_fish]
             if new_k[j]:  # only what moved is written; the 6x6 matrix read once, only its rotations' block moves
                 if (stiffness := self._joint_stiffness.get(conn)) is None:
                     stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
@@ -303,7 +303,7 @@ class Plant:
         gradient = self._params.friction.belt_gradient
         for i in np.flatnonzero(new != self._level[k]):
             fm = self.model.fish[on[i]]
-            materials = MAT_FISH0 + body_friction_levels(int(new[i]), gradient)
+            materials = MAT_FISH0 + body_friction_levels(int(new[i]), gradient, self.model.bodies_per_fish)
             for sphere in range(fm.first_sphere, fm.first_sphere + fm.n_spheres):
                 body = int(self.model.sphere_body[sphere]) - fm.first_body
                 gc.SetSphereMarkerBased(sphere, frictionMaterialIndex=int(materials[body]))
@@ -324,8 +324,8 @@ class Plant:
         if prev is None or prev.shape != force.shape:
             prev = np.zeros_like(force)
         for b in np.flatnonzero(np.any(force != prev, axis=1)):
-            fm = m.fish[b // 5]
-            m.mbs.SetLoadParameter(fm.adhesion_loads[b % 5], "loadVector", list(force[b]))
+            fm = m.fish[b // m.bodies_per_fish]
+            m.mbs.SetLoadParameter(fm.adhesion_loads[b % m.bodies_per_fish], "loadVector", list(force[b]))
         self._adhesion_force = force
 
     def _conveyor_index(self, x_m: np.ndarray) -> np.ndarray:
@@ -389,7 +389,7 @@ class Plant:
             mid = self._pos[self._pose_bodies[:, 0]] + np.einsum("mij,mj->mi", self._rot[self._pose_bodies[:, 0]],
                                                                  self._pose_local[:, 0])
             through = np.where(on, exits(self._devices.shapes, self._line, mid[:, 0], mid[:, 1], mid[:, 2]), -1)
-        pos = self._pos.reshape(-1, 5, 3)
+        pos = self._pos.reshape(-1, self.model.bodies_per_fish, 3)
         x_gone = self._line.x_end_m + self._params.retire_after_m
         z_floor = self._line.z_range_m[0] - 0.5
         past = np.all(pos[:, :, 0] > x_gone, axis=1)

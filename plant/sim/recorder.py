@@ -111,7 +111,8 @@ class RunRecorder:
         ``device_position`` (F, D); None unless ``record_poses``."""
         if not self.record_poses:
             return None
-        n_b = 5 * len(self.fish_ids)
+        # every fish's bodies, as many as the fish model has (none recorded yet: the paper's five)
+        n_b = len(self._pose_pos[0]) if self._pose_pos else 5 * len(self.fish_ids)
         devices = ({"device_id": np.array(list(self.device_ids)),
                     "device_position": np.array(self._device_position, dtype=np.float32).reshape(-1, len(self.device_ids))}
                    if self.device_ids else {})
@@ -164,13 +165,13 @@ def body_outlines(state: PlantState) -> dict[str, np.ndarray]:
     for k, geometry in enumerate(state.geometry):
         for i, b in enumerate(geometry.bodies):
             for (sx, hh, hw) in b.outline:
-                body.append(5 * k + i)
+                body.append(state.bodies_per_fish * k + i)
                 x.append(sx)
                 half_h.append(hh)
                 half_w.append(hw)
     return {
         "fish_id": np.array(list(state.fish_ids)),
-        "body_fish": np.repeat(np.arange(len(state.fish_ids)), 5).astype(np.int32),
+        "body_fish": np.repeat(np.arange(len(state.fish_ids)), state.bodies_per_fish).astype(np.int32),
         "section_body": np.array(body, dtype=np.int32),
         "section_x": np.array(x, dtype=np.float32),
         "section_half_height": np.array(half_h, dtype=np.float32),

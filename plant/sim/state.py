@@ -124,7 +124,8 @@ class DropAdjustment:
 @dataclass(frozen=True)
 class PlantState:
     """The plant after a communication step.  Bodies are those in the Exudyn system, fish by fish
-    (slot s holds bodies ``5 s .. 5 s + 4``, head to tail); fish are indexed in the run's order."""
+    (slot s holds bodies ``nb s .. nb s + nb - 1``, head to tail, nb = ``bodies_per_fish``); fish are indexed in the
+    run's order."""
 
     t_s: float
     fish_ids: tuple[str, ...]
@@ -134,7 +135,7 @@ class PlantState:
     member: np.ndarray
     """(n_slots,) the fish index of each fish in the system (slot)."""
     fish_of_body: np.ndarray
-    """(n_bodies,) the fish index of each body (``member`` repeated five times)."""
+    """(n_bodies,) the fish index of each body (``member`` repeated ``bodies_per_fish`` times)."""
     pos: np.ndarray
     """(n_bodies, 3) positions of the body centres [m]."""
     rot: np.ndarray
@@ -185,6 +186,11 @@ class PlantState:
                 view.setflags(write=False)
                 object.__setattr__(self, name, view)
 
+    @property
+    def bodies_per_fish(self) -> int:
+        """Bodies of every fish of the run: 5 for the paper's fish, 4 for the joined one (``plant.fish_model``)."""
+        return len(self.geometry[0].bodies) if self.geometry else 5
+
     def on_line_bodies(self) -> np.ndarray:
         """(n_bodies,) True for the bodies of fish on the line."""
         return self.status[self.fish_of_body] == FishStatus.ON_LINE
@@ -208,12 +214,13 @@ class PlantState:
         return FishState(self.t_s, x, y, z, yaw, self.status.copy())
 
     def body_poses(self) -> tuple[np.ndarray, np.ndarray]:
-        """(positions (5 n_fish, 3), rotation matrices (5 n_fish, 3, 3)) of every fish's bodies, in the
+        """(positions (nb n_fish, 3), rotation matrices (nb n_fish, 3, 3)) of every fish's bodies, in the
         run's fish order; NaN for fish not in the system (waiting or gone)."""
-        n = 5 * len(self.fish_ids)
+        nb = self.bodies_per_fish
+        n = nb * len(self.fish_ids)
         pos = np.full((n, 3), np.nan)
         rot = np.full((n, 3, 3), np.nan)
-        body_index = (5 * self.fish_of_body + np.tile(np.arange(5), len(self.member))) if len(self.member) else []
+        body_index = (nb * self.fish_of_body + np.tile(np.arange(nb), len(self.member))) if len(self.member) else []
         pos[body_index] = self.pos
         rot[body_index] = self.rot
         return pos, rot
