@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from plant.contract.parts import part_triangles
-from plant.errors import InputError
+from plant.errors import MAX_ECHO_CHARS, InputError, capped
 from plant.validation import read_toml
 
 from fishfmu.cosim.preflight import FmuDescription, check_start_values, describe_file, preflight, preflight_changes
@@ -141,6 +141,7 @@ def parse_param(text: str) -> tuple[str, list[Any]]:
     """``KEY=V1,V2,...`` or ``KEY=START:STOP:N`` (N evenly spaced values, ends included)."""
     key, eq, values = text.partition("=")
     key = key.strip()
+    text = capped(text, MAX_ECHO_CHARS)  # only echoed below: the reason must fit in a message's first 1000 characters
     if not eq or not key or not values.strip():
         raise InputError(f"--param '{text}': expected KEY=V1,V2,... or KEY=START:STOP:N")
     m = _RANGE.match(values)

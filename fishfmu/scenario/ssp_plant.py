@@ -35,14 +35,26 @@ PLANT_TABLES = ("run", "line", "fish", "plant", "kpi")
 
 
 def plant_scenario(fmu: Path) -> dict[str, Any] | None:
-    """The scenario inside a fishfmu plant FMU (its run, line, fish, plant and kpi tables); None for any other FMU."""
+    """The scenario inside a fishfmu plant FMU (its run, line, fish, plant and kpi tables); None for any other FMU,
+    a broken one included (reading it as a component then says what is wrong with it, naming the component)."""
+    try:
+        return _plant_scenario(fmu)
+    except zipfile.BadZipFile:
+        return None
+
+
+def _plant_scenario(fmu: Path) -> dict[str, Any] | None:
     with open_regular_file(fmu) as fh, zipfile.ZipFile(fh) as zf:
         check_members(fmu, zf, MAX_UNPACKED_BYTES, MAX_MEMBERS)
         names = set(zf.namelist())
         if "modelDescription.xml" not in names or SCENARIO_MEMBER not in names:
             return None
         with zf.open("modelDescription.xml") as md:
-            root = etree.fromstring(md.read(MAX_XML_BYTES), etree.XMLParser(resolve_entities=False, no_network=True))
+            try:
+                root = etree.fromstring(md.read(MAX_XML_BYTES), etree.XMLParser(resolve_entities=False,
+                                                                                 no_network=True))
+            except etree.XMLSyntaxError:
+                return None  # not a plant FMU's: the component's own reading reports it
         cs = root.find("CoSimulation")
         if cs is None or cs.get("modelIdentifier") != PLANT_MODEL:
             return None
