@@ -58,10 +58,6 @@ class Resim:
     computed them (``resimulate_many(..., residuals=True)``: in parallel, not one after the other in the parent)."""
 
 
-RESIM_STEP_S = 0.01
-"""The re-simulation's communication step (a run's, by default)."""
-
-
 def run_seed(run_id: str, seed: int = 0) -> int:
     return int.from_bytes(hashlib.sha256(f"{run_id}:{seed}".encode()).digest()[:4], "little")
 
@@ -128,11 +124,7 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
                          "conveyor of the line must be in belts.csv")
     rng = np.random.default_rng(run_seed(run.id, seed))
     fish = fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem is not None else 24.0, rng)
-    speeds_at = belt_speed_function(run.belts, [c.id for c in line.conveyors])
-    # the step from t takes the log's speed at its end, t + dt: a run's log stamps each step's speed with the step's
-    # end (read at its start it lagged a step: up to 3 cm of track and 0.01 s of throughput on a re-simulation of
-    # fishfmu's own reject_doubles run); a real log's instant sample there is as near the step's middle as at its start
-    speed_fn = lambda t: speeds_at(t + RESIM_STEP_S)  # noqa: E731
+    speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
     loads: list[tuple] = []
 
     def log_loads(plant) -> None:
@@ -142,8 +134,8 @@ def resimulate(line: Line, run: Run, params: PlantParams | None = None, seed: in
 
     commands = (command_schedule(run.device_commands, tuple(d.id for d in line.devices))
                 if run.device_commands is not None else None)
-    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params, comm_step_s=RESIM_STEP_S,
-                         stop_when_clear=True, on_step=log_loads, record_poses=record_poses, device_commands=commands)
+    sim = simulate_plant(line, fish, speed_fn, duration_s, params=params, stop_when_clear=True, on_step=log_loads,
+                         record_poses=record_poses, device_commands=commands)
     return Resim(run.id, sim, pd.DataFrame(loads, columns=["t_s", "conveyor_id", "load_force_n", "load_mass_kg"]))
 
 
