@@ -209,7 +209,10 @@ def test_after_a_reset_the_open_page_loads_the_new_run_shows_a_pause_and_says_wh
                     break
             assert time.monotonic() < deadline, "the open page did not load the run after reset()"
             time.sleep(0.1)
-        assert page.eval("document.getElementById('status').textContent").startswith("running · t = 0.00 s")
+        # the status line is written when the loaded page draws its first frame, a moment after the frame is there
+        while not page.eval("document.getElementById('status').textContent").startswith("running · t = 0.00 s"):
+            assert time.monotonic() < deadline + 60, "the reloaded page did not show the new run's status"
+            time.sleep(0.1)
         asyncio.run(_call(url, proc, "pause"))  # no step follows: the state alone must reach the page
         while not page.eval("document.getElementById('status').textContent").startswith("paused · t = 0.00 s"):
             assert time.monotonic() < deadline + 60, "the page did not show the pause"
