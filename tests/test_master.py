@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from plant.errors import InputError, SimulationError
@@ -83,7 +84,8 @@ class FakePlant:
         self.received.append(dict(speeds))
         out = PlantOutputs(len(self.received) * DT, dict(speeds), {c: 0.5 * v for c, v in speeds.items()},
                            {c: 0.0 for c in speeds}, {"pe1": speeds["c1"] > 1.0})
-        self.state = SimpleNamespace(outputs=out)  # what the master hands the energy watch
+        # what the master hands its step observers (the energy watch, the fish counts): no fish
+        self.state = SimpleNamespace(outputs=out, status=np.zeros(0, dtype=np.int8))
         return out
 
     def speeds(self, conveyor: str = "c1") -> list[float]:
@@ -96,6 +98,9 @@ class WatchStub:
     def __init__(self, log: list[str]) -> None:
         self.log = log
         self.calls: list[tuple[dict, dict, float]] = []
+
+    def after_step(self, state, outputs, dt: float) -> None:
+        self.check(state, dt)
 
     def check(self, state, dt: float) -> None:
         self.log.append("watch")

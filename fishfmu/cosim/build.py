@@ -147,7 +147,7 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
             fmus = instantiate(sc, checked_scenario.opened, stack)
             cosim = CoSimulation(plant, ports, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event,
                                  sc.run.comm_step_s, jacobi=sc.run.coupling == "jacobi", recorder=recorder,
-                                 clock=clock)
+                                 clock=clock, outfeed=sc.kpi.outfeed_photoeye)
         except SimulationError as exc:
             raise BuildFailed(exc, plant, recorder) from exc
         yield cosim

@@ -5,8 +5,10 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 1. apply the scenario's events due at t (override, bias or reset a variable);
 2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
    its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
-3. set the belt speeds and device commands from their sources and step the plant; check that the fish gained no
-   energy without a source (:mod:`plant.sim.health`: a blow-up stops the run within this step);
+3. set the belt speeds and device commands from their sources and step the plant; hand its published state to the
+   step observers (:mod:`plant.sim.observers`), the same a run of the plant alone and the plant FMU attach: the
+   energy watch (:mod:`plant.sim.health`: a blow-up stops the run within this step), the fish counts, then any
+   ``observers`` attached;
 4. record every connected signal at t + dt (and the run in the measured-data format).
 
 An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
@@ -34,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import SimulationError
-from plant.sim.health import EnergyWatch
+from plant.sim.observers import StepObserver, notify, plant_watches
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
 from plant.sim.recorder import RunRecorder
@@ -109,6 +111,10 @@ class CoSimulation:
     signal_names: list[str] = field(default_factory=list)
     steps: int = 0
     clock: StageClock = NO_CLOCK
+    outfeed: str | None = None
+    """The outfeed photo-eye whose blocked edges the fish counts count (``outfeed_count``)."""
+    observers: list[StepObserver] = field(default_factory=list)
+    """Step observers attached after the energy watch and the fish counts (:mod:`plant.sim.observers`)."""
 
     def __post_init__(self) -> None:
         self._inputs_of = {name: self.wiring.into(name) for name in list(self.fmus) + [PLANT]}
@@ -123,7 +129,7 @@ class CoSimulation:
         self.signal_names = signal_names(self.wiring)
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
-        self.energy_watch = EnergyWatch()
+        self.energy_watch, self.fish_counts = plant_watches(self.outfeed)
         # the constant inputs' values now: an external input (OPC UA) changes them between steps
         self.constants = dict(self.wiring.constants)
         self._constants_of = {name: [(key, key.partition(".")[2]) for key in self.wiring.constants
@@ -160,8 +166,8 @@ class CoSimulation:
         lap("belt_speeds")
         out = self.plant.step(speeds, commands)
         lap("plant")
-        self.energy_watch.check(self.plant.state, dt)
-        lap("energy_check")
+        notify((self.energy_watch, self.fish_counts, *self.observers), self.plant.state, out, dt)
+        lap("energy_check")  # the step observers: the energy watch, the fish counts and any attached
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1

@@ -20,6 +20,9 @@ Variables (the plant's ports as declared in :mod:`plant.sim.ports`, named as in 
 * parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
   the batch is sampled from them as ``fishfmu run`` samples it).
 
+After each plant step it checks what a run checks (:func:`plant.sim.observers.plant_watches`): the energy watch
+(a blow-up is a stop: that doStep returns fmi2Discard and the steps after it are refused) and the fish counts.
+
 A ``doStep`` of h advances the plant h / ``run.comm_step_s`` steps with the belt speeds last set (h must be a
 whole multiple of the scenario's communication step, at most :data:`MAX_STEP_S`).
 
@@ -43,13 +46,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import tomli_w
 from pydantic import BaseModel
 
 from plant.contract.parts import part_triangles, read_stl_bytes
 from plant.errors import InputError, SimulationError, one_line
-from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING, Plant
+from plant.sim.observers import notify, plant_watches
+from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts, signal_of
 from plant.contract.plausibility import MAX_BELT_SPEED_MPS
 from plant.fish.population import PopulationSpec
@@ -126,6 +129,8 @@ class PlantInFmu:
     error log) and refused."""
 
     counts = ("fish_dropped", "fish_on_line", "fish_left", "fish_rejected", "outfeed_count")
+    """The fish counts it exports: those of :class:`plant.sim.observers.FishCounts` (``serve`` shows
+    ``fish_waiting`` where this has ``fish_dropped``: the batch's count less it)."""
 
     def __init__(self, scenario_file: Path, report: Callable[[str], None]) -> None:
         self.report = report
@@ -153,7 +158,8 @@ class PlantInFmu:
         self.failure: str | None = None
         """Why the plant could not be built or stopped: the doSteps after it are refused."""
         self.plant: Plant | None = None
-        self._was_blocked = False
+        self.watches: tuple = ()
+        """The step observers attached as a run attaches them (:func:`plant.sim.observers.plant_watches`)."""
 
     def getter(self, name: str):  # noqa: ANN201 - pythonfmu takes any callable
         return lambda: self.values[name]
@@ -202,6 +208,7 @@ class PlantInFmu:
         try:
             sc.run.seed, sc.fish.count = self.values["seed"], self.values["fish_count"]
             self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
+            self.watches = plant_watches(self.outfeed)
         except (InputError, SimulationError) as exc:
             self.failure = (f"the plant could not be built with seed = {self.values['seed']} and "
                             f"fish_count = {self.values['fish_count']}: {exc}")
@@ -246,18 +253,13 @@ class PlantInFmu:
         commands = {d: bool(self.values[f"{d}.command"]) for d in self.device_ids}
         for _ in range(n_steps):
             out = self.plant.step(speeds, commands)
+            # as in a run: the energy watch stops a blow-up (fmi2Discard, the steps after refused), then the counts
+            notify(self.watches, self.plant.state, out, self.comm_step_s)
             for port, v in out.port_values().items():
                 if port in self.plant_outputs:
                     self.values[port] = v
-            blocked = out.photoeyes[self.outfeed]
-            if blocked and not self._was_blocked:
-                self.values["outfeed_count"] += 1
-            self._was_blocked = blocked
-        status = self.plant.state.status
-        self.values["fish_dropped"] = int(np.count_nonzero(status != WAITING))
-        self.values["fish_on_line"] = int(np.count_nonzero(status == ON_LINE))
-        self.values["fish_left"] = int(np.count_nonzero(status == LEFT))
-        self.values["fish_rejected"] = int(np.count_nonzero(status == REJECTED))
+        counted = self.watches[1].values
+        self.values.update((name, counted[name]) for name in self.counts)
 
 
 def export_plant_fmu(scenario: Scenario, folder: Path) -> Path:

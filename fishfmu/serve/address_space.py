@@ -18,10 +18,7 @@ from datetime import datetime, timezone
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-import numpy as np
 from asyncua import ua
-
-from plant.sim.plant import LEFT, ON_LINE, REJECTED, WAITING
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
@@ -31,8 +28,9 @@ from fishfmu.serve.options import realtime_problem
 from fishfmu.serve.status import InvalidState
 
 UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
-_FISH_COUNTS = {"fishfmu.fish_waiting": WAITING, "fishfmu.fish_on_line": ON_LINE, "fishfmu.fish_left": LEFT,
-                "fishfmu.fish_rejected": REJECTED}
+_FISH_COUNTS = ("fish_waiting", "fish_on_line", "fish_left", "fish_rejected")
+"""The fish counts served (``fishfmu.<name>``), as the run's step observer counts them
+(:class:`plant.sim.observers.FishCounts`)."""
 
 _VARIANT_TYPES = {"Real": (ua.VariantType.Double, 0.0), "Integer": (ua.VariantType.Int32, 0),
                   "Enumeration": (ua.VariantType.Int32, 0), "Boolean": (ua.VariantType.Boolean, False),
@@ -167,8 +165,11 @@ def shown_values(c: CoSimulation | None, state: str, names: list[str], served: l
         row = c.signals[-1][1:] if c.signals else [c.values.get(k, c.constants.get(k)) for k in names]
         values.update(zip(names, row))
         values.update((k, c.values.get(k)) for k in served[len(names):])
-        status = c.plant.state.status
-        values.update((k, int(np.count_nonzero(status == s))) for k, s in _FISH_COUNTS.items())
+        if c.steps:
+            values.update((f"fishfmu.{k}", c.fish_counts.values[k]) for k in _FISH_COUNTS)
+        else:  # before the first step no observer has counted: the whole batch waits
+            values.update((f"fishfmu.{k}", len(c.plant.state.status) if k == "fish_waiting" else 0)
+                          for k in _FISH_COUNTS)
     return values
 
 

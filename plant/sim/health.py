@@ -221,6 +221,10 @@ class EnergyWatch:
             return 0.0
         return float(np.abs(np.einsum("ij,ij->i", force, vel)).sum())
 
+    def after_step(self, state: PlantState, outputs: object, dt_s: float) -> None:
+        """As a step observer (:mod:`plant.sim.observers`): :meth:`check` after each step."""
+        self.check(state, dt_s)
+
     def check(self, state: PlantState, dt_s: float) -> None:
         """Call after each plant step of ``dt_s`` with the state it published (its outputs: the step's belt
         speeds and loads); raises SimulationError on energy from nowhere."""

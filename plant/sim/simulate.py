@@ -2,7 +2,8 @@
 
 Used to test the physics, to re-simulate measured runs with their logged belt speeds, and as
 the inner loop of the co-simulation's plant.  The co-simulation master has its own loop
-(fishfmu.cosim.master) but records through the same :class:`plant.sim.recorder.RunRecorder`.
+(fishfmu.cosim.master) but records through the same :class:`plant.sim.recorder.RunRecorder` and attaches the
+same step observers (:mod:`plant.sim.observers`).
 """
 
 from __future__ import annotations
@@ -16,10 +17,10 @@ import pandas as pd
 
 from plant.contract.line import Line
 from plant.sim.params import PlantParams
-from plant.sim.health import EnergyWatch
 from plant.sim.plant import Plant
 from plant.contract.measured import fish_to_frame
 from plant.fish.population import FishSpec
+from plant.sim.observers import StepObserver, notify, plant_watches
 from plant.sim.recorder import RunRecorder, pose_record
 from plant.sim.ports import PlantPorts
 from plant.sim.state import DropAdjustment, FishStatus
@@ -121,13 +122,16 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
                    params: PlantParams | None = None, comm_step_s: float = 0.01, stop_when_clear: bool = True,
                    clear_margin_s: float = 1.0, joint_factors: list[tuple[float, float]] | None = None,
                    on_step: Callable[[Plant], None] | None = None, record_poses: bool = False,
-                   device_commands: DeviceCommands | None = None) -> SimulatedRun:
+                   device_commands: DeviceCommands | None = None,
+                   observers: list[StepObserver] | None = None) -> SimulatedRun:
     """Simulate up to ``duration_s``; with ``stop_when_clear`` stop ``clear_margin_s`` after every
     fish has been dropped and has left the line.  ``device_commands``: the devices' commands at each step's start
     (None: every device stays home).  ``record_poses``: also keep every body's pose at
-    25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory)."""
+    25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory).  ``observers``:
+    attached after :func:`plant.sim.observers.plant_watches` (the energy watch, the fish counts), called after
+    every step (:mod:`plant.sim.observers`)."""
     plant = Plant(line, fish, params, comm_step_s, joint_factors)
-    energy = EnergyWatch()
+    watching = [*plant_watches(), *(observers or [])]
     ports = PlantPorts.of(line)
     rec = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids), comm_step_s,
                       ports.device_ids, record_poses=record_poses)
@@ -139,7 +143,7 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
                                                                                                        False)
         out = plant.step(speeds, commands)
         state = plant.state
-        energy.check(state, comm_step_s)  # a blow-up stops here, as in a co-simulation
+        notify(watching, state, out, comm_step_s)  # a blow-up stops here, as in a co-simulation
         rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
                    state.body_poses if record_poses else None, state.detections, state.rejected_by,
                    state.device_position, commands)
