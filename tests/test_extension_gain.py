@@ -162,3 +162,46 @@ def test_droop_in_the_data_s_terms_counts_the_loss_that_follows_the_force_as_wel
     # against the mass carried: 1 mm/s per N x 3 N per kg (the sample's own slope of force on mass, about 3)
     slope = np.polyfit(ctx.drive["load_mass_kg"], ctx.drive["load_force_n"], 1)[0]
     assert fit.values["speed_lost_per_kg[c1]"] == pytest.approx(0.001 * slope, rel=1e-6)
+
+
+def test_mucus_is_fitted_by_simulating_the_extended_plant_and_says_where_its_search_ended(monkeypatch):
+    """Mucus's extension is fitted on simulations of the extended plant (issue 40), not on interpolated level
+    responses.  Stand-in simulations whose lag error is the squared difference between the simulated friction factor
+    and a hidden one (x(1 + 5 (1 - e^(-h / 96 h)))): the search must find tau 96 h, search the rise by 48 h
+    again there, say that tau is at the highest value searched, and carry over to held-out runs."""
+    from fishfmu.analysis.causes import mucus
+
+    hours = {f"r{i}": h for i, h in enumerate((1.0, 3.0, 6.0, 12.0, 24.0, 36.0, 48.0, 72.0), start=1)}
+
+    def factor(h: float, gain: float, tau: float) -> float:
+        return 1.0 + gain * (1.0 - np.exp(-h / tau))
+
+    def residual(run_id: str, gain: float, tau: float) -> SimpleNamespace:
+        e = (factor(hours[run_id], gain, tau) - factor(hours[run_id], 5.0, 96.0)) ** 2
+        return SimpleNamespace(run_id=run_id, error=None, squares=lambda group, e=e: (e, 4))
+
+    simulated: list[tuple[float, float]] = []
+
+    def resimulate_many(line, runs, params, **kw):
+        simulated.extend((p.extensions.mucus_friction.gain, p.extensions.mucus_friction.time_constant_h)
+                         for p in params)
+        return [(r.id, p) for r, p in zip(runs, params)]
+
+    def residuals_of(sub, sims):
+        return [residual(rid, p.extensions.mucus_friction.gain, p.extensions.mucus_friction.time_constant_h)
+                for rid, p in sims]
+
+    monkeypatch.setattr(mucus, "resimulate_many", resimulate_many)
+    monkeypatch.setattr(mucus, "residuals_of", residuals_of)
+    runs = [SimpleNamespace(id=r) for r in hours]
+    dataset = SimpleNamespace(runs=runs, line=None, subset=lambda rs: rs)
+    cal = SimpleNamespace(params=PlantParams(), after=[residual(r, 0.0, 24.0) for r in hours], fit_runs=list(hours))
+    ctx = SimpleNamespace(dataset=dataset, cal=cal, pool=None, rng=np.random.default_rng(0), say=lambda s: None)
+    fit = mucus.CANDIDATE.fit(mucus.CANDIDATE, ctx)
+    print(sorted(set(simulated)), fit.values, fit.at_grid_end)
+    assert fit.values["time_constant_h"] == 96.0
+    # x(1 + 2) by 48 h at 96 h (1, 2 and the bound 8 simulated there): the nearest the hidden x(1 + 1.97)
+    assert fit.values["gain"] == pytest.approx(2.0 / (1.0 - np.exp(-0.5)))
+    assert max(g for g, _ in simulated) == 8.0 and "gain" not in fit.at_grid_end
+    assert "time_constant_h" in fit.at_grid_end and "highest" in fit.at_grid_end["time_constant_h"]
+    assert fit.heldout_gain > 0.5 and fit.heldout_gain_ci95[0] > 0.0 and fit.confirmed

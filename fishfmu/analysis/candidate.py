@@ -39,10 +39,10 @@ class Terms:
     setpoint_mps: dict[str, float]
 
 
-Group = Literal["transfers", "pairs"] | None
+Group = Literal["alone", "transfers", "pairs"] | None
 """Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.residuals.RunResiduals.squares`):
-None all (lags of fish alone and pairs), ``transfers`` lags of fish alone after a transfer, ``pairs`` the
-extra separation of close pairs."""
+None all (lags of fish alone and pairs), ``alone`` lags of fish alone (the first belt's is the drop's), ``transfers``
+lags of fish alone after a transfer, ``pairs`` the extra separation of close pairs."""
 
 
 @dataclass(frozen=True)
