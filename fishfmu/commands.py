@@ -380,15 +380,22 @@ def _analysis_into(command: str, dataset: Path, out: str | Path, scenario_file: 
 
 def diagnose(dataset: str | Path, out: str | Path, scenario_file: str | Path | None = None,
              workers: int | None = None, overwrite: bool = False,
-             progress: Callable[[str], None] | None = None, calibrate: bool = True) -> DiagnoseOutcome:
-    """Name the cause of what the simulation gets wrong on ``dataset``, fit it, measure the held-out gain."""
+             progress: Callable[[str], None] | None = None, calibrate: bool = True,
+             without: tuple[str, ...] = ()) -> DiagnoseOutcome:
+    """Name the causes of what the simulation gets wrong on ``dataset`` (or say that it fits, or where an unexplained
+    discrepancy is), fit them, measure the held-out gain. ``without``: candidate causes left out."""
     # loaded by the commands that use it only: `fishfmu run` starts ~0.3 s sooner without the analysis and Dask
     from fishfmu.analysis.diagnose import diagnose as diagnose_dataset
     # slow (matplotlib, about 0.5 s) and needed only here: the other commands start without it
     from fishfmu.analysis.diagnose_report import write_diagnosis
+    from fishfmu.analysis.candidates import CANDIDATES
+    unknown = [w for w in without if w not in CANDIDATES]
+    if unknown:  # before the output folder exists: bad input writes nothing
+        raise InputError(f"--without {unknown[0]}: no such candidate cause (known: {', '.join(CANDIDATES)})")
     d, _, paths, out_dir = _analysis_into(
         "diagnose", Path(dataset), out, Path(scenario_file) if scenario_file is not None else None, overwrite,
-        lambda ds, params: diagnose_dataset(ds, params, workers, progress=progress, calibrate=calibrate),
+        lambda ds, params: diagnose_dataset(ds, params, workers, progress=progress, calibrate=calibrate,
+                                            without=without),
         lambda d, params, folder: write_diagnosis(d, folder))
     return DiagnoseOutcome(d, paths, out_dir)
 

@@ -34,7 +34,7 @@ def _diagnosis(gain: float, ci95: tuple[float, float]) -> Diagnosis:
                          heldout_gain_ci95=(0.1, 0.3), explained=0.2, p_value=0.001, shape="cos(heading)",
                          slope=-0.02, effect=0.04)
     cal = _calibration()
-    return Diagnosis("directional_friction", Judgement([test], "directional_friction"), fit,
+    return Diagnosis(["directional_friction"], Judgement([test], ["directional_friction"]), fit,
                      _fragment(cal, PlantParams(), fit), {}, {}, {}, [], pd.DataFrame(), None, pd.DataFrame())
 
 

@@ -87,6 +87,9 @@ class Candidate:
     stiffness at the peak, speed lost per 10 kg ...), what a process engineer and a benchmark's truth compare."""
     primary: str = ""
     """The one of ``terms`` that says how strong the cause is (what parameter recovery is judged on)."""
+    explains: tuple[tuple[str, str], ...] = ()
+    """The (table, covariate) pairs of the unexplained-discrepancy scan (:mod:`fishfmu.analysis.scan`) this cause
+    accounts for: left out of the scan once it is named, and where its rivals are looked for."""
 
     def __post_init__(self) -> None:
         if len(self.groups) != len(self.parameters):

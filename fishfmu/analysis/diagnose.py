@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,8 +36,9 @@ from fishfmu.analysis.candidates import CANDIDATES, fragment
 from fishfmu.analysis.extension_fit import MIN_GAIN, NOT_CONFIRMED, CandidateFit, FitContext  # noqa: F401 (MIN_GAIN: the report reads it here)
 from fishfmu.analysis.levels import FRICTION, RIGOR, run_levels
 from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
-                                        drop_lags)
-from fishfmu.analysis.resim import Resim, drive_check, pool_for, refuse_unreplayed
+                                        drop_lags, residuals_of)
+from fishfmu.analysis.resim import Resim, drive_check, pool_for, refuse_unreplayed, resimulate_many
+from fishfmu.analysis.scan import Scan, base_mismatch, fit_quality, scan, scan_tables, tracker_noise_m
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
 DECISION_RULE = (f"a candidate is significant when its covariate test's p-value is at most {ALPHA:g} (its quantity "
@@ -60,11 +62,13 @@ def drive_table(dataset: Dataset, resims: list[Resim], parameters: dict[str, flo
 
 @dataclass
 class Diagnosis:
-    cause: str
+    causes: list[str]
+    """The named causes, strongest first (empty: none): the first significant candidate by its signature, each
+    further one only if its extension beats, on held-out runs, the model extended with the ones before it."""
     judgement: Judgement
     """Every candidate's covariate test (:mod:`fishfmu.analysis.signatures`): what named the cause."""
     fit: CandidateFit | None
-    """The named cause's model fitted on the calibrated model (None for ``none``)."""
+    """The first named cause's model fitted on the calibrated model (None for ``none``)."""
     fragment: str
     base_rms_m: dict[str, float]
     """Track RMS per run with the model as given (runs not re-simulated with it: NaN)."""
@@ -80,11 +84,49 @@ class Diagnosis:
     drop_lags: pd.DataFrame = field(default_factory=pd.DataFrame)
     """Per run, the median time a fish dropped alone has lost to the infeed (:func:`drop_lag_table`)."""
     terms: dict[str, float] = field(default_factory=dict)
-    """The named cause's fitted values in its own physical terms (:attr:`~fishfmu.analysis.candidate.Candidate.terms`)."""
+    """The first named cause's fitted values in its own physical terms
+    (:attr:`~fishfmu.analysis.candidate.Candidate.terms`)."""
+    further: list[CandidateFit] = field(default_factory=list)
+    """Every further significant candidate's extension, fitted on the model extended with the causes before it
+    (named when confirmed)."""
+    further_terms: dict[str, dict[str, float]] = field(default_factory=dict)
+    scan: Scan | None = None
+    """The unexplained-discrepancy scan (:mod:`fishfmu.analysis.scan`): what the data follow that no named cause
+    explains."""
+    rivals: dict[str, str] = field(default_factory=dict)
+    """Significant candidates not named because the scan found a dependence that explains their quantity better
+    at their location: candidate -> the finding."""
+    mismatch: dict = field(default_factory=dict)
+    """The calibrated model's mismatch shared by every fish (:func:`fishfmu.analysis.scan.base_mismatch`)."""
+    quality: dict = field(default_factory=dict)
+    """How well the model fits, against the tracker's own noise (:func:`fishfmu.analysis.scan.fit_quality`)."""
+
+    @property
+    def unexplained(self) -> list:
+        return self.scan.findings if self.scan is not None else []
+
+    @property
+    def answer(self) -> str:
+        """``named`` (at least one cause; unexplained findings may stand beside it), ``unexplained`` (none named, a
+        dependence found that no candidate explains) or ``fits`` (neither: the model fits these runs)."""
+        if self.causes:
+            return "named"
+        return "unexplained" if self.unexplained else "fits"
+
+    @property
+    def cause(self) -> str:
+        """The named causes joined by ``+``, or ``none``."""
+        return "+".join(self.causes) if self.causes else "none"
 
     @property
     def fits(self) -> list[CandidateFit]:
-        return [self.fit] if self.fit is not None else []
+        return ([self.fit] if self.fit is not None else []) + self.further
+
+    @property
+    def not_named(self) -> list[str]:
+        """Candidates significant by their signature but not named: their extension did not beat, on held-out runs,
+        the model extended with the causes named before them."""
+        return [f.name for f in self.further if f.name not in self.causes]
 
     @property
     def extension(self) -> str:
@@ -97,13 +139,19 @@ class Diagnosis:
 
 
 def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | None = None, seed: int = 0,
-             progress: Callable[[str], None] | None = None, calibrate: bool = True) -> Diagnosis:
+             progress: Callable[[str], None] | None = None, calibrate: bool = True,
+             without: tuple[str, ...] = ()) -> Diagnosis:
     """Name the cause of the discrepancy between the model and the dataset (see the module docstring).
     ``calibrate``: first fit the base model's constants to the dataset (:mod:`fishfmu.analysis.calibrate`); off
-    when the base is known to be right (data made by this simulator)."""
+    when the base is known to be right (data made by this simulator). ``without``: candidates switched off (a
+    cause known not to apply, or the benchmark's open-set check)."""
     refuse_unreplayed(dataset, "diagnose")  # devices it cannot fire: not a fit of the line
+    unknown = sorted(set(without) - set(CANDIDATES))
+    if unknown:
+        raise ValueError(f"--without: no candidate cause named {', '.join(unknown)} (known: {', '.join(CANDIDATES)})")
     with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
-        return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate)
+        return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate,
+                         tuple(without))
 
 
 def simulated_dataset(dataset: Dataset, sims: list[Resim]) -> Dataset:
@@ -115,7 +163,7 @@ def simulated_dataset(dataset: Dataset, sims: list[Resim]) -> Dataset:
 
 
 def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callable[[str], None],
-              calibrate: bool = True) -> Diagnosis:
+              calibrate: bool = True, without: tuple[str, ...] = ()) -> Diagnosis:
     rng = np.random.default_rng(seed)
     timing: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -123,20 +171,57 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
                               heldout_before=False)
     timing["calibration"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    judgement = judge(dataset, rng, simulated_dataset(dataset, cal.sims_after))
+    judgement = judge(dataset, rng, simulated_dataset(dataset, cal.sims_after), without)
     timing["judgement"] = time.perf_counter() - t1
     for t in judgement.tests:
         say(f"{t.candidate}: " + (f"p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.1%}, effect {t.effect:.3g}"
                                   if t.judged else t.note))
     t1 = time.perf_counter()
     drive = drive_table(dataset, cal.sims_after)
-    fit = _fit_cause(judgement.cause, FitContext(dataset, cal, drive, pool, rng, say))
+    t1 = time.perf_counter()
+    tables = scan_tables(dataset, judgement.rows, cal.after)
+    scan_rng = np.random.default_rng((seed, 41))  # its own stream: the fits draw what they drew before the scan
+    explained = {pair for c in judgement.causes for pair in CANDIDATES[c].explains}
+    found = scan(tables, scan_rng, explained, ALPHA)
+    rivals = _rivals(judgement, found)
+    significant_causes = [c for c in judgement.causes if c not in rivals]
+    if rivals:  # a rival's quantity is no longer explained: scanned again without the candidate beaten
+        explained = {pair for c in significant_causes for pair in CANDIDATES[c].explains}
+        found = scan(tables, np.random.default_rng((seed, 41)), explained, ALPHA)
+    for c, why in rivals.items():
+        say(f"{c}: not named, {why}")
+    for f in found.findings:
+        say(f"unexplained: {f.text}")
+    timing["scan"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    ctx = FitContext(dataset, cal, drive, pool, rng, say)
+    fit = _fit_cause(significant_causes[0], ctx) if significant_causes else None
+    further = _fit_further(significant_causes[1:], fit, ctx)
+    causes = significant_causes[:1] + [f.name for f in further if f.confirmed]
     timing["fit"] = time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
-    return Diagnosis(judgement.cause, judgement, fit, _fragment(cal, base, fit),
+    fragment = _fragment(cal, base, fit) + "".join(_further_fragment(f, cal) for f in further)
+    return Diagnosis(causes, judgement, fit, fragment,
                      {b.run_id: b.track_rms_m for b in cal.baseline}, {b.run_id: b.track_rms_m for b in cal.after},
                      timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset),
-                     _terms(fit, cal, dataset))
+                     _terms(fit, cal, dataset), further, {f.name: _terms(f, cal, dataset) for f in further}, found,
+                     rivals, base_mismatch(tables, np.random.default_rng((seed, 42))),
+                     fit_quality(tables, tracker_noise_m(dataset)))
+
+
+def _rivals(judgement: Judgement, found: Scan) -> dict[str, str]:
+    """Significant candidates the scan beats at their location: a dependence of the same quantity on a covariate no
+    candidate stands for, explaining more of it than the candidate's own term (the issue's rule: a candidate must
+    beat the best alternative at its location, not only the constant)."""
+    tests = {t.candidate: t for t in judgement.tests}
+    out = {}
+    for c in judgement.causes:
+        tables = {table for table, _ in CANDIDATES[c].explains}
+        for f in found.findings:
+            if f.table in tables and f.test.explained > tests[c].explained:
+                out[c] = f"{f.text} explains its quantity better ({f.test.explained:.1%} against {tests[c].explained:.1%})"
+                break
+    return out
 
 
 def _fit_cause(cause: str, ctx: FitContext) -> CandidateFit | None:
@@ -146,6 +231,57 @@ def _fit_cause(cause: str, ctx: FitContext) -> CandidateFit | None:
     cand = CANDIDATES[cause]
     ctx.say(f"fitting {cause} on the calibrated model")
     return cand.fit(cand, ctx)
+
+
+def _fit_further(names: list[str], first: CandidateFit | None, ctx: FitContext) -> list[CandidateFit]:
+    """Each further significant candidate fitted on the calibrated model extended with every cause before it whose
+    extension was confirmed (the runs re-simulated with that model first, so its gain is not counted twice)."""
+    out: list[CandidateFit] = []
+    applied = [first] if first is not None and first.confirmed else []
+    for name in names:
+        sub = _extended_context(ctx, applied) if applied else ctx
+        ctx.say(f"fitting {name} on the calibrated model" + (f" extended with {', '.join(f.name for f in applied)}"
+                                                             if applied else ""))
+        cand = CANDIDATES[name]
+        fit = cand.fit(cand, sub)
+        out.append(fit)
+        if fit.confirmed:
+            applied.append(fit)
+    return out
+
+
+def extended_params(cal: Calibration, fits: list[CandidateFit]) -> PlantParams:
+    """The calibrated model with the plant extensions of ``fits`` set (drive and sensor ones leave it unchanged)."""
+    p = cal.params
+    for f in fits:
+        cand = CANDIDATES[f.name]
+        if cand.acts_on == "plant" and f.values:
+            p = cand.params(p, *[f.values[k] for k in cand.parameters if k in f.values])
+    return p
+
+
+def _extended_context(ctx: FitContext, fits: list[CandidateFit]) -> FitContext:
+    """The fitting context with the calibrated model replaced by it extended with ``fits``: every run re-simulated
+    with it, so a further cause is judged against what the ones before it already explain."""
+    params = extended_params(ctx.cal, fits)
+    if params == ctx.cal.params:  # nothing simulated changes (drive causes): the residuals stay
+        return ctx
+    runs = ctx.dataset.runs
+    sims = resimulate_many(ctx.dataset.line, runs, [params] * len(runs), pool=ctx.pool, workers=1, residuals=True)
+    after = residuals_of(ctx.dataset, sims)
+    cal = dataclasses.replace(ctx.cal, params=params, after=after, sims_after=sims)
+    return dataclasses.replace(ctx, cal=cal)
+
+
+def _further_fragment(fit: CandidateFit, cal: Calibration) -> str:
+    """A further cause's extension as scenario lines (its own values only; comments when not confirmed)."""
+    text = CANDIDATES[fit.name].fragment(fit.values, cal.params) if fit.values else ""
+    if fit.confirmed:
+        return text
+    lo, hi = fit.heldout_gain_ci95
+    return (f"# {fit.name}: significant by its signature, its extension not confirmed on top of the causes before it "
+            f"(held-out gain {fit.heldout_gain:.1%}, 95 % interval {lo:.1%} to {hi:.1%}); not applied:\n"
+            + "".join(line if line.startswith("#") else f"# {line}" for line in text.splitlines(keepends=True)))
 
 
 def drop_lag_table(dataset: Dataset) -> pd.DataFrame:

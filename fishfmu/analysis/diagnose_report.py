@@ -47,16 +47,47 @@ def extension_text(d: Diagnosis) -> str:
 
 
 def decision_text(d: Diagnosis) -> str:
+    """The answer in words: the causes named, or that the model fits these runs (and how well), or the unexplained
+    discrepancy (where, what it follows, how large) -- never one for another."""
     j = d.judgement
-    if d.cause == "none":
-        return ("No candidate's quantity follows its covariate clearly (p-value at most {:g} and better than the "
-                "constant on held-out runs): no significant discrepancy was found.".format(ALPHA)
-                + ("".join(f" Cannot decide {u}." for u in j.undecided)))
-    t = next(t for t in j.tests if t.candidate == d.cause)
-    text = (f"{d.cause}: {CANDIDATES[d.cause].description}. Its signature: {t.quantity} follows {t.covariate} "
-            f"({t.shape}; p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.1%} [{t.heldout_gain_ci95[0]:.1%}, "
-            f"{t.heldout_gain_ci95[1]:.1%}]).")
-    return text + (" " + fit_text(d.fit) if d.fit is not None else "")
+    parts = []
+    if d.causes:
+        for name in d.causes:
+            t = next(t for t in j.tests if t.candidate == name)
+            f = next((f for f in d.fits if f.name == name), None)
+            parts.append(f"{name}: {CANDIDATES[name].description}. Its signature: {t.quantity} follows {t.covariate} "
+                         f"({t.shape}; p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.1%} "
+                         f"[{t.heldout_gain_ci95[0]:.1%}, {t.heldout_gain_ci95[1]:.1%}]).")
+            if f is not None:
+                parts.append(fit_text(f))
+    for f in d.further:
+        if f.name not in d.causes:
+            parts.append(f"{f.name} is significant by its signature, but its extension does not beat the model "
+                         f"extended with {', '.join(d.causes) or 'the causes before it'} on held-out runs (gain "
+                         f"{f.heldout_gain:.1%} [{f.heldout_gain_ci95[0]:.1%}, {f.heldout_gain_ci95[1]:.1%}]): not named.")
+    for name, why in d.rivals.items():
+        parts.append(f"{name} is significant by its signature, but not named: {why}.")
+    if d.unexplained:
+        parts.append(("Beside the named causes, an" if d.causes else "No candidate explains the data, but an")
+                     + " unexplained discrepancy: " + "; ".join(f.text for f in d.unexplained) + ".")
+    if not d.causes and not d.unexplained:
+        parts.append("The model fits these runs: no candidate's quantity follows its covariate clearly (p-value at "
+                     f"most {ALPHA:g} and better than the constant on held-out runs), and nothing the data carry "
+                     "follows any covariate beyond what the model predicts (the unexplained-discrepancy scan)."
+                     + quality_text(d))
+        parts.extend(f"Cannot decide {u}." for u in j.undecided)
+    if d.judgement.left_out:
+        parts.append(f"Left out (--without): {', '.join(d.judgement.left_out)}.")
+    return " ".join(parts)
+
+
+def quality_text(d: Diagnosis) -> str:
+    q = d.quality
+    if not q:
+        return ""
+    return (f" The lags of fish alone across transfers differ from the model by {100 * q['lag_rms_m']:.1f} cm RMS "
+            f"beyond each transfer's constant, {q['ratio']:.1f} times what the tracker's own noise "
+            f"({1e3 * q['tracker_noise_m']:.1f} mm) makes of a lag.")
 
 
 def candidate_lines(d: Diagnosis) -> list[str]:
@@ -88,7 +119,19 @@ def diagnosis_document(d: Diagnosis) -> dict:
     after_rms = [v for v in d.after_rms_m.values() if v == v]
     ranked = sorted(d.judgement.tests, key=lambda t: (np.nan_to_num(t.p_value, nan=2.0), -t.heldout_gain_ci95[0]))
     return {
+        "answer": d.answer,
+        "causes": d.causes,
         "cause": d.cause,
+        "left_out": d.judgement.left_out,
+        "unexplained": [x.as_dict() for x in d.unexplained],
+        "not_named": {**{f.name: "extension not confirmed on top of the causes before it" for f in d.further
+                         if f.name not in d.causes}, **d.rivals},
+        "further": [{"name": f.name, "values": f.values, "ci95": {k: list(v) for k, v in f.ci95.items()},
+                     "terms": d.further_terms.get(f.name, {}), "confirmed": f.confirmed, "heldout_gain": f.heldout_gain,
+                     "heldout_gain_ci95": list(f.heldout_gain_ci95)} for f in d.further],
+        "base_mismatch": d.mismatch,
+        "fit_quality": d.quality,
+        "scan": ({"threshold": d.scan.threshold, "tests": len(d.scan.tests)} if d.scan is not None else None),
         "decision": decision_text(d),
         "undecided": d.judgement.undecided,
         "candidates": [test_entry(t) for t in ranked],

@@ -41,19 +41,27 @@ class Judgement:
     """The covariate tests of every candidate and the cause they name."""
 
     tests: list[CovariateTest]
-    cause: str
-    """The named candidate, or ``none``."""
+    causes: list[str]
+    """The named candidates, strongest first (empty: none named)."""
     undecided: list[str] = field(default_factory=list)
     """Candidates these runs cannot decide (not judged, or suggestive), each with what would decide it."""
     rows: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
     """What the tests read: ``drops``, ``passages``, ``drive``, ``pairs`` and ``model_pairs`` (for plots)."""
 
+    left_out: list[str] = field(default_factory=list)
+    """Candidates switched off (``fishfmu diagnose --without``): not tested, never named."""
+
+    @property
+    def cause(self) -> str:
+        """The named candidates joined by ``+`` (strongest first), or ``none``."""
+        return "+".join(self.causes) if self.causes else "none"
+
     @property
     def decision(self) -> str:
-        if self.cause != "none":
-            t = next(t for t in self.tests if t.candidate == self.cause)
-            return (f"{self.cause}: {t.quantity} follows {t.covariate} (p = {t.p_value:.3f}, held-out gain "
-                    f"{t.heldout_gain:.1%})")
+        if self.causes:
+            by_name = {t.candidate: t for t in self.tests}
+            return "; ".join(f"{c}: {by_name[c].quantity} follows {by_name[c].covariate} (p = {by_name[c].p_value:.3f}, "
+                             f"held-out gain {by_name[c].heldout_gain:.1%})" for c in self.causes)
         return "none" + (f"; cannot decide {', '.join(self.undecided)}" if self.undecided else "")
 
 
@@ -62,22 +70,29 @@ def significant(t: CovariateTest) -> bool:
     return bool(t.judged and t.p_value <= ALPHA and t.heldout_gain > 0.0 and t.effect >= t.min_effect)
 
 
-def judge(dataset: Dataset, rng: np.random.Generator, model: Dataset | None = None) -> Judgement:
-    """Every candidate's covariate test, and the cause: of the significant candidates the one least likely by
-    chance (ties, at the permutations' resolution: the larger lower end of the held-out gain's interval); none
-    significant: ``none``. ``model``: the runs re-simulated with the constant (calibrated) model, in the
-    measured-data format, for adhesion (the other tests read the measured data alone)."""
+def judge(dataset: Dataset, rng: np.random.Generator, model: Dataset | None = None,
+          without: tuple[str, ...] = ()) -> Judgement:
+    """Every candidate's covariate test, and the causes: every significant candidate, the one least likely by chance
+    first (ties, at the permutations' resolution: the larger lower end of the held-out gain's interval); none
+    significant: none. Each test reads its own quantity, or the same rows along a covariate the others' tests take
+    out (directional friction compares fish within a run, mucus runs of different ages), so a term significant
+    alone stays significant with the others in the model: several causes at once are each named. ``model``: the
+    runs re-simulated with the constant (calibrated) model, in the measured-data format, for adhesion (the other
+    tests read the measured data alone). ``without``: candidates switched off."""
     rows = {"drops": drop_rows(dataset), "passages": passage_rows(dataset), "drive": drive_rows(dataset),
             "pairs": pair_rows(dataset)}
     if model is not None:
         rows["model_pairs"] = pair_rows(model)
-    tests = [c.test(rows, rng) for c in CANDIDATES.values()]
-    named = [t for t in tests if significant(t)]
-    cause = min(named, key=lambda t: (t.p_value, -t.heldout_gain_ci95[0])).candidate if named else "none"
+    unknown = sorted(set(without) - set(CANDIDATES))
+    if unknown:
+        raise ValueError(f"no candidate cause named {', '.join(unknown)} (known: {', '.join(CANDIDATES)})")
+    tests = [c.test(rows, rng) for c in CANDIDATES.values() if c.name not in without]
+    named = sorted((t for t in tests if significant(t)), key=lambda t: (t.p_value, -t.heldout_gain_ci95[0]))
+    causes = [t.candidate for t in named]
     undecided = []
     for t in tests:
         if not t.judged:
             undecided.append(f"{t.candidate} ({t.note}; {CANDIDATES[t.candidate].decides} would decide)")
-        elif cause == "none" and not significant(t) and t.p_value <= SUGGESTIVE and t.effect >= t.min_effect:
+        elif not causes and not significant(t) and t.p_value <= SUGGESTIVE and t.effect >= t.min_effect:
             undecided.append(f"{t.candidate} (p = {t.p_value:.3f}; {CANDIDATES[t.candidate].decides} would decide)")
-    return Judgement(tests, cause, undecided, rows)
+    return Judgement(tests, causes, undecided, rows, [c for c in CANDIDATES if c in without])

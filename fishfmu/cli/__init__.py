@@ -362,22 +362,27 @@ def diagnose_cmd(
     overwrite: bool = typer.Option(False, "--overwrite", help="Replace an earlier result in --out."),
     calibrate: bool = typer.Option(True, "--calibrate/--no-calibrate", help="First fit the base model to the "
                                    "data (fishfmu calibrate); --no-calibrate: take it as given (--scenario)."),
+    without: list[str] = typer.Option([], "--without", help="Leave this candidate cause out (repeatable)."),
 ) -> None:
-    """Calibrate the base model, then name the cause of what it still gets wrong, fit it, and measure the gain
-    on held-out runs."""
+    """Calibrate the base model, then name the causes of what it still gets wrong (or say that it fits, or where an
+    unexplained discrepancy is), fit them, and measure the gain on held-out runs."""
     # slow: imported when the command runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.analysis.calibrate_report import summary_lines
     from fishfmu.analysis.diagnose_report import candidate_lines, decision_text, extension_text
     done = commands.diagnose(dataset, out, scenario, workers, overwrite,
-                             progress=lambda text: err_console.print(text), calibrate=calibrate)
+                             progress=lambda text: err_console.print(text), calibrate=calibrate,
+                             without=tuple(without))
     d, paths = done.diagnosis, done.paths
     if d.calibration is not None:
         for line in summary_lines(d.calibration, d.calibration.base):
             literal_console().print("calibration: " + line)
     for line in candidate_lines(d):
         literal_console().print("candidate " + line)
+    literal_console().print(labelled("answer:", d.answer, "bold"))
     literal_console().print(labelled("cause:", d.cause, "bold"))
+    for f in d.unexplained:
+        literal_console().print("unexplained: " + f.text)
     literal_console().print("extension: " + extension_text(d))
     literal_console().print(decision_text(d))
     literal_console().print(f"diagnosis: {paths['json']}\nfragment: {paths['fragment']}\nreport: {paths['report']}")

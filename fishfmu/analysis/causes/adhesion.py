@@ -56,4 +56,5 @@ CANDIDATE = Candidate(
     "adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N", 0.0, (2.0, 6.0), (0.0, 50.0),
     "plant", apply, ("extensions.adhesion.force_n",), test=test,
     decides="more batches dumped onto the infeed, with fish side by side both touching and with a gap",
-    fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n")
+    fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n",
+    explains=(("pairs", "touching"),))

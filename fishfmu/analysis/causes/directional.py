@@ -51,4 +51,5 @@ CANDIDATE = Candidate(
     ("extensions.direction_friction.head", "extensions.direction_friction.tail"),
     test=test, decides="more fish dropped alone onto the infeed, both head downstream and head upstream",
     fit=fit_on_grid, groups=("transfers",), synthetic=hide, terms=terms,
-    primary="head_tail_friction_ratio")
+    primary="head_tail_friction_ratio",
+    explains=(("drops", "heading"), ("transfers", "heading")))

@@ -132,4 +132,5 @@ CANDIDATE = Candidate(
     "drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N", 0.0, (),
     (0.0, 0.01), "drive", apply, ("belt_slip",), test=test,
     decides="drive logs of runs whose belts carry varying loads (batches dumped onto the infeed)",
-    fit=fit, synthetic=hide, terms=terms, primary="speed_lost_per_10kg")
+    fit=fit, synthetic=hide, terms=terms, primary="speed_lost_per_10kg",
+    explains=(("drive", "load_kg"),))

@@ -142,4 +142,5 @@ CANDIDATE = Candidate(
     decides="more runs of fish dropped one at a time onto the infeed, at more ages post mortem (fresh batches, under "
             "8 h, most of all)",
     fit=fit, groups=("alone", "alone"), synthetic=hide, terms=terms,
-    primary="rise_1h_to_48h")
+    primary="rise_1h_to_48h",
+    explains=(("drops", "hours_post_mortem"), ("transfers", "hours_post_mortem")))

@@ -64,4 +64,5 @@ CANDIDATE = Candidate(
     test=test,
     decides="more runs at ages between 4 and 48 h post mortem with fish riding alone past the photo-eyes",
     fit=fit_levels, groups=("transfers", "transfers", "transfers"), level_model="rigor_mortis", synthetic=hide,
-    terms=terms, primary="stiffness_factor_at_peak")
+    terms=terms, primary="stiffness_factor_at_peak",
+    explains=(("passages", "hours_post_mortem"), ("transfers", "hours_post_mortem")))
