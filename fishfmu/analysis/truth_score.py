@@ -233,9 +233,10 @@ def summarise(rows: list[dict]) -> dict[str, Any]:
 
 
 def summarise_by_split(rows: list[dict]) -> dict[str, Any]:
-    """:func:`summarise` over every row, and per split (``split`` of each row: dev, heldout; all when unknown)."""
-    splits = sorted({r.get("split", "all") for r in rows})
-    return {"all": summarise(rows), "splits": {s: summarise([r for r in rows if r.get("split", "all") == s])
+    """:func:`summarise` over every row, and per split (each row's ``split``: dev, heldout; ``unlisted`` when the
+    recipe has no such dataset)."""
+    splits = sorted({r.get("split", "unlisted") for r in rows})
+    return {"all": summarise(rows), "splits": {s: summarise([r for r in rows if r.get("split", "unlisted") == s])
                                                for s in splits}}
 
 

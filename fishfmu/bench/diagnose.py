@@ -145,7 +145,7 @@ def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None
     rows = []
     for truth_file in sorted(folder.glob("*.truth.json")):
         data = folder / truth_file.name.removesuffix(".truth.json")
-        split = splits.get(data.name, "all")
+        split = splits.get(data.name, "unlisted")
         if not data.is_dir() or (only is not None and split != only):
             continue
         rows.append(labelled_row(data, json.loads(truth_file.read_text()), split, workers, open_set, available))
