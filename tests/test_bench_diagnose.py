@@ -81,6 +81,8 @@ def test_a_single_is_named_right_wrong_or_none(causes, outcome):
 def test_a_compound_counts_all_named_and_one_right_none_wrong(causes, all_named, safe, wrong):
     out = compound_outcome(("rigor", "adhesion"), {"causes": causes}, FIVE)
     assert (out["all_named"], out["one_right_none_wrong"], out["wrong"]) == (all_named, safe, wrong)
+    scored = score({"effect": "rigor+adhesion", "effects": ["rigor", "adhesion"]}, {"causes": causes}, FIVE)
+    assert scored["kind"] == "compound" and is_right(scored) == (all_named and not wrong)
 
 
 def test_no_effect_datasets_are_false_alarms_when_named_or_unexplained():
@@ -165,6 +167,12 @@ def test_every_family_has_a_location_of_the_contract_and_a_reason():
         <= set(CANDIDATES)
 
 
+def test_every_registered_candidate_names_a_family_of_the_benchmark():
+    """A candidate registered under a name the benchmark does not know would never be counted right (nor left out in
+    the open set): when one is added, its family's row in FAMILIES names it."""
+    assert set(CANDIDATES) <= {f.candidate for f in FAMILIES.values()}
+
+
 # ------------------------------------------------------------------ the tables, per split
 
 def test_the_tables_per_split_against_hand_counts():
@@ -194,7 +202,8 @@ def test_the_tables_per_split_against_hand_counts():
     assert dev["singles"]["confusion"] == {"mucus_friction": {"mucus_friction": 1, "fits": 1},
                                            "rigor_mortis": {"adhesion": 1}}
     assert dev["open_set"] | {"by_family": None} == {"n": 3, "located": 1, "elsewhere": 0, "fits": 1, "wrong": 1,
-                                                   "located_rate": 1 / 3, "wrong_rate": 1 / 3, "by_family": None}
+                                                   "following": 1, "located_rate": 1 / 3, "wrong_rate": 1 / 3,
+                                                   "by_family": None}
     assert dev["open_set"]["by_family"] == {"mucus": {"located": 1, "fits": 1}, "rigor": {"wrong": 1}}
     assert dev["compounds"]["all_named"] == 1 and dev["compounds"]["one_right_none_wrong"] == 1
     assert held["compounds"] | {} == {"n": 1, "all_named": 0, "all_named_rate": 0.0, "one_right_none_wrong": 1,

@@ -109,7 +109,9 @@ def labelled_row(data: Path, truth: dict, split: str, workers: int, open_set: bo
     when it has one), scored against its truth (:func:`fishfmu.analysis.truth_score.score`)."""
     families = truth_families(truth)
     effect = "+".join(TRUTH_NAMES.get(f, f) for f in families) or "none"
+    t0 = time.perf_counter()
     dataset = read_dataset(data)
+    read_s = time.perf_counter() - t0
     d, doc, wall_s = _diagnosis(dataset, workers)
     row: dict[str, Any] = {"dataset": data.name, "split": split, "effect": effect, "families": list(families),
                            "cause": d.cause, "diagnosis": doc, "tests": _tests(d),
@@ -117,7 +119,7 @@ def labelled_row(data: Path, truth: dict, split: str, workers: int, open_set: bo
                                     "values": d.fit.values} if d.fit else None),
                            "extension": d.extension, "terms": d.terms,
                            "calibration": d.calibration.changed(d.calibration.base) if d.calibration else {},
-                           "wall_s": wall_s, "runs_in_dataset": len(dataset.runs)}
+                           "wall_s": read_s + wall_s, "runs_in_dataset": len(dataset.runs)}
     if kind_of(families, available) == "single":
         truth_in_terms = truth_terms(effect, truth.get("magnitude", {}), dataset)
         row |= {"truth_terms": truth_in_terms,
@@ -188,8 +190,8 @@ def part_lines(name: str, part: dict[str, Any]) -> list[str]:
                      f"({_pct(c['one_right_none_wrong_rate'])})")
     if o["n"]:
         lines.append(f"open set (family's candidate off or none): unexplained and located right {o['located']} of "
-                     f"{o['n']} ({_pct(o['located_rate'])}), located elsewhere {o['elsewhere']}, fits {o['fits']}, "
-                     f"a wrong cause {o['wrong']} ({_pct(o['wrong_rate'])})")
+                     f"{o['n']} ({_pct(o['located_rate'])}; following its covariate {o['following']}), located "
+                     f"elsewhere {o['elsewhere']}, fits {o['fits']}, a wrong cause {o['wrong']} ({_pct(o['wrong_rate'])})")
         lines += [f"   {fam}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
                   for fam, counts in o["by_family"].items()]
     for key, what in (("wall_s", "diagnose"), ("open_wall_s", "open-set re-run")):
@@ -209,6 +211,7 @@ def summary(doc: dict[str, Any]) -> list[str]:
     if len(splits) > 1:
         for name, part in sorted(splits.items()):
             lines += part_lines(name, part)
+    lines += answer_lines(doc.get("runs", []))
     rows = [r for r in doc.get("runs", []) if r.get("fit") is not None and r.get("recovery")]
     if rows:
         lines.append("-- the named cause's extension against the base on held-out runs, its strength against the truth")
@@ -220,6 +223,21 @@ def summary(doc: dict[str, Any]) -> list[str]:
                          f"truth {rec['truth']:.3g} (x{rec['ratio']:.2f}, "
                          + ("within" if rec["within"] else "outside") + f" x{RECOVERED_WITHIN:g})")
     return lines
+
+
+def answer_lines(rows: list[dict]) -> list[str]:
+    """Each compound's and open-set run's answer: what was named, and where the unexplained findings are."""
+    lines = []
+    for r in rows:
+        sc = r["score"]
+        if sc["kind"] == "compound":
+            lines.append(f"{r['dataset']} ({r['split']}): compound, named {sc['label']}")
+        if "open_set" in sc:
+            o = sc["open_set"]
+            lines.append(f"{r['dataset']} ({r['split']}): open set without {'+'.join(o['left_out']) or 'a candidate'}: "
+                         f"{o['outcome']}, {o['answer']}" + (f" {'+'.join(o['wrong'])}" if o["wrong"] else "")
+                         + (f" at {', '.join(o['where'])}" if o["where"] else ""))
+    return ["-- compounds and open-set runs, one by one"] + lines if lines else []
 
 
 def _synthetic_summary(doc: dict[str, Any]) -> list[str]:
