@@ -284,3 +284,65 @@ def test_generate_makes_each_entry_with_linesims_own_command_line(tmp_path):
     assert cmd[cmd.index("--out") + 1] == str(tmp_path / "rigor+adhesion")
     assert cmd[cmd.index("--adhesion-bond-frac") + 1] == str(entry["flags"]["adhesion-bond-frac"])
     assert cmd[cmd.index("--design") + 1] == "campaign" and cmd[cmd.index("--runs") + 1] == "10"
+
+
+# ------------------------------------------------------------------ --rescore: the tables again from kept results
+
+def _fishfmu(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    from fishfmu.cli import main
+    monkeypatch.setattr("sys.argv", ["fishfmu", *args])
+    with pytest.raises(SystemExit) as done:
+        main()
+    out = capsys.readouterr()
+    return done.value.code, out.out, out.err
+
+
+def _results(candidates: frozenset[str]) -> dict:
+    unexplained = lambda *f: {"cause": "none", "causes": [], "answer": "unexplained", "unexplained": list(f)}  # noqa: E731
+    named = lambda *c: {"cause": "+".join(c), "causes": list(c), "answer": "named", "unexplained": []}  # noqa: E731
+    runs = [
+        {"dataset": "droop_1", "split": "dev", "truth": {"effect": "drive_droop"}, "diagnosis": named("drive_droop"),
+         "open_set_run": {"left_out": ["drive_droop"], "diagnosis": unexplained(_finding("drive", "c2", "load_kg"))},
+         "wall_s": 240.0, "open_wall_s": 230.0},
+        {"dataset": "none_1", "split": "heldout", "truth": {"effect": "none"}, "diagnosis": unexplained(
+            _finding("transfer", "c2")), "wall_s": 200.0},
+        {"dataset": "guide_1", "split": "heldout", "truth": {"effect": "guide_friction_wear",
+                                                             "effects": ["guide_friction_wear"]},
+         "diagnosis": unexplained(_finding("guide", "guides", "x_m")), "wall_s": 320.0},
+    ]
+    return {"runs": runs, "candidates": sorted(candidates), "folder": "BENCH"}
+
+
+def test_rescore_tables_the_kept_diagnoses_against_hand_counts(tmp_path, monkeypatch, capsys):
+    source = tmp_path / "bench.json"
+    source.write_text(json.dumps(_results(FIVE)))
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(source),
+                              "--json", str(tmp_path / "again.json"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "again.json").read_text())
+    every, held = doc["all"], doc["splits"]["heldout"]
+    assert (every["singles"]["n"], every["singles"]["right"]) == (1, 1)
+    assert every["open_set"] | {"by_family": None} == {  # droop without its candidate, guide wear without any
+        "n": 2, "located": 2, "elsewhere": 0, "fits": 0, "wrong": 0, "following": 2, "located_rate": 1.0,
+        "wrong_rate": 0.0, "by_family": None}
+    assert (held["no_effect"]["false_alarms"], held["no_effect"]["unexplained"]) == (1, 1)
+    assert every["wall_s"]["median"] == 240.0 and every["open_wall_s"]["max"] == 230.0
+    assert [r["correct"] for r in doc["runs"]] == [True, False, True]
+    assert "false alarms 1 of 1" in out and "located right 2 of 2" in out
+    # the candidates the run had decide: with guide friction registered, the same answer names nothing for it
+    source.write_text(json.dumps(_results(WITH_NEW)))
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(source),
+                              "--json", str(tmp_path / "again.json"))
+    doc = json.loads((tmp_path / "again.json").read_text())
+    assert code == 0 and doc["all"]["singles"] | {"confusion": None} == {
+        "n": 2, "right": 1, "wrong": 0, "none": 1, "right_rate": 0.5, "confusion": None}
+    assert doc["all"]["singles"]["confusion"]["guide_friction"] == {"unexplained": 1}
+
+
+def test_rescore_refuses_results_from_before_issue_41_in_one_line(tmp_path, monkeypatch, capsys):
+    old = BENCH / "results" / "linesim-30-2026-11-26.json"
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(old),
+                              "--json", str(tmp_path / "again.json"))
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert str(old) in err and "before issue 41" in err
+    assert not (tmp_path / "again.json").exists()

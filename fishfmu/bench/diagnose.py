@@ -30,6 +30,7 @@ from typing import Any
 import pandas as pd
 
 from plant.contract.measured import read_dataset
+from plant.errors import InputError
 from plant.validation import read_toml
 
 from fishfmu.analysis.candidates import CANDIDATES
@@ -114,6 +115,7 @@ def labelled_row(data: Path, truth: dict, split: str, workers: int, open_set: bo
     read_s = time.perf_counter() - t0
     d, doc, wall_s = _diagnosis(dataset, workers)
     row: dict[str, Any] = {"dataset": data.name, "split": split, "effect": effect, "families": list(families),
+                           "truth": {k: truth[k] for k in ("effect", "effects", "magnitude") if k in truth},
                            "cause": d.cause, "diagnosis": doc, "tests": _tests(d),
                            "fit": ({"gain": d.fit.heldout_gain, "ci95": list(d.fit.heldout_gain_ci95),
                                     "values": d.fit.values} if d.fit else None),
@@ -167,6 +169,30 @@ def labelled_document(rows: list[dict], folder: Path, available: frozenset[str] 
     confusion, no-effect false alarms, compounds' two measures, the open set, times; overall and per split."""
     return {"runs": rows, "candidates": sorted(available), **summarise_by_split(rows), "folder": str(folder),
             "target_s_per_ten_runs": TARGET_S}
+
+
+def rescore(path: Path) -> dict[str, Any]:
+    """The results of ``--labelled`` (its ``--json``, whole or partial) scored again from the truths and diagnoses
+    each row kept, with the candidates the run had: new tables without diagnosing anything again."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{path}: cannot read it as JSON ({exc})") from None
+    runs = doc.get("runs") if isinstance(doc, dict) else None
+    if not isinstance(runs, list):
+        raise InputError(f"{path}: not the results of `fishfmu bench diagnose --labelled` (no list of runs)")
+    if "candidates" not in doc:
+        raise InputError(f"{path}: has no candidates (results from before issue 41 cannot be scored again)")
+    for i, r in enumerate(runs):
+        if not isinstance(r, dict) or not {"truth", "diagnosis"} <= set(r):
+            raise InputError(f"{path}: runs[{i}] has no truth and diagnosis (results from before issue 41 cannot "
+                             "be scored again)")
+    available = frozenset(doc["candidates"])
+    rows = []
+    for r in runs:
+        scored = score(r["truth"], r["diagnosis"], available, r.get("open_set_run"))
+        rows.append(r | {"score": scored, "correct": is_right(scored)})
+    return labelled_document(rows, Path(str(doc.get("folder", ""))), available)
 
 
 def _pct(rate: float | None) -> str:
