@@ -123,7 +123,8 @@ def test_leave_one_family_out_must_answer_unexplained_where_the_family_acts(diag
 def test_a_family_without_a_candidate_is_scored_as_open_on_its_main_run():
     """Before the new candidates are registered, guide wear and photo-eye latency datasets are open-set runs."""
     guide = {"effect": "guide_friction_wear", "effects": ["guide_friction_wear"]}
-    located = {"cause": "none", "causes": [], "answer": "unexplained", "unexplained": [_finding("guide", "guides", "x_m")]}
+    located = {"cause": "none", "causes": [], "answer": "unexplained",
+               "unexplained": [_finding("guide", "guides", "x_m")]}
     out = score(guide, located, FIVE)
     assert out["kind"] == "open" and out["open_set"]["outcome"] == "located" and out["open_set"]["following"]
     assert out["open_set"]["source"] == "no candidate" and is_right(out)
@@ -298,8 +299,11 @@ def _fishfmu(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
 
 
 def _results(candidates: frozenset[str]) -> dict:
-    unexplained = lambda *f: {"cause": "none", "causes": [], "answer": "unexplained", "unexplained": list(f)}  # noqa: E731
-    named = lambda *c: {"cause": "+".join(c), "causes": list(c), "answer": "named", "unexplained": []}  # noqa: E731
+    def unexplained(*findings: dict) -> dict:
+        return {"cause": "none", "causes": [], "answer": "unexplained", "unexplained": list(findings)}
+
+    def named(*causes: str) -> dict:
+        return {"cause": "+".join(causes), "causes": list(causes), "answer": "named", "unexplained": []}
     runs = [
         {"dataset": "droop_1", "split": "dev", "truth": {"effect": "drive_droop"}, "diagnosis": named("drive_droop"),
          "open_set_run": {"left_out": ["drive_droop"], "diagnosis": unexplained(_finding("drive", "c2", "load_kg"))},

@@ -224,7 +224,8 @@ def summarise(rows: list[dict]) -> dict[str, Any]:
         "compounds": {"n": len(compounds), "all_named": both, "all_named_rate": _rate(both, len(compounds)),
                       "one_right_none_wrong": safe, "one_right_none_wrong_rate": _rate(safe, len(compounds))},
         "open_set": {"n": len(opens), **{k: open_counts[k] for k in OPEN_OUTCOMES},
-                     "following": sum(s["open_set"]["following"] for s in opens if s["open_set"]["outcome"] == "located"),
+                     "following": sum(s["open_set"]["outcome"] == "located" and s["open_set"]["following"]
+                                      for s in opens),
                      "located_rate": _rate(open_counts["located"], len(opens)),
                      "wrong_rate": _rate(open_counts["wrong"], len(opens)),
                      "by_family": {f: dict(c) for f, c in sorted(by_family.items())}},

@@ -71,7 +71,8 @@ def bench(seeds: int = 5, first_seed: int = 100, strength: float = 1.0, workers:
 
 
 TRUTH_NAMES = {"none": "none", **{name: f.candidate for name, f in FAMILIES.items() if f.candidate}}
-"""A label's effect (``NAME.truth.json``) as the candidate that names it (:data:`~fishfmu.analysis.truth_score.FAMILIES`)."""
+"""A label's effect (``NAME.truth.json``) as the candidate that names it
+(:data:`~fishfmu.analysis.truth_score.FAMILIES`)."""
 KEPT = ("cause", "causes", "answer", "left_out", "unexplained", "decision", "undecided")
 """What a row keeps of each diagnosis.json (what the scores are computed from; the rest is in the tests)."""
 TARGET_S = 300.0
@@ -164,7 +165,8 @@ def bench_labelled(folder: Path, workers: int = 2, on_row: Callable[[dict], None
     return labelled_document(rows, folder, available)
 
 
-def labelled_document(rows: list[dict], folder: Path, available: frozenset[str] = frozenset(CANDIDATES)) -> dict[str, Any]:
+def labelled_document(rows: list[dict], folder: Path,
+                      available: frozenset[str] = frozenset(CANDIDATES)) -> dict[str, Any]:
     """Every dataset's row and the tables (:func:`fishfmu.analysis.truth_score.summarise_by_split`): singles'
     confusion, no-effect false alarms, compounds' two measures, the open set, times; overall and per split."""
     return {"runs": rows, "candidates": sorted(available), **summarise_by_split(rows), "folder": str(folder),
@@ -183,8 +185,10 @@ def rescore(path: Path) -> dict[str, Any]:
         raise InputError(f"{path}: not the results of `fishfmu bench diagnose --labelled` (no list of runs)")
     if "candidates" not in doc:
         raise InputError(f"{path}: has no candidates (results from before issue 41 cannot be scored again)")
+    if not isinstance(doc["candidates"], list) or not all(isinstance(c, str) for c in doc["candidates"]):
+        raise InputError(f"{path}: candidates is not a list of candidate names")
     for i, r in enumerate(runs):
-        if not isinstance(r, dict) or not {"truth", "diagnosis"} <= set(r):
+        if not isinstance(r, dict) or not all(isinstance(r.get(k), dict) for k in ("truth", "diagnosis")):
             raise InputError(f"{path}: runs[{i}] has no truth and diagnosis (results from before issue 41 cannot "
                              "be scored again)")
     available = frozenset(doc["candidates"])
@@ -211,13 +215,14 @@ def part_lines(name: str, part: dict[str, Any]) -> list[str]:
         lines.append(f"no effect: false alarms {n['false_alarms']} of {n['n']} ({_pct(n['false_alarm_rate'])}; "
                      f"named a cause {n['named']}, unexplained {n['unexplained']}, fits {n['fits']})")
     if c["n"]:
-        lines.append(f"compounds: all causes named {c['all_named']} of {c['n']} ({_pct(c['all_named_rate'])}); at least "
-                     f"one right and none wrong {c['one_right_none_wrong']} of {c['n']} "
+        lines.append(f"compounds: all causes named {c['all_named']} of {c['n']} ({_pct(c['all_named_rate'])}); "
+                     f"at least one right and none wrong {c['one_right_none_wrong']} of {c['n']} "
                      f"({_pct(c['one_right_none_wrong_rate'])})")
     if o["n"]:
         lines.append(f"open set (family's candidate off or none): unexplained and located right {o['located']} of "
                      f"{o['n']} ({_pct(o['located_rate'])}; following its covariate {o['following']}), located "
-                     f"elsewhere {o['elsewhere']}, fits {o['fits']}, a wrong cause {o['wrong']} ({_pct(o['wrong_rate'])})")
+                     f"elsewhere {o['elsewhere']}, fits {o['fits']}, a wrong cause {o['wrong']} "
+                     f"({_pct(o['wrong_rate'])})")
         lines += [f"   {fam}: " + ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
                   for fam, counts in o["by_family"].items()]
     for key, what in (("wall_s", "diagnose"), ("open_wall_s", "open-set re-run")):
@@ -260,9 +265,11 @@ def answer_lines(rows: list[dict]) -> list[str]:
             lines.append(f"{r['dataset']} ({r['split']}): compound, named {sc['label']}")
         if "open_set" in sc:
             o = sc["open_set"]
-            lines.append(f"{r['dataset']} ({r['split']}): open set without {'+'.join(o['left_out']) or 'a candidate'}: "
-                         f"{o['outcome']}, {o['answer']}" + (f" {'+'.join(o['wrong'])}" if o["wrong"] else "")
-                         + (f" at {', '.join(o['where'])}" if o["where"] else ""))
+            without = "+".join(o["left_out"]) or "a candidate"
+            wrong = f" {'+'.join(o['wrong'])}" if o["wrong"] else ""
+            where = f" at {', '.join(o['where'])}" if o["where"] else ""
+            lines.append(f"{r['dataset']} ({r['split']}): open set without {without}: {o['outcome']}, "
+                         f"{o['answer']}{wrong}{where}")
     return ["-- compounds and open-set runs, one by one"] + lines if lines else []
 
 
