@@ -459,6 +459,8 @@ def test_an_error_echoes_a_huge_value_in_one_bounded_line(override):
     (("serve", "--continuous-s", "inf"), "--continuous-s"),
     (("diagnose", "--first-seed", "-5"), "--first-seed"),
     (("diagnose", "--strength", "nan"), "--strength"),
+    (("diagnose", "--open-set"), "--open-set"),  # the open set needs labelled datasets (issue 41)
+    (("diagnose", "--rescore", "r.json", "--open-set"), "--rescore"),  # scores kept results: runs nothing
     (("sweep", "--workers", "0"), "--workers"),
     (("sweep", "--workers", "1", "--workers", "1000"), "--workers"),
 ])

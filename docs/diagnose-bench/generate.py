@@ -1,17 +1,37 @@
 """Make the diagnose benchmark's datasets from recipe.toml with the independent simulator.
 
-    python docs/diagnose-bench/generate.py --linesim ../shared/linesim --python /tmp/linesim-venv/bin/python \
-        --out /tmp/diag-bench [--only NAME ...] [--runs 10] [--jobs 2]
+    python docs/diagnose-bench/generate.py --linesim ../shared/linesim --python LINESIM_PYTHON \
+        --out BENCH [--split dev|heldout] [--only NAME ...] [--round 1|2] [--runs 10] [--jobs 2] [--dry-run]
 
-Each dataset goes to OUT/NAME with OUT/NAME.truth.json beside it (what `fishfmu bench diagnose
---labelled OUT` reads). A dataset whose truth file exists is kept. This calls linesim's own
-command line: fishfmu never imports or runs the simulator.
+Each dataset goes to OUT/NAME with OUT/NAME.truth.json beside it (what `fishfmu bench diagnose --labelled OUT`
+reads). A dataset whose truth file exists is kept (a stopped generation goes on where it was). A compound's
+effect is passed as linesim spells it (``--effect mucus+drive_droop``) with every part's flags. This calls
+linesim's own command line: fishfmu never imports or runs the simulator. Commands for the lead: README.md here.
 """
 import argparse
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
+
+ROUND1 = 30
+"""The first this many entries of the recipe are round 1 (2026-11-26); the rest round 2 (issue 41)."""
+
+
+def selected(recipe: list[dict], only=None, split=None, round_=None) -> list[dict]:
+    """The recipe's entries chosen by name, split and round (each None: all)."""
+    rounds = {1: recipe[:ROUND1], 2: recipe[ROUND1:]}
+    pool = rounds[round_] if round_ else recipe
+    return [d for d in pool if (not only or d["name"] in only) and (not split or d["split"] == split)]
+
+
+def command(d: dict, linesim: Path, python: str, out: Path, runs: int = 10, fish: int = 18, jobs: int = 1) -> list[str]:
+    """linesim's command line that makes dataset ``d`` (a recipe entry) in OUT/NAME."""
+    cmd = [python, str(linesim / "gen.py"), "--effect", d["effect"], "--seed", str(d["seed"]), "--runs", str(runs),
+           "--fish", str(fish), "--design", "campaign", "--jobs", str(jobs), "--out", str(out / d["name"])]
+    for k, v in d["flags"].items():
+        cmd += [f"--{k}", str(v)]
+    return cmd
 
 
 def main():
@@ -20,26 +40,27 @@ def main():
     ap.add_argument("--python", default=sys.executable, help="a Python with linesim's requirements")
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--recipe", type=Path, default=Path(__file__).with_name("recipe.toml"))
-    ap.add_argument("--only", nargs="*", default=None)
+    ap.add_argument("--only", nargs="*", default=None, help="these datasets (names) only")
     ap.add_argument("--split", choices=["dev", "heldout"], default=None)
+    ap.add_argument("--round", dest="round_", type=int, choices=[1, 2], default=None,
+                    help="1: the first 30 (2026-11-26); 2: issue 41's")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--fish", type=int, default=18)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--dry-run", action="store_true", help="print the commands, make nothing")
     a = ap.parse_args()
     recipe = tomllib.loads(a.recipe.read_text())["dataset"]
-    a.out.mkdir(parents=True, exist_ok=True)
-    for d in recipe:
-        if (a.only and d["name"] not in a.only) or (a.split and d["split"] != a.split):
-            continue
+    unknown = sorted(set(a.only or ()) - {d["name"] for d in recipe})
+    if unknown:
+        sys.exit(f"{a.recipe}: no dataset named {', '.join(unknown)}")
+    for d in selected(recipe, a.only, a.split, a.round_):
         if (a.out / f"{d['name']}.truth.json").exists():
             continue
-        cmd = [a.python, str(a.linesim / "gen.py"), "--effect", d["effect"], "--seed", str(d["seed"]),
-               "--runs", str(a.runs), "--fish", str(a.fish), "--design", "campaign", "--jobs", str(a.jobs),
-               "--out", str(a.out / d["name"])]
-        for k, v in d["flags"].items():
-            cmd += [f"--{k}", str(v)]
+        cmd = command(d, a.linesim, a.python, a.out, a.runs, a.fish, a.jobs)
         print(" ".join(cmd), flush=True)
-        subprocess.run(cmd, check=True)
+        if not a.dry_run:
+            a.out.mkdir(parents=True, exist_ok=True)
+            subprocess.run(cmd, check=True)
 
 
 if __name__ == "__main__":

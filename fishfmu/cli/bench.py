@@ -154,13 +154,29 @@ def bench_diagnose(
     recipe: Path | None = typer.Option(None, "--recipe", help="With --labelled: the benchmark's recipe (TOML, "
                                        "docs/diagnose-bench/recipe.toml): tables per split (dev, heldout)."),
     split: str | None = typer.Option(None, "--split", help="With --recipe: diagnose only this split's datasets."),
+    open_set: bool = typer.Option(False, "--open-set", help="With --labelled: diagnose each single-effect dataset "
+                                  "again with its family's candidate switched off (--without): leave-one-family-out."),
+    rescore: Path | None = typer.Option(None, "--rescore", help="Instead: score again the diagnoses kept in the "
+                                        "results (JSON) of an earlier --labelled run; nothing is diagnosed."),
 ) -> None:
     """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
     from fishfmu import commands
     from fishfmu.bench import options
-    from fishfmu.bench.diagnose import bench, bench_labelled, labelled_document, read_splits, summary
+    from fishfmu.bench.diagnose import (bench, bench_labelled, labelled_document, open_set_supported, read_splits,
+                                        rescore as rescored, summary)
     options.diagnose(seeds, first_seed, strength)
+    if rescore is not None:
+        if labelled is not None or open_set:
+            raise InputError("--rescore: scores earlier results; not with --labelled or --open-set")
+        _check_results(json_file, inputs=[rescore])
+        doc = rescored(rescore)
+        _bench_done(summary(doc), commands.write_json(json_file, doc))
+        return
+    if open_set and labelled is None:
+        raise InputError("--open-set: only with --labelled DIR (the open set is measured on labelled datasets)")
+    if open_set and not open_set_supported():
+        raise InputError("--open-set: this fishfmu's diagnose cannot switch a candidate off (no --without; issue 41)")
     _check_results(json_file, inputs=[labelled, recipe])
     rows: list = []
     if labelled is not None:
@@ -172,8 +188,9 @@ def bench_diagnose(
                              f"(it has: {', '.join(sorted(set(splits.values()))) or 'none'})")
         with _partial_results(json_file, "diagnose", lambda: labelled_document(rows, labelled) if rows else {}):
             doc = bench_labelled(labelled, workers, on_row=lambda r: err_console.print(str(r)), splits=splits,
-                                 only=split, on_done=lambda partial: (rows.__setitem__(slice(None), partial["runs"]),
-                                                                      commands.write_json(json_file, partial)))
+                                 only=split, open_set=open_set,
+                                 on_done=lambda partial: (rows.__setitem__(slice(None), partial["runs"]),
+                                                          commands.write_json(json_file, partial)))
     else:
         with _partial_results(json_file, "diagnose", lambda: {"runs": rows}):
             doc = bench(seeds, first_seed, strength, workers,
