@@ -199,6 +199,16 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
     further = _fit_further(significant_causes[1:], fit, ctx)
     causes = significant_causes[:1] + [f.name for f in further if f.confirmed]
     timing["fit"] = time.perf_counter() - t1
+    confirmed = [f for f in ([fit] if fit is not None else []) + further if f.confirmed]
+    if any(CANDIDATES[f.name].acts_on == "plant" for f in confirmed):
+        # what the named causes leave: the transfers' lags against the model extended with them, scanned again
+        t1 = time.perf_counter()
+        say(f"scanning what the model extended with {', '.join(f.name for f in confirmed)} leaves")
+        ext = _extended_context(ctx, confirmed).cal.after
+        tables = scan_tables(dataset, judgement.rows, ext)
+        explained = {pair for c in causes for pair in CANDIDATES[c].explains}
+        found = scan(tables, np.random.default_rng((seed, 41)), explained, ALPHA)
+        timing["scan"] += time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
     fragment = _fragment(cal, base, fit) + "".join(_further_fragment(f, cal) for f in further)
     return Diagnosis(causes, judgement, fit, fragment,
@@ -214,11 +224,12 @@ def _rivals(judgement: Judgement, found: Scan) -> dict[str, str]:
     candidate stands for, explaining more of it than the candidate's own term (the issue's rule: a candidate must
     beat the best alternative at its location, not only the constant)."""
     tests = {t.candidate: t for t in judgement.tests}
+    stood_for = {pair for c in CANDIDATES.values() if c.name not in judgement.left_out for pair in c.explains}
     out = {}
     for c in judgement.causes:
-        tables = {table for table, _ in CANDIDATES[c].explains}
+        own = CANDIDATES[c].explains[0][0] if CANDIDATES[c].explains else None  # the table its test reads
         for f in found.findings:
-            if f.table in tables and f.test.explained > tests[c].explained:
+            if f.table == own and (f.table, f.covariate_key) not in stood_for and f.test.explained > tests[c].explained:
                 out[c] = f"{f.text} explains its quantity better ({f.test.explained:.1%} against {tests[c].explained:.1%})"
                 break
     return out
