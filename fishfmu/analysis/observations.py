@@ -3,6 +3,8 @@ tests of :mod:`fishfmu.analysis.signatures` read.
 
 - :func:`drop_rows`: each fish dropped alone onto the first belt, the time it lost to the belt beyond its fall;
 - :func:`passage_rows`: each passage of a fish alone past a photo-eye, the share of it the beam was blocked;
+- :func:`edge_rows`: each passage of a fish alone past a photo-eye, where the fish was when the eye reported its
+  edges, against the beam's position;
 - :func:`drive_rows`: each drive's speed below its setpoint against the mass on its belt (:func:`belt_loads`);
 - :func:`pair_rows`: pairs of fish side by side at a transfer, how much of the belts' speed difference their
   separation gained.
@@ -79,6 +81,66 @@ def passage_rows(dataset: Dataset) -> pd.DataFrame:
                                         "blocked": p["blocked"].to_numpy(float)}))
     cols = ["run_id", "fish_id", "sensor_id", "hours_post_mortem", "blocked"]
     return pd.concat(frames, ignore_index=True)[cols] if frames else pd.DataFrame(columns=cols)
+
+
+EDGE_FIT_S = 0.12
+"""A fish's position and speed at a photo-eye's edge are read from a straight line fitted to its track within +-this
+of the edge (seven samples at 25 Hz): a few mm of tracking noise per sample would otherwise be the offset."""
+
+
+def _at_edge(t: np.ndarray, x: np.ndarray, t_edge: float) -> tuple[float, float] | None:
+    """(position, speed) of a track at ``t_edge`` from a line through its samples within :data:`EDGE_FIT_S`."""
+    near = np.abs(t - t_edge) <= EDGE_FIT_S
+    if near.sum() < 3 or t[near].min() > t_edge or t[near].max() < t_edge:
+        return None
+    v, x0 = np.polyfit(t[near] - t_edge, x[near], 1)
+    return float(x0), float(v)
+
+
+def edge_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per passage of a fish alone past a photo-eye (:func:`photoeye_passages`: riding along the line, no other fish
+    at the beam; and no other fish's mid-point within its length and 0.1 m of its own from :data:`EDGE_FIT_S` before
+    the first edge to as long after the last, nor its head past the line's end at the last): ``offset_m``, the mean
+    of the fish's tracked mid-point at the eye's first edge on and its last edge off, less the beam's position.  The
+    on edge is the head reaching the beam and the off edge the tail leaving it, so the fish's half length cancels, and
+    so does its speeding up at a transfer (the track has it): what is left is where the blocked part of its outline
+    sits about its mid-point (shape, heading; constant in metres) plus, for an eye reporting its edges ``L`` late,
+    the way the fish travelled in that time, ``L`` x ``speed_mps`` (its tracked speed at the edges, their mean).
+    With the logged speed of the belt under the beam, run, fish, its hours, weight, length, heading (cos of its
+    yaw: +1 head downstream) and the time in the run."""
+    cols = ["run_id", "fish_id", "sensor_id", "offset_m", "speed_mps", "belt_speed_mps", "hours_post_mortem",
+            "weight_kg", "length_m", "heading", "t_in_run_s"]
+    beam_x = {p.id: p.x_m for p in dataset.line.photoeyes}
+    rows = []
+    for run in dataset.runs:
+        p = photoeye_passages(run.tracks, run.photoeyes, run.fish, dataset.line)
+        if not len(p):
+            continue
+        hours, fish = _fish_hours(run), run.fish.set_index("fish_id")
+        tracks = {fid: m.sort_values("t_s") for fid, m in run.tracks.groupby("fish_id", sort=False)}
+        for q in p.itertuples(index=False):
+            tr = tracks[q.fish_id]
+            t, x = tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float)
+            on, off = _at_edge(t, x, q.t_s), _at_edge(t, x, q.t_end_s)
+            length = float(fish.loc[q.fish_id, "length_m"])
+            if on is None or off is None or off[0] + 0.5 * length > dataset.line.x_end_m - EDGE_M:
+                continue  # a fish overhanging the line's end tips over its drum: its track no longer places its outline
+            if crowding(run.tracks, q.fish_id, q.t_s - EDGE_FIT_S, q.t_end_s + EDGE_FIT_S, length + 0.1):
+                continue  # a neighbour within a fish length may have cut the beam at either edge
+            xb = beam_x[q.sensor_id]
+            belt = dataset.line.conveyor_at(xb)
+            logged = run.belts[(run.belts["conveyor_id"] == belt.id) & (run.belts["t_s"] >= q.t_s)
+                               & (run.belts["t_s"] <= q.t_end_s)]["speed_mps"]
+            during = tr[(tr["t_s"] >= q.t_s) & (tr["t_s"] <= q.t_end_s)]["yaw_rad"].to_numpy(float)
+            rows.append({"run_id": run.id, "fish_id": q.fish_id, "sensor_id": q.sensor_id,
+                         "offset_m": 0.5 * (on[0] + off[0]) - xb, "speed_mps": 0.5 * (on[1] + off[1]),
+                         "belt_speed_mps": float(logged.median()) if len(logged) else float("nan"),
+                         "hours_post_mortem": float(hours[q.fish_id]),
+                         "weight_kg": float(fish.loc[q.fish_id, "weight_kg"]),
+                         "length_m": length,
+                         "heading": float(np.median(np.cos(during))) if len(during) else float("nan"),
+                         "t_in_run_s": float(q.t_s)})
+    return pd.DataFrame(rows, columns=cols)
 
 
 LOAD_GRID_S = 0.04
