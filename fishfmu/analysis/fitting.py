@@ -26,6 +26,8 @@ def gain_with_ci(u: np.ndarray, e0: np.ndarray, rng: np.random.Generator, n: int
         i = rng.integers(0, len(u), len(u))
         if e0[i].sum() > 0:
             boot.append(u[i].sum() / e0[i].sum())
+    if not boot:  # no error anywhere to remove (a drive logging its setpoint exactly): no interval either
+        return gain, (float("nan"), float("nan"))
     return gain, (float(np.percentile(boot, 2.5)), float(np.percentile(boot, 97.5)))
 
 
