@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 import subprocess
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -106,6 +107,12 @@ def test_late_eyes_are_named_and_the_latency_fitted_and_on_time_eyes_are_not(twi
     assert fit(cand, FitContext(on_time, None, None, None, np.random.default_rng(1), print)).values[
         "latency_s"] < MIN_LATENCY_S
     assert cand.terms(f.values, None) == {"latency_s": f.values["latency_s"]}
+    # a line that says its eyes are 30 ms late explains them: nothing left to name
+    told = late.line.model_dump()
+    told["photoeyes"] = [{**p, "latency_s": LATENCY_S} for p in told["photoeyes"]]
+    told = replace(late, line=Line.model_validate(told))
+    test = CANDIDATES["photoeye_latency"].test({"edges": edge_rows(told)}, np.random.default_rng(0))
+    assert test.judged and not significant(test) and abs(test.slope) < MIN_LATENCY_S, test
 
 
 def test_a_gain_with_no_error_to_remove_has_no_interval():

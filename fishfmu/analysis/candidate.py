@@ -152,7 +152,8 @@ class Candidate:
                 f"# {k} = {drive[k]:.4g}\n" for k in self.writes)
         if self.acts_on == "sensor":  # keys of array tables: pasted into each photo-eye's, not merged
             eye = self.photoeye_parameters(*v)
-            return head + "# in each photo-eye's table of [line]:\n# [[line.photoeyes]]\n" + "".join(
+            return head + ("# in each photo-eye's table of [line], added to a latency_s it already has:\n"
+                           "# [[line.photoeyes]]\n") + "".join(
                 f"# {k} = {eye[k]:.4g}\n" for k in self.writes)
         p = self.params(base, *v)
         return head + plant_tables({path: plant_value(p, path) for path in self.writes})

@@ -106,11 +106,14 @@ def edge_rows(dataset: Dataset) -> pd.DataFrame:
     so does its speeding up at a transfer (the track has it): what is left is where the blocked part of its outline
     sits about its mid-point (shape, heading; constant in metres) plus, for an eye reporting its edges ``L`` late,
     the way the fish travelled in that time, ``L`` x ``speed_mps`` (its tracked speed at the edges, their mean).
+    An eye's ``latency_s`` in the line is taken off its edges first: what is left is a latency the line does not
+    know of.
     With the logged speed of the belt under the beam, run, fish, its hours, weight, length, heading (cos of its
     yaw: +1 head downstream) and the time in the run."""
     cols = ["run_id", "fish_id", "sensor_id", "offset_m", "speed_mps", "belt_speed_mps", "hours_post_mortem",
             "weight_kg", "length_m", "heading", "t_in_run_s"]
     beam_x = {p.id: p.x_m for p in dataset.line.photoeyes}
+    latency = {p.id: p.latency_s for p in dataset.line.photoeyes}
     rows = []
     for run in dataset.runs:
         p = photoeye_passages(run.tracks, run.photoeyes, run.fish, dataset.line)
@@ -121,7 +124,8 @@ def edge_rows(dataset: Dataset) -> pd.DataFrame:
         for q in p.itertuples(index=False):
             tr = tracks[q.fish_id]
             t, x = tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float)
-            on, off = _at_edge(t, x, q.t_s), _at_edge(t, x, q.t_end_s)
+            lat = latency[q.sensor_id]  # what the line says the eye adds: the edges as they happened
+            on, off = _at_edge(t, x, q.t_s - lat), _at_edge(t, x, q.t_end_s - lat)
             length = float(fish.loc[q.fish_id, "length_m"])
             if on is None or off is None or off[0] + 0.5 * length > dataset.line.x_end_m - EDGE_M:
                 continue  # a fish overhanging the line's end tips over its drum: its track no longer places its outline
