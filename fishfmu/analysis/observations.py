@@ -3,8 +3,8 @@ tests of :mod:`fishfmu.analysis.signatures` read.
 
 - :func:`drop_rows`: each fish dropped alone onto the first belt, the time it lost to the belt beyond its fall;
 - :func:`passage_rows`: each passage of a fish alone past a photo-eye, the share of it the beam was blocked;
-- :func:`edge_rows`: each passage of a fish alone past a photo-eye, where the fish was when the eye reported its
-  edges, against the beam's position;
+- :func:`edge_rows`: each passage of a fish alone past a photo-eye, how far past the beam the fish's head was when
+  the eye reported it there;
 - :func:`drive_rows`: each drive's speed below its setpoint against the mass on its belt (:func:`belt_loads`);
 - :func:`pair_rows`: pairs of fish side by side at a transfer, how much of the belts' speed difference their
   separation gained.
@@ -100,16 +100,17 @@ def _at_edge(t: np.ndarray, x: np.ndarray, t_edge: float) -> tuple[float, float]
 def edge_rows(dataset: Dataset) -> pd.DataFrame:
     """Per passage of a fish alone past a photo-eye (:func:`photoeye_passages`: riding along the line, no other fish
     at the beam; and no other fish's mid-point within its length and 0.1 m of its own from :data:`EDGE_FIT_S` before
-    the first edge to as long after the last, nor its head past the line's end at the last): ``offset_m``, the mean
-    of the fish's tracked mid-point at the eye's first edge on and its last edge off, less the beam's position.  The
-    on edge is the head reaching the beam and the off edge the tail leaving it, so the fish's half length cancels, and
-    so does its speeding up at a transfer (the track has it): what is left is where the blocked part of its outline
-    sits about its mid-point (shape, heading; constant in metres) plus, for an eye reporting its edges ``L`` late,
-    the way the fish travelled in that time, ``L`` x ``speed_mps`` (its tracked speed at the edges, their mean).
-    An eye's ``latency_s`` in the line is taken off its edges first: what is left is a latency the line does not
-    know of.
-    With the logged speed of the belt under the beam, run, fish, its hours, weight, length, heading (cos of its
-    yaw: +1 head downstream) and the time in the run."""
+    the passage to as long after it), lying wholly on the belt under the beam when its head reaches it:
+    ``offset_m``, how far its leading end was past the beam (its tracked mid-point plus half its length along the
+    line) when the eye reported the edge on, and ``speed_mps``, its tracked speed then.  On time, the offset is where
+    the blocked part of its outline begins behind its tip (shape, heading, length: a distance, the same at any
+    speed); for an eye reporting its edges ``L`` late, plus the way the fish travelled in that time, ``L`` x
+    ``speed_mps``.  The edge off is not read: the tail leaves a beam near a belt's end while the fish crosses the
+    transfer, where how it bridges the step (its stiffness, its speed) moves the tail by a distance that follows the
+    speed without any delay (rigor in the independent simulator's data: 76 ms per m/s from both edges, none from the
+    edge on).  An eye's ``latency_s`` in the line is taken off its edge first: what is left is a latency the line
+    does not know of.  With the logged speed of the belt under the beam, run, fish, its hours, weight, length,
+    heading (cos of its yaw: +1 head downstream) and the time in the run."""
     cols = ["run_id", "fish_id", "sensor_id", "offset_m", "speed_mps", "belt_speed_mps", "hours_post_mortem",
             "weight_kg", "length_m", "heading", "t_in_run_s"]
     beam_x = {p.id: p.x_m for p in dataset.line.photoeyes}
@@ -124,26 +125,25 @@ def edge_rows(dataset: Dataset) -> pd.DataFrame:
         for q in p.itertuples(index=False):
             tr = tracks[q.fish_id]
             t, x = tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float)
-            lat = latency[q.sensor_id]  # what the line says the eye adds: the edges as they happened
-            on, off = _at_edge(t, x, q.t_s - lat), _at_edge(t, x, q.t_end_s - lat)
-            length = float(fish.loc[q.fish_id, "length_m"])
-            if on is None or off is None or off[0] + 0.5 * length > dataset.line.x_end_m - EDGE_M:
-                continue  # a fish overhanging the line's end tips over its drum: its track no longer places its outline
-            if crowding(run.tracks, q.fish_id, q.t_s - EDGE_FIT_S, q.t_end_s + EDGE_FIT_S, length + 0.1):
-                continue  # a neighbour within a fish length may have cut the beam at either edge
-            xb = beam_x[q.sensor_id]
+            on = _at_edge(t, x, q.t_s - latency[q.sensor_id])  # the edge as it happened, by what the line says
+            xb, length = beam_x[q.sensor_id], float(fish.loc[q.fish_id, "length_m"])
             belt = dataset.line.conveyor_at(xb)
+            during = tr[(tr["t_s"] >= q.t_s) & (tr["t_s"] <= q.t_end_s)]["yaw_rad"].to_numpy(float)
+            if on is None or not len(during):
+                continue
+            half = 0.5 * length * abs(float(np.median(np.cos(during))))
+            if on[0] - half < belt.x_start_m + EDGE_M:
+                continue  # still crossing onto this belt: a step down moves its head without a delay
+            if crowding(run.tracks, q.fish_id, q.t_s - EDGE_FIT_S, q.t_end_s + EDGE_FIT_S, length + 0.1):
+                continue  # a neighbour within a fish length may have cut the beam
             logged = run.belts[(run.belts["conveyor_id"] == belt.id) & (run.belts["t_s"] >= q.t_s)
                                & (run.belts["t_s"] <= q.t_end_s)]["speed_mps"]
-            during = tr[(tr["t_s"] >= q.t_s) & (tr["t_s"] <= q.t_end_s)]["yaw_rad"].to_numpy(float)
             rows.append({"run_id": run.id, "fish_id": q.fish_id, "sensor_id": q.sensor_id,
-                         "offset_m": 0.5 * (on[0] + off[0]) - xb, "speed_mps": 0.5 * (on[1] + off[1]),
+                         "offset_m": on[0] + half - xb, "speed_mps": on[1],
                          "belt_speed_mps": float(logged.median()) if len(logged) else float("nan"),
                          "hours_post_mortem": float(hours[q.fish_id]),
-                         "weight_kg": float(fish.loc[q.fish_id, "weight_kg"]),
-                         "length_m": length,
-                         "heading": float(np.median(np.cos(during))) if len(during) else float("nan"),
-                         "t_in_run_s": float(q.t_s)})
+                         "weight_kg": float(fish.loc[q.fish_id, "weight_kg"]), "length_m": length,
+                         "heading": float(np.median(np.cos(during))), "t_in_run_s": float(q.t_s)})
     return pd.DataFrame(rows, columns=cols)
 
 

@@ -1,16 +1,16 @@
 """Photo-eye latency: a sensor at fault, the photo-eyes reporting their edges late (a slow input card, an input filter,
 a long scan cycle), which the plant's data would otherwise show as fish arriving late.
 
-Signature: where a fish riding alone was, by its track, when an eye reported its edges, against the beam
+Signature: how far past the beam a fish riding alone had its head, by its track, when an eye reported the edge on
 (:func:`fishfmu.analysis.observations.edge_rows`, ``offset_m``).  A latency is a time: the fish travels on while the
-edge is on its way, so the offset grows with the fish's speed.  Where the eye sits and the fish's shape (the blocked
-part of its outline about its mid-point) offset it by a distance, the same at any speed; so the constant model
-predicts no dependence on the speed.  One level per photo-eye, and per eye a term in the fish's heading and length
-(its shape), as nuisance; the speed shuffled among the passages at each eye (eyes sit at belts of different speeds);
-sign +1 (late).  The latency is relative to the tracks' clock: a tracker whose timestamps are early by as much is
-the same data.
+edge is on its way, so the offset grows with the fish's speed.  Where the blocked part of its outline begins behind
+its tip (shape, heading, length) is a distance, the same at any speed; so the constant model predicts no dependence
+on the speed.  One level per photo-eye, and per eye a term in the fish's heading and length, as nuisance; the speed
+shuffled among the passages at each eye (eyes sit at belts of different speeds); sign +1 (late).  The latency is
+relative to the tracks' clock: a tracker whose timestamps are early by as much gives the same data.
 Extension: the latency [s], the slope fitted from the rows (no simulation); the scenario's photo-eyes carry it as
-``latency_s`` (the plant reports a beam's edges that much late).
+``latency_s`` (the plant reports a beam's edges that much late), and a re-simulation's edges take it
+(:func:`delay_edges`).
 """
 
 from __future__ import annotations
@@ -63,11 +63,11 @@ def design(rows: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
 
 
 def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTest:
-    """The offset of the fish's track at a photo-eye's edges against its speed there."""
+    """How far past the beam a fish's head was at a photo-eye's edge on, against its speed there."""
     y, run, speed, nuisance, eye = design(rows["edges"])
     d = Design(y, run, speed[:, None], ["fish speed at the edges [m/s]"], nuisance, within=False, sign=+1,
                min_effect=MIN_LATENCY_S * float(np.ptp(speed)) if len(speed) else 0.0, strata=eye)
-    return covariate_test("photoeye_latency", "where the fish was at a photo-eye's edges, past the beam [m]",
+    return covariate_test("photoeye_latency", "how far past a photo-eye the fish's head was at its edge on [m]",
                           "the fish's speed", d, "rows", rng)
 
 
