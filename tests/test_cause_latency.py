@@ -29,6 +29,7 @@ from fishfmu.analysis.covariates import Design, covariate_test
 from fishfmu.analysis.extension_fit import FitContext
 from fishfmu.analysis.fitting import gain_with_ci
 from fishfmu.analysis.observations import edge_rows
+from fishfmu.analysis.recovery import recovery, truth_terms
 from fishfmu.analysis.signatures import judge, significant
 from tests.plant_helpers import fish, straight_line
 
@@ -178,6 +179,10 @@ def test_independent_eyes_30_ms_late_are_named_with_the_latency_near_it():
     lo, hi = f.ci95["latency_s"]
     assert lo <= late_by <= hi and abs(f.values["latency_s"] - late_by) < 0.015, (f.values, f.ci95)
     assert f.confirmed
+    # the benchmark's recovery: the truth in the candidate's terms (latency and half the jitter), within x1.5
+    truth = truth_terms("photoeye_latency", {"pe_latency_s": 0.03, "pe_jitter_s": 0.01}, dataset)
+    assert truth == {"latency_s": pytest.approx(0.035)}
+    assert recovery("photoeye_latency", CANDIDATES["photoeye_latency"].terms(f.values, None), truth)["within"]
 
 
 @pytest.mark.timeout(900)
