@@ -178,15 +178,6 @@ def _explained(d: Design, shapes: np.ndarray) -> float:
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
     """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time."""
     groups = np.unique(d.group)
-    if shuffle == "between" and d.strata is not None:  # within each stratum, its runs' values permuted among them
-        out = np.empty_like(d.shapes)
-        for s in np.unique(d.strata):
-            rows = np.flatnonzero(d.strata == s)
-            present = np.unique(d.group[rows])
-            first = {g: rows[np.flatnonzero(d.group[rows] == g)[0]] for g in present}
-            for g, h in zip(present, present[rng.permutation(len(present))]):
-                out[rows[d.group[rows] == g]] = d.shapes[first[h]]
-        return out
     if shuffle == "between":
         perm = rng.permutation(len(groups))
         # the run -> covariate map permuted: each run takes another run's shape values (one value per run)
