@@ -65,7 +65,7 @@ def design(rows: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
 def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTest:
     """How far past the beam a fish's head was at a photo-eye's edge on, against its speed there."""
     y, run, speed, nuisance, eye = design(rows["edges"])
-    d = Design(y, run, speed[:, None], ["fish speed at the edges [m/s]"], nuisance, within=False, sign=+1,
+    d = Design(y, run, speed[:, None], ["fish speed at the edge on [m/s]"], nuisance, within=False, sign=+1,
                min_effect=MIN_LATENCY_S * float(np.ptp(speed)) if len(speed) else 0.0, strata=eye)
     return covariate_test("photoeye_latency", "how far past a photo-eye the fish's head was at its edge on [m]",
                           "the fish's speed", d, "rows", rng)
