@@ -33,6 +33,7 @@ VALUES = {  # a fitted value per parameter (exact in four digits), and what the 
                                                   "extensions.direction_friction.tail": 1.3}),
     "adhesion": ({"force_n": 2.5}, {"extensions.adhesion.force_n": 2.5}),
     "drive_droop": ({"belt_slip": 5e-4}, {"belt_slip": 5e-4}),
+    "photoeye_latency": ({"latency_s": 0.03}, {"latency_s": 0.03}),
 }
 
 
@@ -73,6 +74,18 @@ def test_fragment_parses_and_sets_the_parameters_in_a_scenario(name: str):
         drive = _drive_defaults()
         assert all(drive[k]["min"] <= v <= drive[k]["max"] for k, v in params.items())
         return
+    if cand.acts_on == "sensor":  # keys of each photo-eye's table: commented out, pasted into each [[line.photoeyes]]
+        assert tomllib.loads(text) == {}
+        body = "".join(line[2:] + "\n" for line in text.splitlines() if line.startswith("# [") or " = " in line)
+        eye = tomllib.loads(body)["line"]["photoeyes"][0]
+        assert eye == pytest.approx(expected)
+        # and a line whose photo-eyes carry them validates, with the values read back
+        scenario = load_scenario(SCENARIO)
+        line = scenario.line.model_dump()
+        line["photoeyes"] = [{**p, **eye} for p in line["photoeyes"]]
+        assert all(p.latency_s == pytest.approx(expected["latency_s"])
+                   for p in type(scenario.line).model_validate(line).photoeyes)
+        return
     doc = tomllib.loads(text)
     assert list(doc) == ["plant"]
     overrides = {f"plant.{k}": v for k, v in _flatten(doc["plant"]).items()}
@@ -109,7 +122,8 @@ def test_a_strength_changes_something():
     for cand in CANDIDATES.values():
         v = cand.grid[-1] if cand.grid else cand.bounds[1]
         changed = (cand.params(PlantParams(), v).model_dump() != PlantParams().model_dump()
-                   or cand.drive_parameters(v) != cand.drive_parameters(cand.off))
+                   or cand.drive_parameters(v) != cand.drive_parameters(cand.off)
+                   or cand.photoeye_parameters(v) != cand.photoeye_parameters(cand.off))
         assert changed, cand.name
 
 

@@ -60,17 +60,19 @@ class Candidate:
     """Values simulated when fitting (besides ``off``); the fit interpolates between them.  Empty: fitted without a
     grid of its own (through the level responses, or drive candidates from the drive residuals)."""
     bounds: tuple[float, float]
-    acts_on: Literal["plant", "drive"]
-    """Plant candidates are fitted by re-simulating the runs; drive candidates from the drive residuals."""
+    acts_on: Literal["plant", "drive", "sensor"]
+    """Plant candidates are fitted by re-simulating the runs; drive candidates from the drive residuals; sensor
+    candidates (a photo-eye's latency) from the measured sensors against the tracks: the physics is not theirs, and
+    a re-simulation takes their extension through its sensors' records (``edges``)."""
     apply: Callable[..., None]
-    """``apply(target, *values)``: writes the values into a PlantParams (plant) or a dict of parameters of
-    every conveyor_drive FMU (drive)."""
+    """``apply(target, *values)``: writes the values into a PlantParams (plant), a dict of parameters of every
+    conveyor_drive FMU (drive) or a dict of parameters of every photo-eye of ``[line]`` (sensor)."""
     writes: tuple[str, ...]
-    """What ``apply`` writes: dotted paths in ``[plant]`` (plant) or drive FMU parameter names (drive); the
-    scenario fragment is these, read back after ``apply``."""
+    """What ``apply`` writes: dotted paths in ``[plant]`` (plant), drive FMU parameter names (drive) or photo-eye
+    keys (sensor); the scenario fragment is these, read back after ``apply``."""
     test: Callable[[dict[str, pd.DataFrame], np.random.Generator], CovariateTest]
     """``test(rows, rng)``: its covariate test on the rows :func:`fishfmu.analysis.signatures.judge` reads
-    (``drops``, ``passages``, ``drive``, ``pairs``, ``model_pairs``)."""
+    (``drops``, ``passages``, ``drive``, ``pairs``, ``edges``, ``model_pairs``)."""
     decides: str
     """What runs would decide it when these cannot."""
     fit: Callable[["Candidate", FitContext], CandidateFit]
@@ -90,6 +92,9 @@ class Candidate:
     explains: tuple[tuple[str, str], ...] = ()
     """The (table, covariate) pairs of the unexplained-discrepancy scan (:mod:`fishfmu.analysis.scan`) this cause
     accounts for: left out of the scan once it is named, and where its rivals are looked for."""
+    edges: Callable[..., pd.DataFrame] | None = None
+    """``edges(photoeyes, *values)``: a sensor candidate's extension applied to a run's photoeyes table (a
+    re-simulation's: what its eyes would have reported), None for the others."""
 
     def __post_init__(self) -> None:
         if len(self.groups) != len(self.parameters):
@@ -120,11 +125,25 @@ class Candidate:
         return p
 
     def drive_parameters(self, *values: float) -> dict[str, float]:
-        """Parameters of every conveyor_drive FMU with the values set (empty for a plant candidate)."""
+        """Parameters of every conveyor_drive FMU with the values set (empty for a plant or sensor candidate)."""
         drive: dict[str, float] = {}
         if self.acts_on == "drive":
             self.apply(drive, *self._values(values))
         return drive
+
+    def photoeye_parameters(self, *values: float) -> dict[str, float]:
+        """Keys of every photo-eye of ``[line]`` with the values set (empty unless a sensor candidate)."""
+        eye: dict[str, float] = {}
+        if self.acts_on == "sensor":
+            self.apply(eye, *self._values(values))
+        return eye
+
+    def simulated_edges(self, photoeyes: pd.DataFrame, *values: float) -> pd.DataFrame:
+        """A re-simulated run's photoeyes table with this candidate's extension (unchanged unless a sensor
+        candidate's: the physics is the plant's, the edges are the eyes')."""
+        if self.edges is None:
+            return photoeyes
+        return self.edges(photoeyes, *self._values(values))
 
     def fragment(self, values: dict[str, float], base: PlantParams) -> str:
         """The fitted values as a scenario fragment (TOML) a user can keep."""
@@ -134,6 +153,11 @@ class Candidate:
             drive = self.drive_parameters(*v)
             return head + "# in each conveyor_drive FMU instance:\n# [fmu.parameters]\n" + "".join(
                 f"# {k} = {drive[k]:.4g}\n" for k in self.writes)
+        if self.acts_on == "sensor":  # keys of array tables: pasted into each photo-eye's, not merged
+            eye = self.photoeye_parameters(*v)
+            return head + ("# in each photo-eye's table of [line], added to a latency_s it already has:\n"
+                           "# [[line.photoeyes]]\n") + "".join(
+                f"# {k} = {eye[k]:.4g}\n" for k in self.writes)
         p = self.params(base, *v)
         return head + plant_tables({path: plant_value(p, path) for path in self.writes})
 

@@ -6,7 +6,8 @@ nuisance terms, or a level per run where the covariate varies within runs) with 
 term; the *held-out gain* is the share of the held-out error the term removes
 (:func:`fishfmu.analysis.fitting.heldout_score`).  The *p-value* is the chance of a term explaining at least as
 much of the data (fitted on all of it) if the quantity did not follow the covariate: the same fit on data where the
-covariate was shuffled where the null makes it exchangeable (``rows``: between rows; ``within``: within each run;
+covariate was shuffled where the null makes it exchangeable (``rows``: between rows, within each of the design's
+strata where it has them; ``within``: within each run;
 ``shift``: circular shifts within each group, for a covariate that is a time series).  Each candidate's module
 (:mod:`fishfmu.analysis.causes`) builds its :class:`Design` from the rows it reads and calls this test.
 """
@@ -76,6 +77,10 @@ class Design:
     """+1 / -1: only a term of this sign counts (a physical direction), 0: either."""
     min_effect: float = 0.0
     """The smallest effect worth naming, in the response's unit over the shape's range (0: any)."""
+    strata: np.ndarray | None = None
+    """Per row, the stratum the ``rows`` shuffle keeps it in (None: one stratum): a covariate exchangeable only
+    among rows of one stratum (a belt's speed among the passages at one photo-eye: the eyes sit at belts of
+    different speeds) is shuffled within each."""
 
 
 def _centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
@@ -181,8 +186,14 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         for g, h in zip(groups, groups[perm]):
             out[d.group == g] = d.shapes[first[h]]
         return out
-    if shuffle == "rows":  # every row takes another row's covariate: no run-level effect of any kind
-        return d.shapes[rng.permutation(len(d.shapes))]
+    if shuffle == "rows":  # every row takes another row's covariate (of its stratum): no run-level effect of any kind
+        if d.strata is None:
+            return d.shapes[rng.permutation(len(d.shapes))]
+        out = d.shapes.copy()
+        for s in np.unique(d.strata):
+            idx = np.flatnonzero(d.strata == s)
+            out[idx] = d.shapes[rng.permutation(idx)]
+        return out
     out = d.shapes.copy()
     for g in groups:
         idx = np.flatnonzero(d.group == g)

@@ -42,6 +42,10 @@ def truth_terms(effect: str, magnitude: dict[str, float], dataset: Dataset) -> d
         # a bond pulls two body segments together with bond_frac x a segment's weight: a fifth of a median fish
         weight = float(np.median(pd.concat([r.fish["weight_kg"] for r in dataset.runs])))
         return {"bond_force_n": m["adhesion_bond_frac"] * G_MPS2 * weight / 5.0}
+    if effect == "photoeye_latency" and "pe_latency_s" in m:
+        # each edge late by the latency and a jitter uniform up to pe_jitter_s (its truth.json says): half of it on
+        # average
+        return {"latency_s": m["pe_latency_s"] + 0.5 * m.get("pe_jitter_s", 0.0)}
     return {}
 
 

@@ -255,11 +255,12 @@ def photoeye_passages(tracks: pd.DataFrame, photoeyes: pd.DataFrame, fish: pd.Da
     ``intervals`` how many blocked intervals, ``span`` the passage's time x the fish's speed over it / (its
     length x |cos yaw|) (1 for a straight fish the beam sees whole).  A blocked interval is a fish's when it
     is the only fish within ``REACH_M`` of the beam at the interval's middle (a tracked position within
-    0.03 s); a fish's intervals at one beam are one passage."""
+    0.03 s); a fish's intervals at one beam are one passage, from ``t_s`` (its first edge on) to ``t_end_s`` (its
+    last edge off)."""
     beam_x = {p.id: p.x_m for p in line.photoeyes}
     length = fish.set_index("fish_id")["length_m"]
-    dtypes = {"fish_id": object, "sensor_id": object, "t_s": float, "span": float, "blocked": float,
-              "intervals": "int64"}
+    dtypes = {"fish_id": object, "sensor_id": object, "t_s": float, "t_end_s": float, "span": float,
+              "blocked": float, "intervals": "int64"}
     if tracks.empty or photoeyes.empty:
         return typed_frame([], dtypes)
     order = np.argsort(tracks["t_s"].to_numpy(float), kind="stable")
@@ -287,7 +288,7 @@ def photoeye_passages(tracks: pd.DataFrame, photoeyes: pd.DataFrame, fish: pd.Da
         if cos < min_cos or len(me) < 3:
             continue
         speed = (me["x_m"].iloc[-1] - me["x_m"].iloc[0]) / (me["t_s"].iloc[-1] - me["t_s"].iloc[0])
-        rows.append({"fish_id": fid, "sensor_id": sensor, "t_s": float(t_on),
+        rows.append({"fish_id": fid, "sensor_id": sensor, "t_s": float(t_on), "t_end_s": float(t_off),
                      "span": float((t_off - t_on) * speed / (float(length[fid]) * cos)),
                      "blocked": float((g["t_off"] - g["t_on"]).sum() / (t_off - t_on)), "intervals": len(g)})
     return typed_frame(rows, dtypes)

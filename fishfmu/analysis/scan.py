@@ -110,6 +110,10 @@ QUANTITIES: tuple[Quantity, ...] = (
              "sensor_id", 0.01),
     # 1 % of the setpoint: droop's smallest worth naming, an encoder's and a drive's own scatter
     Quantity("drive", "sag", "belt speed's sag below its setpoint", "share", "drive", "conveyor_id", 0.01),
+    # 5 mm of where a fish's head is when its eye reports it: 10 ms (a controller's input scan, latency's smallest
+    # worth naming) at 0.5 m/s
+    Quantity("edges", "offset_m", "how far past the beam a fish alone was when its eye reported it", "m", "photoeye",
+             "sensor_id", 0.005),
     # a tenth of the belts' speed difference: what tracking noise makes of a pair's separation over 1.5 s
     Quantity("pairs", "growth", "share of the belts' speed difference a side-by-side pair's separation gained", "",
              "pairs", "conveyor_id", 0.1),
@@ -184,6 +188,8 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
         drops = drops.drop(columns=[c for c in ("weight_kg", "length_m", "t_in_run_s") if c in drops.columns])
         out["drops"] = drops.merge(fish, on=["run_id", "fish_id"], how="left").assign(
             conveyor_id=dataset.line.conveyors[0].id)
+    if rows.get("edges") is not None and len(rows["edges"]):
+        out["edges"] = rows["edges"]
     passages = rows.get("passages")
     if passages is not None and len(passages):
         out["passages"] = passages.merge(fish, on=["run_id", "fish_id"], how="left")

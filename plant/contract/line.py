@@ -68,6 +68,9 @@ class PhotoEye(Strict):
     x_m: float = Field(ge=-100.0, le=1000.0, description="position of the beam along the line, between its ends")
     z_m: float = Field(ge=-10.0, le=10.0, description=(
         "beam height (absolute z): above the belt top there, by at most 0.5 m"))
+    latency_s: float = Field(0.0, ge=0.0, le=1.0, exclude_if=lambda v: v == 0.0, description=(  # 0: files as before
+        "how late the beam's blocked signal reports its edges, on and off alike (an input filter, a slow input card "
+        "or scan); rounded to the plant's communication step"))
 
 
 Point = Annotated[list[float], Field(min_length=2, max_length=2)]

@@ -51,7 +51,7 @@ from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
 from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
 from plant.sim.devices import DeviceActuators
-from plant.sim.sensors import beams_blocked, belt_loads, outline_reach_m, sphere_centres, spine_point_local
+from plant.sim.sensors import BeamDelay, beams_blocked, belt_loads, outline_reach_m, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
 
@@ -82,6 +82,7 @@ class Plant:
         self.conveyor_ids = list(self._ports.conveyor_ids)
         self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
         self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
+        self._beam_delay = BeamDelay([p.latency_s for p in line.photoeyes], comm_step_s)  # as the eyes report them
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._surfaces = line_surfaces(line, self._params.guide_height_m)  # once a run (STLs read once)
         self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
@@ -358,7 +359,7 @@ class Plant:
             belt_speed_mps=dict(zip(self.conveyor_ids, map(float, speeds))),
             belt_load_force_n=dict(zip(self.conveyor_ids, map(float, load))),
             belt_load_mass_kg=dict(zip(self.conveyor_ids, map(float, mass))),
-            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, blocked))), **output_fields(readings),
+            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, self._beam_delay(blocked)))), **output_fields(readings),
             **self._devices.output_fields(self._ports.device_ids, self._rejected_by))
 
     def _camera_readings(self) -> dict:

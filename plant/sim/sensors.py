@@ -2,7 +2,8 @@
 
 - photo-eyes: a beam across the line (along y) at (x, z) is blocked when it passes through a
   fish's body, taken from its outline (a stadium-shaped cross-section every centimetre), not from
-  the coarser contact spheres, whose valleys would let a beam through a fish;
+  the coarser contact spheres, whose valleys would let a beam through a fish; an eye with a latency
+  reports that state that much later (:class:`BeamDelay`);
 - belt load: the force the fish put on a belt along x and down, from the belt body's momentum
   change over the step (nothing else acts on it);
 - where on each fish's spine its tracked points are (:func:`spine_point_local`; the poses themselves:
@@ -83,6 +84,26 @@ def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: 
     centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
     return photoeyes_blocked(centres, r[:, :, 1], model.section_half_len[sel], model.section_radius[sel], beams_xz,
                              span_y_m, near[b].T)
+
+
+class BeamDelay:
+    """Each photo-eye's blocked signal as it is reported: ``latency_s`` late (an input filter, a slow input card),
+    in whole communication steps (rounded to the nearest; at least half a step rounds up to one).  Both edges are
+    delayed alike, so a blocked interval keeps its length; before the first step's state has come through, a delayed
+    eye reports clear, like the line at rest."""
+
+    def __init__(self, latency_s: list[float], comm_step_s: float) -> None:
+        self.steps = np.array([int(np.floor(lat / comm_step_s + 0.5 + 1e-9)) for lat in latency_s], dtype=np.int64)
+        self._past = np.zeros((int(self.steps.max(initial=0)) + 1, len(latency_s)), dtype=bool)  # ring of states
+        self._now = 0
+
+    def __call__(self, blocked: np.ndarray) -> np.ndarray:
+        """The states reported after this step, given the beams' states now."""
+        if not self.steps.any():
+            return blocked
+        self._now = (self._now + 1) % len(self._past)
+        self._past[self._now] = blocked
+        return self._past[(self._now - self.steps) % len(self._past), np.arange(len(self.steps))]
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,
