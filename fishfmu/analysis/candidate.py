@@ -89,6 +89,8 @@ class Candidate:
     stiffness at the peak, speed lost per 10 kg ...), what a process engineer and a benchmark's truth compare."""
     primary: str = ""
     """The one of ``terms`` that says how strong the cause is (what parameter recovery is judged on)."""
+    plot: Callable[..., None] | None = None
+    """``plot(ax, rows)``: its signature on a matplotlib axes, as its test reads the rows (the report's panel)."""
     explains: tuple[tuple[str, str], ...] = ()
     """The (table, covariate) pairs of the unexplained-discrepancy scan (:mod:`fishfmu.analysis.scan`) this cause
     accounts for: left out of the scan once it is named, and where its rivals are looked for."""

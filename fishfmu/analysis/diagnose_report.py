@@ -16,6 +16,7 @@ import pandas as pd  # noqa: E402
 from fishfmu.analysis.calibrate_report import calibration_document  # noqa: E402
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, NOT_CONFIRMED, CandidateFit, Diagnosis  # noqa: E402
+from fishfmu.analysis.scan import COVARIATES, QUANTITIES  # noqa: E402
 from fishfmu.analysis.signatures import ALPHA, SUGGESTIVE, CovariateTest, significant  # noqa: E402
 from fishfmu.output.atomic import json_safe, write_figure_atomic, write_json_atomic, write_text_atomic  # noqa: E402
 
@@ -164,40 +165,39 @@ def _img(fig, path: Path) -> str:
 
 
 def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
-    """One panel per candidate, two rows of three (one row of five overlapped its labels): its quantity against its
-    covariate, as the tests read them, titled with the cause, its p-value and whether it is significant."""
+    """One panel per candidate, three to a row: its quantity against its covariate, as its test reads them (its own
+    ``plot``), titled with its p-value and whether it is significant; then the first unexplained finding's quantity
+    against its covariate, and the answer."""
     rows = d.judgement.rows
     tests = {t.candidate: t for t in d.judgement.tests}
-    fig, grid = plt.subplots(2, 3, figsize=(14, 8.5), layout="constrained")
+    names = [n for n, c in CANDIDATES.items() if c.plot is not None]
+    n_rows = -(-(len(names) + 2) // 3)
+    fig, grid = plt.subplots(n_rows, 3, figsize=(14, 4.2 * n_rows), layout="constrained")
     axes = grid.ravel()
-
-    def title(ax, name: str) -> None:
+    for ax, name in zip(axes, names):
+        CANDIDATES[name].plot(ax, rows)
         t = tests.get(name)
-        verdict = "not judged" if t is None or not t.judged else (
-            f"p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.0%}" + (" - significant" if significant(t) else ""))
-        ax.set_title(f"{name}\n{verdict}", fontsize=10, fontweight="bold" if name == d.cause else "normal")
-
-    drops, passages, drive = rows.get("drops"), rows.get("passages"), rows.get("drive")
-    if drops is not None and len(drops):
-        axes[0].plot(drops["hours_post_mortem"], 1e3 * drops["slip_s"], ".", alpha=0.5)
-        axes[2].plot(drops["heading"], 1e3 * drops["slip_s"], ".", alpha=0.5)
-    axes[0].set(xscale="log", xlabel="hours post mortem", ylabel="slip of a drop alone [ms]")
-    axes[2].set(xlabel="cos(heading) at the drop\n(+1 head downstream)", ylabel="slip of a drop alone [ms]")
-    if passages is not None and len(passages):
-        axes[1].plot(passages["hours_post_mortem"], passages["blocked"], ".", alpha=0.5)
-    axes[1].set(xscale="log", xlabel="hours post mortem", ylabel="blocked share of a passage")
-    if drive is not None and len(drive):
-        axes[3].plot(drive["load_kg"], 100 * drive["sag"], ",", alpha=0.5)
-    axes[3].set(xlabel="mass on the belt [kg]", ylabel="speed below setpoint [%]")
-    pairs, model = rows.get("pairs"), rows.get("model_pairs")
-    parts = [g[g["touching"] == 1.0]["growth"].to_numpy(float) for g in (pairs, model) if g is not None]
-    if parts and any(len(p) for p in parts):
-        axes[4].boxplot([p for p in parts], tick_labels=["measured", "model"][:len(parts)])
-    axes[4].set(ylabel="touching pairs: separation gained\n/ belts' speed difference")
-    for ax, name in zip(axes, ("mucus_friction", "rigor_mortis", "directional_friction", "drive_droop", "adhesion")):
-        title(ax, name)
-    axes[5].axis("off")
-    axes[5].text(0.0, 0.95, f"cause: {d.cause}\nextension: {d.extension}", va="top", fontsize=11, wrap=True)
+        verdict = ("left out" if name in d.judgement.left_out else "not judged" if t is None or not t.judged else
+                   f"p = {t.p_value:.3f}, held-out gain {t.heldout_gain:.0%}" + (" - significant" if significant(t) else ""))
+        ax.set_title(f"{name}\n{verdict}", fontsize=10, fontweight="bold" if name in d.causes else "normal")
+    ax = axes[len(names)]
+    f = d.unexplained[0] if d.unexplained else None
+    table = d.scan.tables.get(f.table) if f is not None and d.scan is not None else None
+    if f is not None and table is not None:
+        col = next(q.column for q in QUANTITIES if q.table == f.table)
+        for place, g in table.groupby(next(q.location_column for q in QUANTITIES if q.table == f.table)):
+            ax.plot(g[COVARIATES[f.covariate_key].column], g[col], ".", alpha=0.4, label=str(place))
+        ax.legend(fontsize=7)
+        ax.set(xlabel=f.covariate, ylabel=f"{f.quantity} [{f.unit}]" if f.unit else f.quantity)
+        ax.set_title(f"unexplained: at {f.location_kind} {f.location_id}\np = {f.test.p_value:.4f}, held-out gain "
+                     f"{f.test.heldout_gain:.0%}", fontsize=10, fontweight="bold")
+    else:
+        ax.axis("off")
+        ax.text(0.0, 0.95, "nothing unexplained", va="top", fontsize=11)
+    for ax in axes[len(names) + 1:]:
+        ax.axis("off")
+    axes[len(names) + 1].text(0.0, 0.95, f"answer: {d.answer}\ncause: {d.cause}\nextension: {d.extension}", va="top",
+                              fontsize=11, wrap=True)
     return {"signatures.png": _img(fig, out / "signatures.png")}
 
 

@@ -163,6 +163,8 @@ class Scan:
     """The p-value a finding needs (``ALPHA`` over the number of deciding tests)."""
     size_findings: list[Finding] = field(default_factory=list)
     """Dependences on the fish's size (:data:`SIZE_COVARIATES`): the base model's own mismatch."""
+    tables: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
+    """What it read (:func:`scan_tables`), for plots."""
 
 
 # ------------------------------------------------------------------------------------------------- the tables
@@ -294,7 +296,7 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table)
         (size if cov.key in SIZE_COVARIATES else findings).append(f)
     findings.sort(key=lambda f: (f.test.p_value, -f.test.heldout_gain))
-    return Scan(findings, tests, threshold, size)
+    return Scan(findings, tests, threshold, size, tables)
 
 
 # ------------------------------------------------------------------------------------------------- how well it fits

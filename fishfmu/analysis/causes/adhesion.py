@@ -52,9 +52,18 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
     return {"bond_force_n": float(values.get("force_n", 0.0))}
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: touching pairs' separation, measured against the model."""
+    pairs, model = rows.get("pairs"), rows.get("model_pairs")
+    parts = [g[g["touching"] == 1.0]["growth"].to_numpy(float) for g in (pairs, model) if g is not None]
+    if parts and any(len(p) for p in parts):
+        ax.boxplot(parts, tick_labels=["measured", "model"][:len(parts)])
+    ax.set(ylabel="touching pairs: separation gained\n/ belts' speed difference")
+
+
 CANDIDATE = Candidate(
     "adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N", 0.0, (2.0, 6.0), (0.0, 50.0),
     "plant", apply, ("extensions.adhesion.force_n",), test=test,
     decides="more batches dumped onto the infeed, with fish side by side both touching and with a gap",
     fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n",
-    explains=(("pairs", "touching"),))
+    explains=(("pairs", "touching"),), plot=plot)

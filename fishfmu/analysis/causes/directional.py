@@ -45,6 +45,14 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
     return {"head_tail_friction_ratio": float((1.0 - a) / (1.0 + a))}
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: the slip of drops alone against the fish's heading."""
+    drops = rows.get("drops")
+    if drops is not None and len(drops):
+        ax.plot(drops["heading"], 1e3 * drops["slip_s"], ".", alpha=0.5)
+    ax.set(xlabel="cos(heading) at the drop\n(+1 head downstream)", ylabel="slip of a drop alone [ms]")
+
+
 CANDIDATE = Candidate(
     "directional_friction", "fish-belt friction by slip direction: head first x(1 - a), tail first x(1 + a)",
     ("asymmetry",), "", 0.0, (0.25, 0.5), (-0.75, 0.75), "plant", apply,
@@ -52,4 +60,4 @@ CANDIDATE = Candidate(
     test=test, decides="more fish dropped alone onto the infeed, both head downstream and head upstream",
     fit=fit_on_grid, groups=("transfers",), synthetic=hide, terms=terms,
     primary="head_tail_friction_ratio",
-    explains=(("drops", "heading"), ("transfers", "heading")))
+    explains=(("drops", "heading"), ("transfers", "heading")), plot=plot)

@@ -128,9 +128,17 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
     return out
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: each drive's sag below its setpoint against the mass on its belt."""
+    drive = rows.get("drive")
+    if drive is not None and len(drive):
+        ax.plot(drive["load_kg"], 100 * drive["sag"], ",", alpha=0.5)
+    ax.set(xlabel="mass on the belt [kg]", ylabel="speed below setpoint [%]")
+
+
 CANDIDATE = Candidate(
     "drive_droop", "belt creep on its drum: belt speed drop per newton of load", ("belt_slip",), "(m/s)/N", 0.0, (),
     (0.0, 0.01), "drive", apply, ("belt_slip",), test=test,
     decides="drive logs of runs whose belts carry varying loads (batches dumped onto the infeed)",
     fit=fit, synthetic=hide, terms=terms, primary="speed_lost_per_10kg",
-    explains=(("drive", "load_kg"),))
+    explains=(("drive", "load_kg"),), plot=plot)

@@ -116,8 +116,18 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
     return {"latency_s": float(values["latency_s"])} if "latency_s" in values else {}
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: where the head was at the edge on against the fish's speed, per eye."""
+    edges = rows.get("edges")
+    if edges is not None and len(edges):
+        for eye, g in edges.groupby("sensor_id"):
+            ax.plot(g["speed_mps"], 1e3 * g["offset_m"], ".", alpha=0.5, label=str(eye))
+        ax.legend(fontsize=7)
+    ax.set(xlabel="the fish's speed at the edge [m/s]", ylabel="head past the beam at the edge on [mm]")
+
+
 CANDIDATE = Candidate(
     "photoeye_latency", "photo-eyes reporting their edges late (a slow input card or an input filter): the delay of "
     "every edge, on and off", ("latency_s",), "s", 0.0, (), BOUNDS_S, "sensor", apply, ("latency_s",), test=test,
     decides="runs with fish riding alone past the photo-eyes at belt speeds that differ from run to run",
-    fit=fit, terms=terms, primary="latency_s", edges=delay_edges, explains=(("edges", "belt_speed_mps"),))
+    fit=fit, terms=terms, primary="latency_s", edges=delay_edges, explains=(("edges", "belt_speed_mps"),), plot=plot)

@@ -134,6 +134,14 @@ def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
     return out
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: the slip of drops alone against hours post mortem."""
+    drops = rows.get("drops")
+    if drops is not None and len(drops):
+        ax.plot(drops["hours_post_mortem"], 1e3 * drops["slip_s"], ".", alpha=0.5)
+    ax.set(xscale="log", xlabel="hours post mortem", ylabel="slip of a drop alone [ms]")
+
+
 CANDIDATE = Candidate(
     "mucus_friction", "relative change of belt friction once the mucus has dried, and how fast it dries",
     ("gain", "time_constant_h"), "", 0.0, (), (0.0, 8.0), "plant", apply,
@@ -143,4 +151,4 @@ CANDIDATE = Candidate(
             "8 h, most of all)",
     fit=fit, groups=("alone", "alone"), synthetic=hide, terms=terms,
     primary="rise_1h_to_48h",
-    explains=(("drops", "hours_post_mortem"), ("transfers", "hours_post_mortem")))
+    explains=(("drops", "hours_post_mortem"), ("transfers", "hours_post_mortem")), plot=plot)

@@ -56,6 +56,14 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
             "peak_h": float(values.get("peak_h", float("nan")))}
 
 
+def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
+    """Its signature as the test reads it: the blocked share of passages alone against hours post mortem."""
+    passages = rows.get("passages")
+    if passages is not None and len(passages):
+        ax.plot(passages["hours_post_mortem"], passages["blocked"], ".", alpha=0.5)
+    ax.set(xscale="log", xlabel="hours post mortem", ylabel="blocked share of a passage")
+
+
 CANDIDATE = Candidate(
     "rigor_mortis", "extra joint stiffness at full rigor (x soft stiffness; range lost with it), when rigor peaks and "
     "how long it lasts", ("stiffness_gain", "peak_h", "width_h"), "x", 0.0, (), (0.0, 50.0), "plant", apply,
@@ -65,4 +73,4 @@ CANDIDATE = Candidate(
     decides="more runs at ages between 4 and 48 h post mortem with fish riding alone past the photo-eyes",
     fit=fit_levels, groups=("transfers", "transfers", "transfers"), level_model="rigor_mortis", synthetic=hide,
     terms=terms, primary="stiffness_factor_at_peak",
-    explains=(("passages", "hours_post_mortem"), ("transfers", "hours_post_mortem")))
+    explains=(("passages", "hours_post_mortem"), ("transfers", "hours_post_mortem")), plot=plot)
