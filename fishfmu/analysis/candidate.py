@@ -70,7 +70,7 @@ class Candidate:
     scenario fragment is these, read back after ``apply``."""
     test: Callable[[dict[str, pd.DataFrame], np.random.Generator], CovariateTest]
     """``test(rows, rng)``: its covariate test on the rows :func:`fishfmu.analysis.signatures.judge` reads
-    (``drops``, ``passages``, ``drive``, ``pairs``, ``model_pairs``)."""
+    (``drops``, ``passages``, ``drive``, ``pairs``, ``guides``, ``model_pairs``)."""
     decides: str
     """What runs would decide it when these cannot."""
     fit: Callable[["Candidate", FitContext], CandidateFit]

@@ -12,6 +12,7 @@ The identifiers are the ones ``diagnosis.json`` reports as ``cause``:
 ``directional_friction`` friction depends on the direction the fish slips in (head or tail first)
 ``drive_droop``          the belts slow down under load more than the drive model says (belt creep)
 ``adhesion``             touching fish stick together
+``guide_wear``           fish-guide friction rises along the line (guide liners grip harder downstream)
 ``none``                 no candidate explains the data clearly better than noise
 ======================== ==============================================================================
 
@@ -24,9 +25,10 @@ from __future__ import annotations
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidate import Candidate
-from fishfmu.analysis.causes import adhesion, directional, droop, mucus, rigor
+from fishfmu.analysis.causes import adhesion, directional, droop, guide, mucus, rigor
 
-CANDIDATES: dict[str, Candidate] = {m.CANDIDATE.name: m.CANDIDATE for m in (mucus, rigor, directional, droop, adhesion)}
+CANDIDATES: dict[str, Candidate] = {m.CANDIDATE.name: m.CANDIDATE for m in (mucus, rigor, directional, droop, adhesion,
+                                                                       guide)}
 
 
 def fragment(name: str, values: dict[str, float], base: PlantParams) -> str:

@@ -7,7 +7,8 @@ term; the *held-out gain* is the share of the held-out error the term removes
 (:func:`fishfmu.analysis.fitting.heldout_score`).  The *p-value* is the chance of a term explaining at least as
 much of the data (fitted on all of it) if the quantity did not follow the covariate: the same fit on data where the
 covariate was shuffled where the null makes it exchangeable (``rows``: between rows; ``within``: within each run;
-``shift``: circular shifts within each group, for a covariate that is a time series).  Each candidate's module
+``shift``: circular shifts within each group, for a covariate that is a time series; ``strata``: between the rows of
+each of the design's ``strata``).  Each candidate's module
 (:mod:`fishfmu.analysis.causes`) builds its :class:`Design` from the rows it reads and calls this test.
 """
 
@@ -76,6 +77,9 @@ class Design:
     """+1 / -1: only a term of this sign counts (a physical direction), 0: either."""
     min_effect: float = 0.0
     """The smallest effect worth naming, in the response's unit over the shape's range (0: any)."""
+    strata: np.ndarray | None = None
+    """Per row, the stratum within which the ``strata`` shuffle exchanges the covariate (e.g. fish touching a guide
+    exchange their positions along the line among themselves)."""
 
 
 def _centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
@@ -171,7 +175,8 @@ def _explained(d: Design, shapes: np.ndarray) -> float:
 
 
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
-    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time."""
+    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
+    among the rows of a stratum."""
     groups = np.unique(d.group)
     if shuffle == "between":
         perm = rng.permutation(len(groups))
@@ -183,6 +188,14 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         return out
     if shuffle == "rows":  # every row takes another row's covariate: no run-level effect of any kind
         return d.shapes[rng.permutation(len(d.shapes))]
+    if shuffle == "strata":  # every row takes the covariate of another row of its stratum
+        if d.strata is None:
+            raise ValueError("the strata shuffle needs the design's strata")
+        out = d.shapes.copy()
+        for s in np.unique(d.strata):
+            idx = np.flatnonzero(d.strata == s)
+            out[idx] = d.shapes[rng.permutation(idx)]
+        return out
     out = d.shapes.copy()
     for g in groups:
         idx = np.flatnonzero(d.group == g)

@@ -21,7 +21,7 @@ from plant.contract.measured import Dataset
 
 from fishfmu.analysis.candidates import CANDIDATES
 from fishfmu.analysis.covariates import CovariateTest
-from fishfmu.analysis.observations import drive_rows, drop_rows, pair_rows, passage_rows
+from fishfmu.analysis.observations import drive_rows, drop_rows, guide_rows, pair_rows, passage_rows
 
 __all__ = ["ALPHA", "SUGGESTIVE", "CovariateTest", "Judgement", "judge", "significant"]
 
@@ -46,7 +46,8 @@ class Judgement:
     undecided: list[str] = field(default_factory=list)
     """Candidates these runs cannot decide (not judged, or suggestive), each with what would decide it."""
     rows: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
-    """What the tests read: ``drops``, ``passages``, ``drive``, ``pairs`` and ``model_pairs`` (for plots)."""
+    """What the tests read: ``drops``, ``passages``, ``drive``, ``pairs``, ``guides`` and ``model_pairs`` (for
+    plots)."""
 
     @property
     def decision(self) -> str:
@@ -68,7 +69,7 @@ def judge(dataset: Dataset, rng: np.random.Generator, model: Dataset | None = No
     significant: ``none``. ``model``: the runs re-simulated with the constant (calibrated) model, in the
     measured-data format, for adhesion (the other tests read the measured data alone)."""
     rows = {"drops": drop_rows(dataset), "passages": passage_rows(dataset), "drive": drive_rows(dataset),
-            "pairs": pair_rows(dataset)}
+            "pairs": pair_rows(dataset), "guides": guide_rows(dataset)}
     if model is not None:
         rows["model_pairs"] = pair_rows(model)
     tests = [c.test(rows, rng) for c in CANDIDATES.values()]
