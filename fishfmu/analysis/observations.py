@@ -229,8 +229,8 @@ def guide_rows(dataset: Dataset) -> pd.DataFrame:
     """Per fish and stretch of :data:`STRETCH_M` of a belt it lay wholly on (at least 5 samples over 0.2 s): its
     slip [m/s], the belt's logged mean speed there less the fish's speed along the line (a line fitted to its
     tracked x over time), and ``touching`` 1 (its flank at a guide) or 0 (clear of both; see :data:`GUIDE_TOUCH_M`,
-    the band between left out), with the stretch's mid x, the fish's properties, its heading (cos of its median
-    yaw) and how long into the run.  A guide holds back only the fish pressed against it, by its friction there:
+    the band between left out), with the stretch's mid x, the fish's properties, its heading (the median of the
+    cos of its yaw: +1 head downstream) and how long into the run.  A guide holds back only the fish pressed against it, by its friction there:
     fish clear of the guides show what the stretch itself does."""
     rows = []
     for run in dataset.runs:
@@ -264,7 +264,7 @@ def guide_rows(dataset: Dataset) -> pd.DataFrame:
                                  "touching": float(g < GUIDE_TOUCH_M[0]), "guide_gap_m": g,
                                  "belt_speed_mps": float(belt.mean()), "hours_post_mortem": float(hours[fid]),
                                  "weight_kg": float(fish.loc[fid, "weight_kg"]), "length_m": length,
-                                 "heading": float(np.cos(np.median(yaw[m]))),
+                                 "heading": float(np.median(np.cos(yaw[m]))),
                                  "t_in_run_s": float(np.mean(t[m]))})
     cols = ["run_id", "fish_id", "conveyor_id", "x_m", "slip_mps", "touching", "guide_gap_m", "belt_speed_mps",
             "hours_post_mortem", "weight_kg", "length_m", "heading", "t_in_run_s"]
