@@ -33,6 +33,7 @@ VALUES = {  # a fitted value per parameter (exact in four digits), and what the 
                                                   "extensions.direction_friction.tail": 1.3}),
     "adhesion": ({"force_n": 2.5}, {"extensions.adhesion.force_n": 2.5}),
     "drive_droop": ({"belt_slip": 5e-4}, {"belt_slip": 5e-4}),
+    "guide_wear": ({"rise": 2.5}, {"extensions.guide_wear.rise": 2.5}),
 }
 
 
