@@ -1,8 +1,11 @@
 """The guide wear candidate (:mod:`fishfmu.analysis.causes.guide`): its rows read from tracks and belt logs against
 values worked out by hand, its covariate test on rows made by hand (named with the effect, not without it, not for a
-slippery stretch that holds back every fish on it), the strata shuffle it is judged by, and its terms."""
+slippery stretch that holds back every fish on it), the strata shuffle it is judged by, its fit (on stand-in
+simulations) and its terms."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -131,3 +134,37 @@ def test_its_terms_are_the_guide_friction_at_each_end():
     assert terms["guide_friction_outfeed"] == pytest.approx(3.0 * base.friction.fish_guide)
     assert cand.params(base, 2.0).extensions.guide_wear.rise == 2.0
     assert "rise = 2" in cand.fragment({"rise": 2.0}, base)
+
+
+def test_the_extension_is_fitted_by_simulating_the_runs_with_guide_contact_only(monkeypatch):
+    """Stand-in simulations whose error is (rise - 2)^2 per run: only the runs in which fish touched a guide are
+    simulated (those of fish alone carry no signal), at the grid's strengths; the fit finds the hidden rise between
+    them and carries over to held-out runs."""
+    from fishfmu.analysis import extension_fit
+
+    contact = ["r1", "r2", "r3", "r4"]
+    rows = pd.DataFrame({"run_id": contact + ["r5", "r6"], "touching": [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]})
+    monkeypatch.setattr(guide, "guide_rows", lambda dataset: rows)
+
+    def residual(run_id: str, rise: float) -> SimpleNamespace:
+        e = (rise - 2.0) ** 2 + 0.1
+        return SimpleNamespace(run_id=run_id, error=None, squares=lambda group, e=e: (e, 10))
+
+    simulated: list[tuple[str, float]] = []
+
+    def resimulate_many(line, runs, params, **kw):
+        simulated.extend((r.id, p.extensions.guide_wear.rise) for r, p in zip(runs, params))
+        return [(r.id, p.extensions.guide_wear.rise) for r, p in zip(runs, params)]
+
+    monkeypatch.setattr(extension_fit, "resimulate_many", resimulate_many)
+    monkeypatch.setattr(extension_fit, "residuals_of", lambda sub, sims: [residual(r, v) for r, v in sims])
+    runs = [SimpleNamespace(id=f"r{i}") for i in range(1, 7)]
+    dataset = SimpleNamespace(runs=runs, line=None, subset=lambda rs: rs)
+    cal = SimpleNamespace(params=PlantParams(), after=[residual(r.id, 0.0) for r in runs], fit_runs=["r5", "r6"])
+    ctx = SimpleNamespace(dataset=dataset, cal=cal, pool=None, rng=np.random.default_rng(0), say=lambda s: None)
+    cand = CANDIDATES["guide_wear"]
+    fit = cand.fit(cand, ctx)
+    assert {r for r, _ in simulated} == set(contact)
+    assert sorted({v for _, v in simulated}) == sorted(cand.grid)
+    assert fit.values["rise"] == pytest.approx(2.0, abs=1e-6)  # the parabola through 1, 3 and the off value 0
+    assert fit.confirmed and not fit.at_grid_end
