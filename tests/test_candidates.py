@@ -34,6 +34,7 @@ VALUES = {  # a fitted value per parameter (exact in four digits), and what the 
     "adhesion": ({"force_n": 2.5}, {"extensions.adhesion.force_n": 2.5}),
     "drive_droop": ({"belt_slip": 5e-4}, {"belt_slip": 5e-4}),
     "photoeye_latency": ({"latency_s": 0.03}, {"latency_s": 0.03}),
+    "guide_wear": ({"rise": 2.5}, {"extensions.guide_wear.rise": 2.5}),
 }
 
 

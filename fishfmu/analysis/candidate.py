@@ -72,7 +72,7 @@ class Candidate:
     keys (sensor); the scenario fragment is these, read back after ``apply``."""
     test: Callable[[dict[str, pd.DataFrame], np.random.Generator], CovariateTest]
     """``test(rows, rng)``: its covariate test on the rows :func:`fishfmu.analysis.signatures.judge` reads
-    (``drops``, ``passages``, ``drive``, ``pairs``, ``edges``, ``model_pairs``)."""
+    (``drops``, ``passages``, ``drive``, ``pairs``, ``edges``, ``guides``, ``model_pairs``)."""
     decides: str
     """What runs would decide it when these cannot."""
     fit: Callable[["Candidate", FitContext], CandidateFit]

@@ -13,6 +13,7 @@ The identifiers are the ones ``diagnosis.json`` reports as ``cause``:
 ``drive_droop``          the belts slow down under load more than the drive model says (belt creep)
 ``adhesion``             touching fish stick together
 ``photoeye_latency``     the photo-eyes report their edges late (a sensor at fault: a slow input card, a filter)
+``guide_wear``           fish-guide friction rises along the line (guide liners grip harder downstream)
 ``none``                 no candidate explains the data clearly better than noise
 ======================== ==============================================================================
 
@@ -25,10 +26,10 @@ from __future__ import annotations
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidate import Candidate
-from fishfmu.analysis.causes import adhesion, directional, droop, latency, mucus, rigor
+from fishfmu.analysis.causes import adhesion, directional, droop, guide, latency, mucus, rigor
 
 CANDIDATES: dict[str, Candidate] = {m.CANDIDATE.name: m.CANDIDATE for m in (mucus, rigor, directional, droop, adhesion,
-                                                                               latency)}
+                                                                               latency, guide)}
 
 
 def fragment(name: str, values: dict[str, float], base: PlantParams) -> str:

@@ -8,7 +8,8 @@ term; the *held-out gain* is the share of the held-out error the term removes
 much of the data (fitted on all of it) if the quantity did not follow the covariate: the same fit on data where the
 covariate was shuffled where the null makes it exchangeable (``rows``: between rows, within each of the design's
 strata where it has them; ``within``: within each run;
-``shift``: circular shifts within each group, for a covariate that is a time series).  Each candidate's module
+``shift``: circular shifts within each group, for a covariate that is a time series; ``strata``: ``rows`` that
+requires the strata).  Each candidate's module
 (:mod:`fishfmu.analysis.causes`) builds its :class:`Design` from the rows it reads and calls this test.
 """
 
@@ -80,7 +81,8 @@ class Design:
     strata: np.ndarray | None = None
     """Per row, the stratum the ``rows`` shuffle keeps it in (None: one stratum): a covariate exchangeable only
     among rows of one stratum (a belt's speed among the passages at one photo-eye: the eyes sit at belts of
-    different speeds) is shuffled within each."""
+    different speeds; fish touching a guide exchanging their positions along the line among themselves) is shuffled
+    within each."""
 
 
 def _centre(a: np.ndarray, group: np.ndarray) -> np.ndarray:
@@ -176,7 +178,8 @@ def _explained(d: Design, shapes: np.ndarray) -> float:
 
 
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
-    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time."""
+    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
+    among the rows of a stratum."""
     groups = np.unique(d.group)
     if shuffle == "between":
         perm = rng.permutation(len(groups))
@@ -186,7 +189,9 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         for g, h in zip(groups, groups[perm]):
             out[d.group == g] = d.shapes[first[h]]
         return out
-    if shuffle == "rows":  # every row takes another row's covariate (of its stratum): no run-level effect of any kind
+    if shuffle == "strata" and d.strata is None:
+        raise ValueError("the strata shuffle needs the design's strata")
+    if shuffle in ("rows", "strata"):  # each row takes another row's covariate (of its stratum): no run-level effect
         if d.strata is None:
             return d.shapes[rng.permutation(len(d.shapes))]
         out = d.shapes.copy()

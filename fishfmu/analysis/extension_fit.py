@@ -185,13 +185,15 @@ def beyond_the_ends(cand, base: dict[str, RunResiduals],
     return sorted({round(v, 6) for v in extra} - set(values))
 
 
-def fit_on_grid(cand, ctx: FitContext) -> CandidateFit:
-    """The candidate at its grid of strengths on the runs that carry its signal (those with touching pairs for a
-    candidate fitted on pairs, else the calibration's fit runs), extended once beyond an end where the error still
-    falls, against the calibrated model."""
+def fit_on_grid(cand, ctx: FitContext, run_ids: set[str] | None = None) -> CandidateFit:
+    """The candidate at its grid of strengths on the runs that carry its signal (``run_ids`` where the candidate
+    says which; those with touching pairs for a candidate fitted on pairs; else the calibration's fit runs), extended
+    once beyond an end where the error still falls, against the calibrated model."""
     dataset, cal = ctx.dataset, ctx.cal
     cur_by_run = {b.run_id: b for b in cal.after if not b.error}
-    if cand.needs_pairs:
+    if run_ids is not None:
+        fit_runs = [r for r in dataset.runs if r.id in run_ids and r.id in cur_by_run]
+    elif cand.needs_pairs:
         fit_runs = [r for r in dataset.runs if r.id in cur_by_run and len(pair_residuals(r, r.tracks, dataset.line))]
     else:
         fit_runs = [r for r in dataset.runs if r.id in set(cal.fit_runs) and r.id in cur_by_run]

@@ -7,7 +7,9 @@ tests of :mod:`fishfmu.analysis.signatures` read.
   the eye reported it there;
 - :func:`drive_rows`: each drive's speed below its setpoint against the mass on its belt (:func:`belt_loads`);
 - :func:`pair_rows`: pairs of fish side by side at a transfer, how much of the belts' speed difference their
-  separation gained.
+  separation gained;
+- :func:`guide_rows`: each fish on each short stretch of belt it rode wholly on, how far it fell behind its belt's
+  logged speed (slip) and whether it touched a side guide there.
 
 The same readers serve a re-simulation written in the measured-data format, so that measured and modelled pairs
 are compared on equal terms.
@@ -21,7 +23,7 @@ import pandas as pd
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 
-from fishfmu.analysis.residuals import EDGE_M, crowding, photoeye_passages, side_by_side_at
+from fishfmu.analysis.residuals import EDGE_M, crowding, fish_heights, photoeye_passages, side_by_side_at
 
 G_MPS2 = 9.81
 DROP_READ_S = (0.8, 3.0)
@@ -266,4 +268,70 @@ def pair_rows(dataset: Dataset) -> pd.DataFrame:
                 rows.append({"run_id": run.id, "conveyor_id": c.id, "leader": p.leader, "follower": p.follower,
                              "touching": float(gap < 0.0), "growth": (sep - p.dx_m) / (dv * PAIR_AFTER_S)})
     cols = ["run_id", "conveyor_id", "leader", "follower", "touching", "growth"]
+    return pd.DataFrame(rows, columns=cols)
+
+
+STRETCH_M = 0.25
+"""Each belt is read in stretches this long (by the fish's tracked mid-point): short enough to place a guide's
+grip along the line, long enough (0.25-1 s of track at 0.25-1 m/s) to read a speed through a few mm of tracking
+noise."""
+GUIDE_TOUCH_M = (0.005, 0.015)
+"""A fish touches a guide on a stretch when the median gap between its flank and the nearer guide (its tracked
+mid-point and yaw, its length and height as an ellipse seen from above) is below the first; it is clear of both when
+the gap is above the second.  In between is left out: a few mm of tracking noise and a fish's outline that is no
+exact ellipse cannot tell touching from not."""
+
+
+def guide_gap_m(line: Line, x_m: np.ndarray, y_m: np.ndarray, yaw_rad: np.ndarray, length_m: float,
+                height_m: float) -> np.ndarray:
+    """The gap between a fish's flank and the nearer side guide [m] (< 0: overlapping it, as a bent fish or a
+    tracker's error may), the fish seen from above as an ellipse of its length and height (it lies on its side)."""
+    half = np.hypot(0.5 * length_m * np.sin(yaw_rad), 0.5 * height_m * np.cos(yaw_rad))
+    left, right = line.guide_y_at(x_m)
+    return np.minimum(left - (y_m + half), (y_m - half) - right)
+
+
+def guide_rows(dataset: Dataset) -> pd.DataFrame:
+    """Per fish and stretch of :data:`STRETCH_M` of a belt it lay wholly on (at least 5 samples over 0.2 s): its
+    slip [m/s], the belt's logged mean speed there less the fish's speed along the line (a line fitted to its
+    tracked x over time), and ``touching`` 1 (its flank at a guide) or 0 (clear of both; see :data:`GUIDE_TOUCH_M`,
+    the band between left out), with the stretch's mid x, the fish's properties, its heading (the median of the
+    cos of its yaw: +1 head downstream) and how long into the run.  A guide holds back only the fish pressed against it, by its friction there:
+    fish clear of the guides show what the stretch itself does."""
+    rows = []
+    for run in dataset.runs:
+        fish = run.fish.set_index("fish_id")
+        hours, height = _fish_hours(run), fish_heights(run.fish)
+        for fid, tr in run.tracks.groupby("fish_id", sort=True):
+            length = float(fish.loc[fid, "length_m"])
+            t, x = tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float)
+            yaw = tr["yaw_rad"].to_numpy(float)
+            gap = guide_gap_m(dataset.line, x, tr["y_m"].to_numpy(float), yaw, length, float(height[fid]))
+            half = 0.5 * length * np.abs(np.cos(yaw))
+            for conv in dataset.line.conveyors:
+                on = (x - half > conv.x_start_m + EDGE_M) & (x + half < conv.x_end_m - EDGE_M)
+                if on.sum() < 5:
+                    continue
+                log = run.belts[run.belts["conveyor_id"] == conv.id]
+                stretch = np.floor((x - conv.x_start_m) / STRETCH_M).astype(int)
+                for k in np.unique(stretch[on]):
+                    m = on & (stretch == k)
+                    if m.sum() < 5 or np.ptp(t[m]) < 0.2:
+                        continue
+                    g = float(np.median(gap[m]))
+                    if GUIDE_TOUCH_M[0] <= g <= GUIDE_TOUCH_M[1]:
+                        continue
+                    belt = log[(log["t_s"] >= t[m][0]) & (log["t_s"] <= t[m][-1])]["speed_mps"]
+                    if belt.empty:
+                        continue
+                    rows.append({"run_id": run.id, "fish_id": fid, "conveyor_id": conv.id,
+                                 "x_m": conv.x_start_m + (k + 0.5) * STRETCH_M,
+                                 "slip_mps": float(belt.mean()) - float(np.polyfit(t[m], x[m], 1)[0]),
+                                 "touching": float(g < GUIDE_TOUCH_M[0]), "guide_gap_m": g,
+                                 "belt_speed_mps": float(belt.mean()), "hours_post_mortem": float(hours[fid]),
+                                 "weight_kg": float(fish.loc[fid, "weight_kg"]), "length_m": length,
+                                 "heading": float(np.median(np.cos(yaw[m]))),
+                                 "t_in_run_s": float(np.mean(t[m]))})
+    cols = ["run_id", "fish_id", "conveyor_id", "x_m", "slip_mps", "touching", "guide_gap_m", "belt_speed_mps",
+            "hours_post_mortem", "weight_kg", "length_m", "heading", "t_in_run_s"]
     return pd.DataFrame(rows, columns=cols)

@@ -94,8 +94,9 @@ COVARIATES: dict[str, Covariate] = {c.key: c for c in (
               "fish"),
     Covariate("belt_speed_mps", "the belt's speed in the run", "belt_speed_mps", _linear("belt speed [m/s]"), "runs"),
     Covariate("load_kg", "the mass on the belt", "load_kg", _linear("load [kg]"), "time"),
-    Covariate("touching", "contact between the fish of a pair", "touching", _linear("touching (1) or not (0)"),
-              "fish"),
+    Covariate("touching", "contact (between the fish of a pair; with a guide)", "touching",
+              _linear("touching (1) or not (0)"), "fish"),
+    Covariate("x_m", "the position along the belt", "x_m", _linear("x [m]"), "fish"),
 )}
 
 QUANTITIES: tuple[Quantity, ...] = (
@@ -116,6 +117,9 @@ QUANTITIES: tuple[Quantity, ...] = (
     # nuisance terms as in latency's own test, never a finding)
     Quantity("edges", "offset_m", "how far past the beam a fish alone was when its eye reported it", "m", "photoeye",
              "sensor_id", 0.005, ("heading", "length_m")),
+    # 1 cm/s of slip riding a belt: a fish held back that much is 1 cm behind after a second (guide wear's smallest)
+    Quantity("guides", "slip_mps", "slip of fish riding a belt (its speed below the belt's)", "m/s", "belt",
+             "conveyor_id", 0.01),
     # a tenth of the belts' speed difference: what tracking noise makes of a pair's separation over 1.5 s
     Quantity("pairs", "growth", "share of the belts' speed difference a side-by-side pair's separation gained", "",
              "pairs", "conveyor_id", 0.1),
@@ -192,8 +196,9 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
         drops = drops.drop(columns=[c for c in ("weight_kg", "length_m", "t_in_run_s") if c in drops.columns])
         out["drops"] = drops.merge(fish, on=["run_id", "fish_id"], how="left").assign(
             conveyor_id=dataset.line.conveyors[0].id)
-    if rows.get("edges") is not None and len(rows["edges"]):
-        out["edges"] = rows["edges"]
+    for name in ("edges", "guides"):
+        if rows.get(name) is not None and len(rows[name]):
+            out[name] = rows[name]
     passages = rows.get("passages")
     if passages is not None and len(passages):
         out["passages"] = passages.merge(fish, on=["run_id", "fish_id"], how="left")

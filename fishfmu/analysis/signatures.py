@@ -22,7 +22,7 @@ from plant.contract.measured import Dataset
 
 from fishfmu.analysis.candidates import CANDIDATES
 from fishfmu.analysis.covariates import CovariateTest
-from fishfmu.analysis.observations import drive_rows, drop_rows, edge_rows, pair_rows, passage_rows
+from fishfmu.analysis.observations import drive_rows, drop_rows, edge_rows, guide_rows, pair_rows, passage_rows
 
 __all__ = ["ALPHA", "SUGGESTIVE", "CovariateTest", "Judgement", "judge", "significant"]
 
@@ -47,8 +47,8 @@ class Judgement:
     undecided: list[str] = field(default_factory=list)
     """Candidates these runs cannot decide (not judged, or suggestive), each with what would decide it."""
     rows: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
-    """What the tests read: ``drops``, ``passages``, ``drive``, ``pairs``, ``edges`` and ``model_pairs`` (for
-    plots)."""
+    """What the tests read: ``drops``, ``passages``, ``drive``, ``pairs``, ``edges``, ``guides`` and
+    ``model_pairs`` (for plots)."""
 
     left_out: list[str] = field(default_factory=list)
     """Candidates switched off (``fishfmu diagnose --without``): not tested, never named."""
@@ -82,7 +82,7 @@ def judge(dataset: Dataset, rng: np.random.Generator, model: Dataset | None = No
     runs re-simulated with the constant (calibrated) model, in the measured-data format, for adhesion (the other
     tests read the measured data alone). ``without``: candidates switched off."""
     rows = {"drops": drop_rows(dataset), "passages": passage_rows(dataset), "drive": drive_rows(dataset),
-            "pairs": pair_rows(dataset), "edges": edge_rows(dataset)}
+            "pairs": pair_rows(dataset), "edges": edge_rows(dataset), "guides": guide_rows(dataset)}
     if model is not None:
         rows["model_pairs"] = pair_rows(model)
     unknown = sorted(set(without) - set(CANDIDATES))

@@ -68,7 +68,7 @@ FAMILIES: dict[str, Family] = {
         "a sensor effect, no physics: every photo-eye edge is reported late; against the tracks' crossing times "
         "the edges lag at the eyes alone, a position error that grows with the belt's speed under the eye"),
     "guide_friction_wear": Family(
-        "guide_friction", frozenset({"guide", "belt"}), frozenset({"x_m", "touching_guide", "guide_contact"}),
+        "guide_wear", frozenset({"guide", "belt"}), frozenset({"x_m", "touching"}),
         "fish-guide friction rises along the line; only fish touching a guide feel it, as slip while riding a belt "
         "(a fish held back against the belt), growing toward the outfeed (x) and with contact"),
 }

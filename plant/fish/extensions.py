@@ -16,6 +16,9 @@ which lives in the conveyor-drive FMU as its ``belt_slip`` parameter).
   changes with hours post mortem: x ``1 + gain (1 - exp(-h / time_constant_h))``.
 - ``adhesion``: slime makes touching fish stick: an attracting force ``force_n`` per pair of touching
   contact spheres of different fish (within ``range_m`` of touching).
+- ``guide_wear``: guide liners grip harder where they are worn rough (or caked with dried slime and scales): the
+  side guides are built of sections ``section_m`` long, each with its own fish-guide friction, rising linearly
+  with x from the friction at the infeed end of the line to ``1 + rise`` times it at the outfeed end.
 
 >>> ext = Extensions()
 >>> ext.active()
@@ -111,6 +114,29 @@ class Adhesion(Strict):
         return self.force_n > 0.0
 
 
+class GuideWear(Strict):
+    """Fish-guide friction rising along the line, in sections of the side guides."""
+
+    rise: float = Field(0.0, ge=-0.8, le=10.0, description=(
+        "fish-guide friction at the outfeed end of the line is (1 + rise) times that at the infeed end, linearly in "
+        "x between them (0: off)"))
+    section_m: float = Field(0.2, ge=0.05, le=2.0, description=(
+        "length of a guide section with its own friction (each takes the friction at its middle)"))
+
+    @property
+    def on(self) -> bool:
+        return self.rise != 0.0
+
+    def sections(self, x_start_m: float, x_end_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """(boundaries, friction factors): the sections' x boundaries from ``x_start_m`` to ``x_end_m`` (the last
+        one shorter where the line is not a whole number of sections) and each section's factor on the
+        fish-guide friction, ``1 + rise (x_mid - x_start) / (x_end - x_start)``."""
+        n = max(1, math.ceil((x_end_m - x_start_m) / self.section_m - 1e-9))
+        edges = np.minimum(x_start_m + self.section_m * np.arange(n + 1), x_end_m)
+        mid = 0.5 * (edges[:-1] + edges[1:])
+        return edges, 1.0 + self.rise * (mid - x_start_m) / (x_end_m - x_start_m)
+
+
 class Extensions(Strict):
     """The ``[plant.extensions]`` table: every candidate effect, off by default."""
 
@@ -118,6 +144,7 @@ class Extensions(Strict):
     rigor_mortis: RigorMortis = Field(default_factory=RigorMortis)
     mucus_friction: MucusFriction = Field(default_factory=MucusFriction)
     adhesion: Adhesion = Field(default_factory=Adhesion)
+    guide_wear: GuideWear = Field(default_factory=GuideWear)
 
     def active(self) -> list[str]:
         return [name for name in type(self).model_fields if getattr(self, name).on]

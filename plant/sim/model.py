@@ -95,7 +95,9 @@ from plant.sim.surfaces import LineSurfaces  # noqa: E402
 exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
 MAT_BELT, MAT_GUIDE, MAT_FISH0 = 0, 1, 2
-"""Friction materials: belts, guides, then one per fish friction level (plant.fish.extensions.FRICTION_LEVELS)."""
+"""Friction materials: belts, guides, then one per fish friction level (plant.fish.extensions.FRICTION_LEVELS), then
+with guide wear one per guide section (:data:`MAT_SECTION0` on)."""
+MAT_SECTION0 = MAT_FISH0 + len(FRICTION_LEVELS)
 BELT_MASS_KG = 1.0e5
 """Mass of a belt body: the fish cannot move it measurably within one step (1 N for 10 ms -> 1e-7 m/s)."""
 TRIANGLE_STIFFNESS = 1.0e8
@@ -246,14 +248,18 @@ def park_positions(line: Line, n: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
-def friction_pairings(fish_belt: float, fish_guide: float, fish_fish: float) -> list[list[float]]:
+def friction_pairings(fish_belt: float, fish_guide: float, fish_fish: float,
+                      guide_sections: tuple[float, ...] = ()) -> list[list[float]]:
     """Coulomb coefficients between materials (fish levels scale their friction on belts and guides) as Exudyn takes
     them fastest: a list (it converts in half the time of an array), made once for all the rebuilds of a run
-    (converting it took 0.9 ms of a rebuild's 11).  Shared: never changed."""
-    mu = np.zeros((MAT_FISH0 + len(FRICTION_LEVELS),) * 2)
-    fish = slice(MAT_FISH0, len(mu))
+    (converting it took 0.9 ms of a rebuild's 11).  Shared: never changed.  ``guide_sections``: each guide
+    section's factor on the fish-guide friction (guide wear), one material each from :data:`MAT_SECTION0`."""
+    mu = np.zeros((MAT_SECTION0 + len(guide_sections),) * 2)
+    fish = slice(MAT_FISH0, MAT_SECTION0)
     mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = fish_belt * FRICTION_LEVELS
     mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = fish_guide * FRICTION_LEVELS
+    for k, factor in enumerate(guide_sections):
+        mu[MAT_SECTION0 + k, fish] = mu[fish, MAT_SECTION0 + k] = fish_guide * factor * FRICTION_LEVELS
     mu[fish, fish] = fish_fish
     return mu.tolist()
 
@@ -290,16 +296,22 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     gc = mbs.AddGeneralContact()
     gc.verboseMode = 0
     gc.frictionProportionalZone = num.friction_regularization_mps
+    wear = params.extensions.guide_wear
+    section_factors = tuple(wear.sections(line.x_start_m, line.x_end_m)[1].tolist()) if wear.on else ()
     gc.SetFrictionPairings(friction_pairings(params.friction.fish_belt, params.friction.fish_guide,
-                                          params.friction.fish_fish))
+                                          params.friction.fish_fish, section_factors))
     adhesion = params.extensions.adhesion.on
 
     ground = mbs.AddObject(ObjectGround())
     m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
-    for pts, trigs in (surfaces.guides, surfaces.parts, surfaces.bins):
-        if trigs:  # guides, fixed parts and the gates' bins: static, added before the moving belts as Exudyn requires
+    # guides (in sections of their own friction with guide wear), fixed parts and the gates' bins: static, added
+    # before the moving belts as Exudyn requires
+    statics = [(MAT_GUIDE, surfaces.guides)] if not section_factors else [
+        (MAT_SECTION0 + k, tris) for k, tris in enumerate(surfaces.guide_sections)]
+    for material, (pts, trigs) in [*statics, (MAT_GUIDE, surfaces.parts), (MAT_GUIDE, surfaces.bins)]:
+        if trigs:
             gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
-                                          contactDamping=0.0, frictionMaterialIndex=MAT_GUIDE, pointList=pts,
+                                          contactDamping=0.0, frictionMaterialIndex=material, pointList=pts,
                                           triangleList=trigs, staticTriangles=True)
     belt_nodes = []
     for c, (pts, trigs) in zip(line.conveyors, surfaces.belts):

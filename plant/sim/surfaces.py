@@ -11,6 +11,7 @@ import numpy as np
 from plant.contract.devices import CHUTE_DEPTH_M, DeviceShape, bin_walls, device_shapes, guide_openings, pusher_openings
 from plant.contract.line import Line
 from plant.contract.parts import part_triangles
+from plant.fish.extensions import GuideWear
 
 Triangles = tuple[list[list[float]], list[list[int]]]
 """(points, triangles as three point indices each)."""
@@ -48,10 +49,12 @@ def belt_surface(length_m: float, width_m: float) -> tuple[list[list[float]], li
     return pts, trigs
 
 
-def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], list[list[int]]]:
+def guide_walls(line: Line, guide_height_m: float, breaks: tuple[float, ...] = ()) -> tuple[list[list[float]],
+                                                                                         list[list[int]]]:
     """Side walls along the whole line (straight, or along the guides' polylines), open where a pusher or diverter
     sends fish out, with a chute's end plates at a pusher's opening, and an end plate at the infeed; in panels of at
-    most 0.5 m.  (A diverter's arm returns onto its opening's ends: a plate there would pinch a fish against it.)"""
+    most 0.5 m, none across an x of ``breaks`` (where guide sections of their own friction meet).  (A diverter's arm
+    returns onto its opening's ends: a plate there would pinch a fish against it.)"""
     pts: list[list[float]] = []
     trigs: list[list[int]] = []
     z_lo = line.z_range_m[0] - 0.15
@@ -59,7 +62,7 @@ def guide_walls(line: Line, guide_height_m: float) -> tuple[list[list[float]], l
     x_lo, x_hi = line.x_start_m - 0.05, line.x_end_m
     corners = {x for g in ((line.guides.left, line.guides.right) if line.guides else ()) for x, _ in g}
     openings = guide_openings(line)  # where a pusher or diverter sends fish out, no wall
-    corners |= {x for _, a, b in openings for x in (a, b)}
+    corners |= {x for _, a, b in openings for x in (a, b)} | set(breaks)
     knots = sorted({x_lo, x_hi} | {x for x in corners if x_lo < x < x_hi})
     xs = np.concatenate([np.linspace(a, b, max(2, int(np.ceil((b - a) / 0.5)) + 1))[:-1]
                          for a, b in zip(knots[:-1], knots[1:])] + [[x_hi]])
@@ -97,9 +100,32 @@ class LineSurfaces:
     belts: tuple[Triangles, ...]
     """Each conveyor's top, in its body's frame (along the slope of an inclined belt)."""
     devices: tuple[DeviceShape, ...]
+    guide_sections: tuple[Triangles, ...] = ()
+    """With guide sections of their own friction (``guide_wear``): the guides' triangles split by section (the
+    infeed end plate and any chute plates in the section they stand in), in the order of the sections; else empty
+    and ``guides`` holds them all."""
 
 
-def line_surfaces(line: Line, guide_height_m: float) -> LineSurfaces:
+def split_by_x(tris: Triangles, edges: np.ndarray) -> tuple[Triangles, ...]:
+    """Triangles split into the sections between ``edges`` by the x of their centroids (beyond the ends: the end
+    sections), each section with the points it uses."""
+    pts, trigs = np.asarray(tris[0], dtype=float), np.asarray(tris[1], dtype=np.int64)
+    k = np.clip(np.searchsorted(edges, pts[trigs].mean(axis=1)[:, 0], side="right") - 1, 0, len(edges) - 2)
+    out = []
+    for s in range(len(edges) - 1):
+        mine = trigs[k == s]
+        used, local = np.unique(mine, return_inverse=True)
+        out.append((pts[used].tolist(), local.reshape(-1, 3).tolist()))
+    return tuple(out)
+
+
+def line_surfaces(line: Line, guide_height_m: float, wear: GuideWear | None = None) -> LineSurfaces:
+    """``wear`` on: the guides in sections of their own friction (else one)."""
     belts = tuple(belt_surface(c.length_m / np.cos(np.radians(c.incline_deg)), c.width_m) for c in line.conveyors)
-    return LineSurfaces(guide_walls(line, guide_height_m), part_triangles(line), bin_walls(line), belts,
-                        device_shapes(line))
+    if wear is None or not wear.on:
+        return LineSurfaces(guide_walls(line, guide_height_m), part_triangles(line), bin_walls(line), belts,
+                            device_shapes(line))
+    edges = wear.sections(line.x_start_m, line.x_end_m)[0]
+    guides = guide_walls(line, guide_height_m, tuple(edges.tolist()))
+    return LineSurfaces(guides, part_triangles(line), bin_walls(line), belts, device_shapes(line),
+                        split_by_x(guides, edges))
