@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "docs" / "diagnose-bench"
 FIVE = frozenset({"mucus_friction", "rigor_mortis", "directional_friction", "drive_droop", "adhesion"})
 """The candidates of round 1 (before issue 41's new ones): what the hand cases say the run could name."""
-WITH_NEW = FIVE | {"photoeye_latency", "guide_friction"}
+WITH_NEW = FIVE | {"photoeye_latency", "guide_wear"}
 
 
 def _script(name: str):
@@ -137,7 +137,7 @@ def test_a_family_without_a_candidate_is_scored_as_open_on_its_main_run():
                         FIVE)["outcome"] == "elsewhere"
     assert open_outcome(latency, {"causes": ["rigor_mortis"], "answer": "named"}, FIVE)["outcome"] == "wrong"
     # with its candidate registered it is a single
-    assert score(guide, {"causes": ["guide_friction"], "answer": "named"}, WITH_NEW)["single"] == "right"
+    assert score(guide, {"causes": ["guide_wear"], "answer": "named"}, WITH_NEW)["single"] == "right"
 
 
 def test_a_compound_with_one_part_left_out_keeps_the_other_and_locates_the_left_out_one():
@@ -340,7 +340,7 @@ def test_rescore_tables_the_kept_diagnoses_against_hand_counts(tmp_path, monkeyp
     doc = json.loads((tmp_path / "again.json").read_text())
     assert code == 0 and doc["all"]["singles"] | {"confusion": None} == {
         "n": 2, "right": 1, "wrong": 0, "none": 1, "right_rate": 0.5, "confusion": None}
-    assert doc["all"]["singles"]["confusion"]["guide_friction"] == {"unexplained": 1}
+    assert doc["all"]["singles"]["confusion"]["guide_wear"] == {"unexplained": 1}
 
 
 def test_rescore_refuses_results_from_before_issue_41_in_one_line(tmp_path, monkeypatch, capsys):

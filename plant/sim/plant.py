@@ -84,8 +84,7 @@ class Plant:
         self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
         self._beam_delay = BeamDelay([p.latency_s for p in line.photoeyes], comm_step_s)  # as the eyes report them
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
-        self._surfaces = line_surfaces(line, self._params.guide_height_m,  # once a run (STLs read once)
-                                       self._params.extensions.guide_wear)
+        self._surfaces = line_surfaces(line, self._params.guide_height_m, self._params.extensions.guide_wear)
         self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
         tilt = np.radians(self._params.incline_deg)  # > 0: rising downstream (as a belt's), pulling fish back upstream
         self._gravity = self._params.gravity_mps2 * np.array([-np.sin(tilt), 0.0, -np.cos(tilt)])
