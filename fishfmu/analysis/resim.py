@@ -26,6 +26,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 import pandas as pd
 
 from plant.errors import InputError, SimulationError
@@ -169,7 +170,12 @@ def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
     if workers == 1:
         return None
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_ignore_sigint)
+                               initializer=_worker_start)
+
+
+def _worker_start() -> None:
+    _ignore_sigint()
+    threadpool_limits(1, user_api="blas")  # see pool_for
 
 
 @contextlib.contextmanager
@@ -177,11 +183,14 @@ def pool_for(workers: int | None = None) -> Iterator[ProcessPoolExecutor | None]
     """A :func:`resim_pool` for the ``with`` block: shut down when it ends, stopped (not waited for) when
     it ends by an error, Ctrl-C or SIGTERM."""
     pool = resim_pool(workers)
-    try:
-        yield pool
-    except BaseException:
-        stop_pool(pool)
-        raise
+    # numpy's BLAS spreads each small least-squares fit over every core, its threads spinning against the processes
+    # re-simulating: guide wear's test took 61 s that way on the loaded 2-core machine, 2.2 s with one thread
+    with threadpool_limits(1, user_api="blas"):
+        try:
+            yield pool
+        except BaseException:
+            stop_pool(pool)
+            raise
     if pool is not None:
         pool.shutdown()
 
