@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from plant.sim.health import EnergyWatch
-from plant.sim.observers import FishCounts, plant_watches
+from plant.sim.observers import FishCounts, plant_observers
 from plant.sim.simulate import simulate_plant
 from plant.sim.state import FishStatus
 from tests.plant_helpers import fish, straight_line
@@ -35,13 +35,13 @@ def test_fish_counts_count_each_status_and_each_head_at_the_outfeed_once() -> No
     steps = [([W, W, W, W, W], False), ([ON, W, W, W, W], False), ([ON, ON, W, W, W], True),
              ([LEFT, ON, ON, W, W], True), ([LEFT, REJ, ON, ON, W], False), ([LEFT, REJ, LEFT, ON, ON], True)]
     for status, blocked in steps:
-        counts.after_step(*_step(status, blocked), 0.01)
+        counts.after_step(*_step(status, blocked), None, 0.01)
     assert counts.values == {"fish_waiting": 0, "fish_dropped": 5, "fish_on_line": 2, "fish_left": 2,
                              "fish_rejected": 1, "outfeed_count": 2}
 
 
 def test_every_way_of_stepping_the_plant_attaches_the_energy_watch_then_the_fish_counts() -> None:
-    kinds = [type(o) for o in plant_watches()]
+    kinds = [type(o) for o in plant_observers()]
     assert kinds == [EnergyWatch, FishCounts]
     sc = load_scenario(PAPER, {"fish.count": 2, "expect": {}})
     with checked(sc) as c, build(c, scenario_fish(sc)) as sim:
@@ -58,7 +58,7 @@ def test_an_observer_attached_to_the_plant_alone_sees_every_step_after_the_watch
     seen: list[tuple[float, int]] = []
 
     class Seen:
-        def after_step(self, state, outputs, dt_s):  # noqa: ANN001, ANN202
+        def after_step(self, state, outputs, inputs, dt_s):  # noqa: ANN001, ANN202
             seen.append((round(state.t_s, 9), int(np.count_nonzero(state.status == ON))))
 
     run = simulate_plant(line, [fish("f01", t_s=0.0)], {"c1": 0.3}, 0.1, stop_when_clear=False,
