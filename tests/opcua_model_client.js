@@ -29,14 +29,17 @@ const int64 = (v) => Array.isArray(v) ? Number(BigInt.asIntN(64, (BigInt(v[0] >>
   };
   await walk(id("fishfmu"), "Objects/fishfmu");
   const vars = leaves.filter((l) => l.nodeClass === "Variable");
+  // AccessLevel: what the node allows; UserAccessLevel: what this (anonymous, read-only) session may do
   const attrs = await session.read(vars.flatMap((v) => [
+    { nodeId: v.nodeId, attributeId: AttributeIds.AccessLevel },
     { nodeId: v.nodeId, attributeId: AttributeIds.UserAccessLevel },
     { nodeId: v.nodeId, attributeId: AttributeIds.Description },
     { nodeId: v.nodeId, attributeId: AttributeIds.DataType }]));
   vars.forEach((v, i) => {
-    v.writable = (attrs[3 * i].value.value & 2) !== 0;
-    v.description = attrs[3 * i + 1].value.value.text;
-    v.dataType = attrs[3 * i + 2].value.value.toString();
+    v.writable = (attrs[4 * i].value.value & 2) !== 0;
+    v.userWritable = (attrs[4 * i + 1].value.value & 2) !== 0;
+    v.description = attrs[4 * i + 2].value.value.text;
+    v.dataType = attrs[4 * i + 3].value.value.toString();
   });
   const analog = {};
   for (const name of ["plant.cam.lead_x", "plant.c4.load_force", "drive_c4.speed_setpoint"]) {
@@ -66,7 +69,10 @@ const int64 = (v) => Array.isArray(v) ? Number(BigInt.asIntN(64, (BigInt(v[0] >>
   const anonymous = { write: await status(session.write(gate)), stop: await status(session.call(stop)) };
   const operator = await client.createSession({ type: UserTokenType.UserName, userName: process.argv[3],
                                                 password: process.argv[4] });
-  const byUser = { write: await status(operator.write(gate)), stop: await status(operator.call(stop)) };
+  const userLevel = (await operator.read({ nodeId: id("plant.gate.command"),
+                                          attributeId: AttributeIds.UserAccessLevel })).value.value;
+  const byUser = { userWritable: (userLevel & 2) !== 0, write: await status(operator.write(gate)),
+                   stop: await status(operator.call(stop)) };
   console.log("RESULT " + JSON.stringify({ ns, objects: Object.keys(objects), leaves, analog,
     twoStates: [trueState && trueState.text, falseState && falseState.text],
     enumValues: enumValues.map((e) => [int64(e.value), e.displayName.text]), asText: asText && asText.text,

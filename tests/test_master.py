@@ -99,7 +99,7 @@ class WatchStub:
         self.log = log
         self.calls: list[tuple[dict, dict, float]] = []
 
-    def after_step(self, state, outputs, dt: float) -> None:
+    def after_step(self, state, outputs, inputs, dt: float) -> None:
         self.check(state, dt)
 
     def check(self, state, dt: float) -> None:

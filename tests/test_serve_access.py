@@ -23,7 +23,8 @@ SHORT = ["--set", "fish.count=1", "--set", "run.duration_s=1", "--no-report"]
 
 
 async def _session(url: str, creds: tuple[str, str] | None) -> dict | str:
-    """What a client with ``creds`` (None: anonymous) gets: a read, a write of an input and a step."""
+    """What a client with ``creds`` (None: anonymous) gets: a read, what it reads of its rights (an input's
+    UserAccessLevel has write, step's UserExecutable), a write of an input and a step."""
     client = Client(url)
     if creds:
         client.set_user(creds[0])
@@ -35,6 +36,11 @@ async def _session(url: str, creds: tuple[str, str] | None) -> dict | str:
     try:
         idx = await client.get_namespace_index("urn:fishfmu")
         seen: dict = {"read": await client.get_node(ua.NodeId("fishfmu.run_state", idx)).read_value()}
+        level = await client.get_node(ua.NodeId("drive_c1.speed_setpoint", idx)).read_attribute(
+            ua.AttributeIds.UserAccessLevel)
+        seen["writable"] = bool(level.Value.Value & ua.AccessLevel.CurrentWrite.mask)
+        step = await client.get_node(ua.NodeId("fishfmu", idx)).get_child(f"{idx}:step")
+        seen["executable"] = (await step.read_attribute(ua.AttributeIds.UserExecutable)).Value.Value
         try:
             await client.get_node(ua.NodeId("drive_c1.speed_setpoint", idx)).write_value(
                 ua.Variant(0.5, ua.VariantType.Double))
@@ -80,8 +86,10 @@ def test_anonymous_reads_only_and_each_user_does_what_its_role_allows(tmp_path):
            "wrong password": ("plc", "hmi pass"), "unknown user": ("root", "plc pass")}
     seen = asyncio.run(_sessions(url, proc, who, ("plc", "plc pass")))
     out, err = proc.communicate(timeout=120)
-    denied = {"read": "running", "write": "BadUserAccessDenied", "call": "BadUserAccessDenied"}
-    assert seen == {"anonymous": denied, "operator": {"read": "running", "write": "Good", "call": "Good"},
+    denied = {"read": "running", "writable": False, "executable": False, "write": "BadUserAccessDenied",
+              "call": "BadUserAccessDenied"}
+    allowed = {"read": "running", "writable": True, "executable": True, "write": "Good", "call": "Good"}
+    assert seen == {"anonymous": denied, "operator": allowed,
                     "viewer": denied, "wrong password": "BadUserAccessDenied",
                     "unknown user": "BadUserAccessDenied"}
     assert "Traceback" not in err and "plc pass" not in out + err, err
@@ -92,7 +100,8 @@ def test_a_lab_bench_lets_anonymous_clients_write_only_when_told(tmp_path):
     proc, url = _serve(tmp_path, "--allow-anonymous-write")
     seen = asyncio.run(_sessions(url, proc, {"anonymous": None}, None))
     proc.communicate(timeout=120)
-    assert seen == {"anonymous": {"read": "running", "write": "Good", "call": "Good"}}
+    assert seen == {"anonymous": {"read": "running", "writable": True, "executable": True, "write": "Good",
+                                  "call": "Good"}}
 
 
 @pytest.mark.parametrize("case", ["plain password", "unknown role", "not TOML", "twice the same name"])

@@ -122,16 +122,16 @@ def test_a_frame_is_due_again_after_a_step_a_change_of_state_or_a_reset():
     sc = schema.load_scenario(SERVED, OVERRIDES)
     running, paused = {"fishfmu.run_state": "running"}, {"fishfmu.run_state": "paused"}
     with checked(sc, SERVED) as c, build(c, scenario_fish(sc)) as cosim, build(c, scenario_fish(sc)) as again:
-        live = LiveView("127.0.0.1", 1, sc.line, "t")
-        live.capture(cosim, running)
+        live, still = LiveView("127.0.0.1", 1, sc.line, "t"), np.zeros(len(sc.line.conveyors))
+        live.capture(cosim, running, still)
         assert not live.stale(cosim, running) and json.loads(live.frame)["page"] == 1
         assert live.stale(cosim, paused)
         cosim.step()
         assert live.stale(cosim, running)
-        live.capture(cosim, running)
+        live.capture(cosim, running, still)
         assert json.loads(live.frame)["step"] == 1 and not live.stale(cosim, running)
         assert live.stale(again, running)                                   # a reset's new run: a new page
-        live.capture(again, running)
+        live.capture(again, running, still)
         assert json.loads(live.frame)["page"] == 2 and '"page":2' in live.html
 
 

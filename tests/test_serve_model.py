@@ -121,10 +121,11 @@ def test_node_opcua_finds_objects_units_ranges_states_and_parameters(tmp_path):
     assert "fed from plant.cam.lead_x" in twin and "one step older" in twin
     # only the scenario's inputs are writable
     assert [p for p, leaf in leaves.items() if leaf.get("writable")] == ["Objects/fishfmu/plant/gate/command"]
+    assert not any(leaf.get("userWritable") for leaf in leaves.values())  # to this anonymous session: none
     assert GATE == "plant.gate.command"
     # secure by default: an anonymous client reads but may not write nor call; a user with a role may
     assert seen["anonymous"] == {"write": "BadUserAccessDenied", "stop": "BadUserAccessDenied"}
-    assert seen["byUser"] == {"write": "Good", "stop": "Good"}
+    assert seen["byUser"] == {"userWritable": True, "write": "Good", "stop": "Good"}  # the operator's own rights
     assert seen["build"] == {"productName": "fishfmu serve", "manufacturerName": "fishfmu",
                              "softwareVersion": version("fishfmu")}
     # the signal list is what the server serves: the same node ids, the same writable ones

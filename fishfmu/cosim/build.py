@@ -18,7 +18,7 @@ leave a written run:
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,6 +27,7 @@ import numpy as np
 
 from plant.contract.parts import part_triangles
 from plant.errors import InputError, SimulationError
+from plant.sim.observers import StepObserver
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
 from plant.fish.population import FishSpec, lane_across, sample_fish
@@ -133,9 +134,10 @@ def instantiate(scenario: Scenario, opened: dict[str, OpenedFmu], stack: context
 
 @contextlib.contextmanager
 def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses: bool = False,
-          clock: StageClock = NO_CLOCK) -> Iterator[CoSimulation]:
+          clock: StageClock = NO_CLOCK, observers: Sequence[StepObserver] = ()) -> Iterator[CoSimulation]:
     """The co-simulation of a checked scenario with this batch of fish; it owns the plant and the FMU
-    instances (terminated when the ``with`` ends).  ``clock`` times the stages of each step (benchmarks)."""
+    instances (terminated when the ``with`` ends).  ``clock`` times the stages of each step (benchmarks);
+    ``observers`` are attached after those every way of stepping attaches (:mod:`plant.sim.observers`)."""
     sc = checked_scenario.scenario
     plant = Plant(sc.line, fish, sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
     ports = PlantPorts.of(sc.line)
@@ -147,7 +149,7 @@ def build(checked_scenario: CheckedScenario, fish: list[FishSpec], record_poses:
             fmus = instantiate(sc, checked_scenario.opened, stack)
             cosim = CoSimulation(plant, ports, fmus, {f.name: f.step_multiple for f in sc.fmu}, wiring, sc.event,
                                  sc.run.comm_step_s, jacobi=sc.run.coupling == "jacobi", recorder=recorder,
-                                 clock=clock, outfeed=sc.kpi.outfeed_photoeye)
+                                 clock=clock, outfeed=sc.kpi.outfeed_photoeye, observers=list(observers))
         except SimulationError as exc:
             raise BuildFailed(exc, plant, recorder) from exc
         yield cosim

@@ -5,11 +5,13 @@ One base step from t to t + dt reads top to bottom (see :meth:`CoSimulation.step
 1. apply the scenario's events due at t (override, bias or reset a variable);
 2. step the FMUs in wiring order, each due one every ``step_multiple`` base steps, after setting
    its inputs from its sources (Gauss-Seidel: what they hold now; Jacobi: the start of the step);
-3. set the belt speeds and device commands from their sources and step the plant; hand its published state to the
-   step observers (:mod:`plant.sim.observers`), the same a run of the plant alone and the plant FMU attach: the
-   energy watch (:mod:`plant.sim.health`: a blow-up stops the run within this step), the fish counts, then any
-   ``observers`` attached;
-4. record every connected signal at t + dt (and the run in the measured-data format).
+3. set the belt speeds and device commands from their sources and step the plant; hand its published state and
+   the step's inputs (the belts' setpoints among them) to the step observers (:mod:`plant.sim.observers`), the
+   same a run of the plant alone and the plant FMU attach: the energy watch (:mod:`plant.sim.health`: a blow-up
+   stops the run within this step), the fish counts, the recording of the run in the measured-data format, then
+   any ``observers`` attached (``fishfmu serve``'s publication);
+4. record every connected signal at t + dt (``signals.csv``: the master's own record of what it sent and got,
+   which only a co-simulation has).
 
 An FMU stepping every m base steps does one step of m * dt at the start of its block; as with a
 one-step FMU under Gauss-Seidel, the others use its end-of-step outputs for the whole block, and
@@ -36,7 +38,7 @@ import numpy as np
 import pandas as pd
 
 from plant.errors import SimulationError
-from plant.sim.observers import StepObserver, notify, plant_watches
+from plant.sim.observers import StepInputs, StepObserver, notify, plant_observers
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts
 from plant.sim.recorder import RunRecorder
@@ -46,7 +48,7 @@ from fishfmu.scenario.schema import Event
 from fishfmu.scenario.wiring import PLANT, Connection, Wiring, signal_names
 
 
-STAGES = ("events", "fmus", "belt_speeds", "plant", "energy_check", "record")
+STAGES = ("events", "fmus", "belt_speeds", "plant", "observers", "signals")
 """The stages of :meth:`CoSimulation.step`, in order."""
 
 
@@ -114,7 +116,7 @@ class CoSimulation:
     outfeed: str | None = None
     """The outfeed photo-eye whose blocked edges the fish counts count (``outfeed_count``)."""
     observers: list[StepObserver] = field(default_factory=list)
-    """Step observers attached after the energy watch and the fish counts (:mod:`plant.sim.observers`)."""
+    """Step observers attached after the energy watch, the fish counts and the recording (:mod:`plant.sim.observers`)."""
 
     def __post_init__(self) -> None:
         self._inputs_of = {name: self.wiring.into(name) for name in list(self.fmus) + [PLANT]}
@@ -129,7 +131,7 @@ class CoSimulation:
         self.signal_names = signal_names(self.wiring)
         self._feeding = {c.target.key: c for c in self.wiring.connections}
         self._sent: dict[str, Any] = {}
-        self.energy_watch, self.fish_counts = plant_watches(self.outfeed)
+        self.energy_watch, self.fish_counts, *self.recording = plant_observers(self.outfeed, self.recorder)
         # the constant inputs' values now: an external input (OPC UA) changes them between steps
         self.constants = dict(self.wiring.constants)
         self._constants_of = {name: [(key, key.partition(".")[2]) for key in self.wiring.constants
@@ -166,13 +168,14 @@ class CoSimulation:
         lap("belt_speeds")
         out = self.plant.step(speeds, commands)
         lap("plant")
-        notify((self.energy_watch, self.fish_counts, *self.observers), self.plant.state, out, dt)
-        lap("energy_check")  # the step observers: the energy watch, the fish counts and any attached
+        notify((self.energy_watch, self.fish_counts, *self.recording, *self.observers), self.plant.state, out,
+               StepInputs(speeds, commands, self._setpoints(speeds, out)), dt)
+        lap("observers")
         for port, v in out.port_values().items():
             self.values[f"{PLANT}.{port}"] = v
         self.steps += 1
-        self._record(speeds, out, commands)
-        lap("record")
+        self._record()
+        lap("signals")
 
     def _step_fmu(self, name: str, held: dict[str, Any], t: float, dt: float) -> None:
         fmu = self.fmus[name]
@@ -231,15 +234,22 @@ class CoSimulation:
             self._next_event += 1
 
     # ---- recording ---------------------------------------------------------------------------
-    def _record(self, speeds: dict[str, float], out, commands: dict[str, bool]) -> None:
-        """Inputs as they were sent this step, outputs as they are now (before any event on them)."""
+    def _setpoints(self, speeds: dict[str, float], out: PlantOutputs) -> dict[str, float]:
+        """Each belt's setpoint for belts.csv after this step: its setpoint signal as sent in it (an input) or as it
+        is after it (an output: an FMU's, or the plant's in ``out``); the belt's speed where it has none."""
+        setpoints = {}
+        for c, speed in speeds.items():
+            key = self.setpoint_sources.get(c)
+            if key is not None and key not in self._sent and key.partition(".")[0] == PLANT:
+                setpoints[c] = float(out.port_values()[key.partition(".")[2]])
+            else:
+                setpoints[c] = float(setpoint_value(key, self._sent, self.values, speed))
+        return setpoints
+
+    def _record(self) -> None:
+        """signals.csv's row: inputs as they were sent this step, outputs as they are now (before any event on them)."""
         sent, values = self._sent, self.values
         self.signals.append((self.t_s, *[sent[k] if k in sent else values.get(k) for k in self.signal_names]))
-        if self.recorder is not None:
-            setpoints = {c: float(setpoint_value(self.setpoint_sources.get(c), sent, values, speeds[c])) for c in speeds}
-            state = self.plant.state
-            self.recorder.record(self.t_s, state.fish_poses, out.photoeyes, setpoints, speeds, state.body_poses,
-                                 state.detections, state.rejected_by, state.device_position, commands)
 
     def signal_frame(self) -> pd.DataFrame:
         """Every recorded signal per step (see the module's docstring for the types)."""

@@ -20,8 +20,9 @@ Variables (the plant's ports as declared in :mod:`plant.sim.ports`, named as in 
 * parameters ``seed`` and ``fish_count`` (fixed, within a scenario's bounds for ``run.seed`` and ``fish.count``;
   the batch is sampled from them as ``fishfmu run`` samples it).
 
-After each plant step it checks what a run checks (:func:`plant.sim.observers.plant_watches`): the energy watch
-(a blow-up is a stop: that doStep returns fmi2Discard and the steps after it are refused) and the fish counts.
+After each plant step it attaches what a run attaches (:func:`plant.sim.observers.plant_observers`): the energy
+watch (a blow-up is a stop: that doStep returns fmi2Discard and the steps after it are refused) and the fish counts;
+not the recording (the host records what it wants of the FMU's outputs; the FMU writes no files).
 
 A ``doStep`` of h advances the plant h / ``run.comm_step_s`` steps with the belt speeds last set (h must be a
 whole multiple of the scenario's communication step, at most :data:`MAX_STEP_S`).
@@ -42,7 +43,7 @@ from __future__ import annotations
 import functools
 import math
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +52,7 @@ from pydantic import BaseModel
 
 from plant.contract.parts import part_triangles, read_stl_bytes
 from plant.errors import InputError, SimulationError, one_line
-from plant.sim.observers import notify, plant_watches
+from plant.sim.observers import StepInputs, StepObserver, notify, plant_observers
 from plant.sim.plant import Plant
 from plant.sim.ports import PlantPorts, signal_of
 from plant.contract.plausibility import MAX_BELT_SPEED_MPS
@@ -132,8 +133,11 @@ class PlantInFmu:
     """The fish counts it exports: those of :class:`plant.sim.observers.FishCounts` (``serve`` shows
     ``fish_waiting`` where this has ``fish_dropped``: the batch's count less it)."""
 
-    def __init__(self, scenario_file: Path, report: Callable[[str], None]) -> None:
+    def __init__(self, scenario_file: Path, report: Callable[[str], None],
+                 observers: Sequence[StepObserver] = ()) -> None:
         self.report = report
+        self.observers = list(observers)
+        """Step observers attached after the energy watch and the fish counts (a script's own)."""
         self.scenario: Scenario = load_scenario(scenario_file)
         self.comm_step_s = self.scenario.run.comm_step_s
         self.outfeed = self.scenario.kpi.outfeed_photoeye
@@ -158,8 +162,9 @@ class PlantInFmu:
         self.failure: str | None = None
         """Why the plant could not be built or stopped: the doSteps after it are refused."""
         self.plant: Plant | None = None
-        self.watches: tuple = ()
-        """The step observers attached as a run attaches them (:func:`plant.sim.observers.plant_watches`)."""
+        self.watches: list = []
+        """The step observers attached as a run attaches them, without the recording
+        (:func:`plant.sim.observers.plant_observers`)."""
 
     def getter(self, name: str):  # noqa: ANN201 - pythonfmu takes any callable
         return lambda: self.values[name]
@@ -208,7 +213,7 @@ class PlantInFmu:
         try:
             sc.run.seed, sc.fish.count = self.values["seed"], self.values["fish_count"]
             self.plant = Plant(sc.line, scenario_fish(sc), sc.plant, sc.run.comm_step_s, seed=sc.run.seed)
-            self.watches = plant_watches(self.outfeed)
+            self.watches = [*plant_observers(self.outfeed), *self.observers]
         except (InputError, SimulationError) as exc:
             self.failure = (f"the plant could not be built with seed = {self.values['seed']} and "
                             f"fish_count = {self.values['fish_count']}: {exc}")
@@ -251,10 +256,11 @@ class PlantInFmu:
     def _advance(self, n_steps: int) -> None:
         speeds = {c: self.values[f"{c}.speed"] for c in self.conveyor_ids}
         commands = {d: bool(self.values[f"{d}.command"]) for d in self.device_ids}
+        inputs = StepInputs(speeds, commands, speeds)  # the host sets the speeds: they are the setpoints here
         for _ in range(n_steps):
             out = self.plant.step(speeds, commands)
             # as in a run: the energy watch stops a blow-up (fmi2Discard, the steps after refused), then the counts
-            notify(self.watches, self.plant.state, out, self.comm_step_s)
+            notify(self.watches, self.plant.state, out, inputs, self.comm_step_s)
             for port, v in out.port_values().items():
                 if port in self.plant_outputs:
                     self.values[port] = v

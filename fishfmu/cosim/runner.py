@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ import pandas as pd
 from plant.errors import SimulationError
 from plant.contract.kpis import compute_kpis
 from plant.contract.measured import Run
+from plant.sim.observers import StepObserver
 from plant.sim.plant import Plant
 from plant.sim.state import PlantState
 from plant.contract.measured import fish_to_frame
@@ -41,19 +42,20 @@ def run_scenario(scenario: Scenario, scenario_file: str | Path | None = None,
                  on_progress: Callable[[float, float], None] | None = None,
                  fish: list[FishSpec] | None = None, record_poses: bool = False,
                  stop: StopRequest | None = None, checked_scenario: CheckedScenario | None = None,
-                 clock: StageClock = NO_CLOCK) -> RunResult:
+                 clock: StageClock = NO_CLOCK, observers: Sequence[StepObserver] = ()) -> RunResult:
     """Run one scenario; a failure inside the run is returned as ``status = "failed"`` with what was
     recorded until then (bad input is raised as InputError before anything runs).  When ``stop`` is
     requested (a signal, see :mod:`fishfmu.cosim.stop`) the run ends after the current step with
     ``status = "partial"``.  ``checked_scenario`` is the scenario already checked with its FMUs open
-    (:func:`fishfmu.cosim.build.checked`, as ``fishfmu run`` does before it writes anything)."""
+    (:func:`fishfmu.cosim.build.checked`, as ``fishfmu run`` does before it writes anything).  ``observers``: step
+    observers attached after the energy watch, the fish counts and the recording (:mod:`plant.sim.observers`)."""
     fish = scenario_fish(scenario) if fish is None else fish
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         if checked_scenario is None:
             checked_scenario = stack.enter_context(checked(scenario, scenario_file))
         try:
-            cosim = stack.enter_context(build(checked_scenario, fish, record_poses, clock))
+            cosim = stack.enter_context(build(checked_scenario, fish, record_poses, clock, observers))
         except BuildFailed as exc:  # an FMU failing while instantiated and initialised fails the run
             failed = collect(scenario, fish, exc.plant, exc.recorder, None, "failed", str(exc),
                              {"setup": time.perf_counter() - t0}, 0.0, signal_names(checked_scenario.wiring))

@@ -21,6 +21,8 @@ folder, serves the line until its run ends and writes the run like any run, thro
   status, fed with frames taken between steps (read-only; never pacing the line);
 - :mod:`fishfmu.serve.status`: the run's states (waiting, running, paused, finished, stopped, failed) and its
   clock against the wall (lag, late steps, the real-time factor reached), the grace time after the end;
+- :mod:`fishfmu.serve.publication`: the line's step observer, and what it publishes after each batch of steps to
+  the address space and its status nodes, the Modbus server and the live view (why after a batch: there);
 - :mod:`fishfmu.serve.line`: the co-simulation stepped in a worker thread, in lockstep (a client's ``step(n)``)
   or in real time (:mod:`fishfmu.serve.pacing`: p50/p99/max lateness and overruns go to ``run_info.json``,
   ``served``); the run ends at ``run.duration_s``, a client's ``stop()`` or a signal;

@@ -11,6 +11,8 @@ Users come from a TOML file (``--users FILE``), never a password on the command 
 Passwords are stored as scrypt hashes (``hashlib.scrypt``) and compared in constant time.  A user name or password
 that does not match is refused a session (BadUserAccessDenied); a viewer's or an anonymous client's write or call
 is refused (BadUserAccessDenied) by :class:`AccessRules`, asyncua's permission check before any service runs.
+What a session reads of its own rights says the same (:class:`UserRights`): a viewer sees the inputs' UserAccessLevel
+without write and the methods' UserExecutable false, an operator both as the nodes hold them.
 """
 
 from __future__ import annotations
@@ -127,3 +129,29 @@ class AccessRules(PermissionRuleset):
             return True
         allowed = ROLES.get(getattr(user, "line_role", "viewer"), frozenset())
         return (action_type_id == _WRITE and "write" in allowed) or (action_type_id == _CALL and "call" in allowed)
+
+
+class UserRights:
+    """The UserAccessLevel and UserExecutable a session reads, as its user has them: asyncua keeps one value per node
+    (the operator's: the inputs writable, the methods executable) and reads it to every session; this listener of
+    asyncua's PostRead callback takes write from a UserAccessLevel, and makes UserExecutable false, in what a session
+    whose role does not allow it reads of the line's namespace ``namespace_index`` (writes and calls are refused by
+    :class:`AccessRules` all the same).  Reads only: a subscription to those attributes gets the stored value."""
+
+    def __init__(self, namespace_index: int) -> None:
+        self.namespace_index = namespace_index
+
+    def __call__(self, event: Any, dispatcher: Any) -> None:
+        if not event.is_external:  # the server's own reads
+            return
+        allowed = ROLES.get(getattr(event.user, "line_role", "viewer"), frozenset())
+        results = event.response_params
+        for i, read in enumerate(event.request_params.NodesToRead):
+            value = results[i].Value
+            if read.NodeId.NamespaceIndex != self.namespace_index or value is None or value.Value is None:
+                continue
+            if read.AttributeId == ua.AttributeIds.UserAccessLevel and "write" not in allowed:
+                level = value.Value & ~ua.AccessLevel.CurrentWrite.mask
+                results[i] = ua.DataValue(ua.Variant(level, ua.VariantType.Byte))
+            elif read.AttributeId == ua.AttributeIds.UserExecutable and "call" not in allowed:
+                results[i] = ua.DataValue(ua.Variant(False, ua.VariantType.Boolean))

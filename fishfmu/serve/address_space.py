@@ -19,9 +19,11 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from asyncua import ua
+from asyncua.common.callback import CallbackType
 
 from fishfmu.cosim.build import CheckedScenario
 from fishfmu.cosim.master import CoSimulation
+from fishfmu.serve.access import UserRights
 from fishfmu.serve.model import (NAMESPACE, PARAMETER, ROOT, STATUS_ITEMS, UNECE, Component, InformationModel, Item,
                                  information_model, variable_type)
 from fishfmu.serve.options import realtime_problem
@@ -294,6 +296,7 @@ class AddressSpace:
         self._guard_writes(server)
 
         await _add_methods(folder, idx, lockstep, line)
+        server.subscribe_server_callback(CallbackType.PostRead, UserRights(idx))  # each session's own rights
         self.event = await server.get_event_generator(ua.ObjectIds.BaseEventType, folder.nodeid)
 
     async def announce(self, state: str) -> None:

@@ -12,6 +12,10 @@ Two ways to advance: **lockstep** (the line moves only when a client calls ``ste
 fish has left with ``stop_when_clear``), or when a client calls ``stop()``, or on a signal (within a
 communication step and 0.05 s); :meth:`LineServer.run` then gives it as a :class:`~fishfmu.cosim.results.RunResult`,
 which the command writes like any run.
+
+What the servers show (OPC UA with its status nodes, Modbus, the live view) is the line's step observer,
+:class:`~fishfmu.serve.publication.Publication`, attached to each run the line builds beside the observers every way
+of stepping attaches; it is published after each batch of steps (why: :mod:`fishfmu.serve.publication`).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import math
 import os
 import threading
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -31,6 +36,7 @@ import numpy as np
 
 from plant.errors import InputError, SimulationError
 from plant.contract.kpis import KPI_KEYS
+from plant.sim.observers import StepObserver
 from plant.sim.plant import ON_LINE
 
 from fishfmu.cosim.build import BuildFailed, CheckedScenario, build, scenario_fish
@@ -43,8 +49,9 @@ from fishfmu.serve.access import Account, LineUsers, hash_password, read_users
 from fishfmu.serve.address_space import NAMESPACE, AddressSpace, shown_values
 from fishfmu.serve.model import KPIS, served_signals
 from fishfmu.serve.options import (DEFAULT_ENDPOINT, PASSWORD_ENV, Certificates, endpoint_problem,
-                                   modbus_host_port, modbus_problem, realtime_problem)
+                                   modbus_problem, realtime_problem)
 from fishfmu.serve.pacing import Pacing
+from fishfmu.serve.publication import Publication
 from fishfmu.serve.server import make_server, start_server
 from fishfmu.serve.status import (DEFAULT_GRACE_S, FINISHED, PAUSED, RUNNING, STOPPED, WAITING, InvalidState,
                                   RunClock, grace_problem)
@@ -62,7 +69,8 @@ class LineServer:
                  realtime: float | None = None, user: str | None = None,
                  certificates: Certificates | None = None, wait_for_start: bool = False,
                  grace_s: float = DEFAULT_GRACE_S, users_file: Path | None = None,
-                 allow_anonymous_write: bool = False, modbus: str | None = None, live: str | None = None) -> None:
+                 allow_anonymous_write: bool = False, modbus: str | None = None, live: str | None = None,
+                 observers: Sequence[StepObserver] = ()) -> None:
         problem = endpoint_problem(endpoint, allow_remote)
         if problem:
             raise InputError(problem, where="--endpoint")
@@ -90,11 +98,11 @@ class LineServer:
         problem = modbus_problem(modbus, allow_remote) if modbus is not None else None
         if problem:
             raise InputError(problem, where="--modbus")
-        self.modbus_at, self.modbus, self.allow_anonymous_write = modbus, None, allow_anonymous_write
+        self.modbus_at, self.allow_anonymous_write = modbus, allow_anonymous_write
         problem = modbus_problem(live, allow_remote, "live view") if live is not None else None
         if problem:
             raise InputError(problem, where="--live")
-        self.live_at, self.live, self._values = live, None, {}  # _values: what _publish showed last
+        self.live_at = live
         self.clock = RunClock()
         self.kpis: dict[str, Any] = {}
         """The run's KPIs once it has ended (served under fishfmu.kpis)."""
@@ -107,6 +115,9 @@ class LineServer:
         """Every signal in the address space: the run's signals, then the plant's outputs it does not record."""
         self.external = list(checked.wiring.external)
         self.space = AddressSpace(checked, self.served, self.external)
+        self.publication = Publication(self.space, [cv.id for cv in self.scenario.line.conveyors])
+        self.observers = list(observers)
+        """Step observers attached to each run the line builds, after its publication (a script's own)."""
         self.written: list[dict[str, Any]] = []
         """Every change clients made to an external input in this run (since the last reset), with the simulated
         time from which it was used."""
@@ -154,7 +165,10 @@ class LineServer:
         self._stack = contextlib.ExitStack()
         self.cosim, self._build_failed = None, None
         try:
-            self.cosim = self._stack.enter_context(build(self.checked, self.fish))
+            # the one place the served line attaches its step observers (fishfmu.serve.publication)
+            self.publication.new_run()
+            self.cosim = self._stack.enter_context(build(self.checked, self.fish,
+                                                         observers=[self.publication, *self.observers]))
         except BuildFailed as exc:
             self._build_failed = exc
             self.state, self.error = f"failed: {exc}", str(exc)
@@ -305,13 +319,8 @@ class LineServer:
                   "fishfmu.realtime_factor": self.realtime or 0.0,
                   "fishfmu.realtime_factor_reached": self.clock.factor_reached(t_s),
                   **(self.kpis or {f"{KPIS}.{k}": math.nan for k in KPI_KEYS})}
-        values = shown_values(self.cosim, self.state, self.names, self.served, status)
-        await self.space.publish(values)
-        if self.modbus is not None:
-            self.modbus.publish(values)
-        self._values = values
-        if self.live is not None and self.cosim is not None and self.live.due():
-            self.live.capture(self.cosim, values)
+        await self.publication.publish(shown_values(self.cosim, self.state, self.names, self.served, status),
+                                       self.cosim)
         if self.state != self._announced:
             self._announced = self.state
             await self.space.announce(self.state)
@@ -339,9 +348,9 @@ class LineServer:
         await start_server(server, self.endpoint)
         try:
             if self.modbus_at is not None:
-                await self._start_modbus()
+                await self.publication.start_modbus(self.modbus_at, self.allow_anonymous_write, self)
             if self.live_at is not None:
-                await self._start_live()
+                await self.publication.start_live(self.live_at, self, self._lock)
             if on_ready is not None:
                 on_ready(self)
             if self.realtime is None:
@@ -354,34 +363,10 @@ class LineServer:
                 if self.state == RUNNING and self.stop_requested.is_set():
                     self.state = STOPPED
         finally:
-            if self.modbus is not None:
-                await self.modbus.stop()
-            if self.live is not None:
-                await self.live.stop()
+            await self.publication.stop()
             await server.stop()
         if self._crash is not None:
             raise self._crash
-
-    async def _start_modbus(self) -> None:
-        """The Modbus TCP server beside OPC UA (:mod:`fishfmu.serve.modbus`; pymodbus imported only for it)."""
-        from fishfmu.serve.modbus import ModbusObserver  # pymodbus: only when --modbus is given
-        host, port = modbus_host_port(self.modbus_at)
-        self.modbus = ModbusObserver(self.space.model, host, port, self.allow_anonymous_write, self)
-        await self.modbus.start()
-        self.modbus.publish(dict(self.space.published))  # every value so far, not only the next changes
-
-    async def _start_live(self) -> None:
-        """The live view (:mod:`fishfmu.serve.live`; tornado imported only for it), with the line's latest step
-        taken when no step's publication took it (the end of a step(n), a pause): never waiting for the line."""
-        from fishfmu.serve.live import LiveView  # tornado: only when --live is given
-        self.live = LiveView(*modbus_host_port(self.live_at), self.scenario.line, self.scenario.run.name)
-        self.live.capture(self.cosim, self._values)
-        await self.live.start(lambda: self.live.stale(self.cosim, self._values) and not self._lock.locked(), self._catch_up_live)
-
-    async def _catch_up_live(self) -> None:
-        async with self._lock:
-            if self.cosim is not None:
-                self.live.capture(self.cosim, self._values)
 
     async def _sleep_until(self, due: float) -> bool:
         """Wait for the monotonic time ``due``, looking for the end of serving and a reset every POLL_S;

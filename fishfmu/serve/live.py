@@ -98,8 +98,6 @@ class LiveView:
         self.captured_step = -1
         self.captured_state: str | None = None
         self._cosim: Any = None
-        self._travel_m = np.zeros(0)
-        self._t_travel_s = 0.0
         self._last_wall = -math.inf
         self._server: HTTPServer | None = None
         self._task: asyncio.Task | None = None
@@ -113,19 +111,14 @@ class LiveView:
         return c is not None and (c is not self._cosim or c.steps != self.captured_step
                                   or values.get("fishfmu.run_state") != self.captured_state)
 
-    def capture(self, c: Any, values: dict[str, Any]) -> None:
-        """Take the frame of ``c`` (between two steps: the caller holds the line); a new run (a reset) makes a new
-        page."""
+    def capture(self, c: Any, values: dict[str, Any], travel_m: np.ndarray) -> None:
+        """Take the frame of ``c`` (between two steps: the caller holds the line) with each belt's ``travel_m`` (the
+        stripes' phase, summed step by step by :class:`fishfmu.serve.publication.Publication`); a new run (a reset)
+        makes a new page."""
         if c is not self._cosim:
             self._cosim, self.page = c, self.page + 1
             self.html = live_page(self.line, c.plant.state, self.name, self.page)
-            self._travel_m, self._t_travel_s = np.zeros(len(self.line.conveyors)), 0.0
-        out = c.plant.state.outputs
-        if out is not None:  # belt travel: each belt at its speed since the last frame (the stripes' phase)
-            speeds = np.array([out.belt_speed_mps.get(cv.id, 0.0) for cv in self.line.conveyors])
-            self._travel_m = self._travel_m + speeds * (c.t_s - self._t_travel_s)
-        self._t_travel_s = c.t_s
-        frame = frame_of(c, self.line, self._travel_m, values, self.page)
+        frame = frame_of(c, self.line, travel_m, values, self.page)
         self.frame = json.dumps(frame, separators=(",", ":"), allow_nan=False).encode()
         self.captured_step, self._last_wall = c.steps, time.monotonic()
         self.captured_state = values.get("fishfmu.run_state")

@@ -221,7 +221,7 @@ class EnergyWatch:
             return 0.0
         return float(np.abs(np.einsum("ij,ij->i", force, vel)).sum())
 
-    def after_step(self, state: PlantState, outputs: object, dt_s: float) -> None:
+    def after_step(self, state: PlantState, outputs: object, inputs: object, dt_s: float) -> None:
         """As a step observer (:mod:`plant.sim.observers`): :meth:`check` after each step."""
         self.check(state, dt_s)
 

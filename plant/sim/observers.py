@@ -2,26 +2,44 @@
 
 Every way the line is stepped (the plant alone, :func:`plant.sim.simulate.simulate_plant`; a co-simulation,
 ``fishfmu.cosim.master``, which ``fishfmu run`` and ``fishfmu serve`` step; the plant as an FMU,
-``fishfmu.cosim.plant_fmu``) steps the plant and then hands each observer the state it published, in the order
-attached. :func:`plant_watches` is the set each of them attaches: the energy watch first (a blow-up raises
-SimulationError there, before anything records the step) and the fish counts.
+``fishfmu.cosim.plant_fmu``) steps the plant and then hands each observer, in the order attached, the state it
+published, its outputs, what the step was given (:class:`StepInputs`: only the one who stepped the plant knows the
+belts' setpoints) and the step's length.  :func:`plant_observers` is the set each of them attaches, made in this one
+place: the energy watch first (a blow-up raises SimulationError there, before anything records the step), the fish
+counts, then the recording of the run in the measured-data format where there is a recorder (the plant FMU has
+none: its host records).  Anything attached after them (a script's own, ``fishfmu serve``'s publication) sees the
+step once it is counted and recorded.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from plant.sim.health import EnergyWatch
+from plant.sim.recorder import RunRecorder
 from plant.sim.state import FishStatus, PlantOutputs, PlantState
 
 
-class StepObserver(Protocol):
-    """Called after every plant step with what the plant published; raises SimulationError to stop the run."""
+@dataclass(frozen=True)
+class StepInputs:
+    """What a plant step was given, by id: each belt's speed and each device's command (the plant's inputs), and
+    each belt's setpoint as belts.csv logs it (its drive's target in a co-simulation; the speed itself where the
+    speed is given directly)."""
 
-    def after_step(self, state: PlantState, outputs: PlantOutputs, dt_s: float) -> None: ...
+    belt_speed_mps: dict[str, float]
+    device_commands: dict[str, bool]
+    belt_setpoint_mps: dict[str, float]
+
+
+class StepObserver(Protocol):
+    """Called after every plant step with what the plant published and what it was given; raises SimulationError
+    to stop the run."""
+
+    def after_step(self, state: PlantState, outputs: PlantOutputs, inputs: StepInputs, dt_s: float) -> None: ...
 
 
 class FishCounts:
@@ -37,7 +55,7 @@ class FishCounts:
         self.values = dict.fromkeys(self.NAMES, 0)
         self._was_blocked = False
 
-    def after_step(self, state: PlantState, outputs: PlantOutputs, dt_s: float) -> None:
+    def after_step(self, state: PlantState, outputs: PlantOutputs, inputs: StepInputs, dt_s: float) -> None:
         status = state.status
         waiting = int(np.count_nonzero(status == FishStatus.WAITING))
         self.values.update(fish_waiting=waiting, fish_dropped=len(status) - waiting,
@@ -51,12 +69,28 @@ class FishCounts:
             self._was_blocked = blocked
 
 
-def plant_watches(outfeed: str | None = None) -> tuple[EnergyWatch, FishCounts]:
-    """The observers every way of stepping the plant attaches: the energy watch, then the fish counts."""
-    return EnergyWatch(), FishCounts(outfeed)
+class Recording:
+    """Records each step into ``recorder`` (:class:`plant.sim.recorder.RunRecorder`: the run in the measured-data
+    format) from the published state and the step's inputs: fish tracks and body poses when due, photo-eyes, belt
+    setpoints and speeds, the cameras' detections, the devices' rejections, positions and commands."""
+
+    def __init__(self, recorder: RunRecorder) -> None:
+        self.recorder = recorder
+
+    def after_step(self, state: PlantState, outputs: PlantOutputs, inputs: StepInputs, dt_s: float) -> None:
+        self.recorder.record(state.t_s, state.fish_poses, outputs.photoeyes, inputs.belt_setpoint_mps,
+                             inputs.belt_speed_mps, state.body_poses, state.detections, state.rejected_by,
+                             state.device_position, inputs.device_commands)
 
 
-def notify(observers: Iterable[StepObserver], state: PlantState, outputs: PlantOutputs, dt_s: float) -> None:
-    """Hand one step's published state to each observer, in order (the first to raise stops the rest)."""
+def plant_observers(outfeed: str | None = None, recorder: RunRecorder | None = None) -> list[StepObserver]:
+    """The observers every way of stepping the plant attaches, in order: the energy watch, the fish counts
+    (``outfeed``: the photo-eye whose blocked edges they count), and the recording into ``recorder`` if any."""
+    return [EnergyWatch(), FishCounts(outfeed), *([Recording(recorder)] if recorder is not None else [])]
+
+
+def notify(observers: Iterable[StepObserver], state: PlantState, outputs: PlantOutputs, inputs: StepInputs,
+           dt_s: float) -> None:
+    """Hand one step's published state and inputs to each observer, in order (the first to raise stops the rest)."""
     for observer in observers:
-        observer.after_step(state, outputs, dt_s)
+        observer.after_step(state, outputs, inputs, dt_s)

@@ -20,7 +20,7 @@ from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
 from plant.contract.measured import fish_to_frame
 from plant.fish.population import FishSpec
-from plant.sim.observers import StepObserver, notify, plant_watches
+from plant.sim.observers import StepInputs, StepObserver, notify, plant_observers
 from plant.sim.recorder import RunRecorder, pose_record
 from plant.sim.ports import PlantPorts
 from plant.sim.state import DropAdjustment, FishStatus
@@ -128,13 +128,13 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
     fish has been dropped and has left the line.  ``device_commands``: the devices' commands at each step's start
     (None: every device stays home).  ``record_poses``: also keep every body's pose at
     25 Hz (``SimulatedRun.poses``, for a 3D replay; about 2 MB per 18 fish and 30 s in memory).  ``observers``:
-    attached after :func:`plant.sim.observers.plant_watches` (the energy watch, the fish counts), called after
-    every step (:mod:`plant.sim.observers`)."""
+    attached after :func:`plant.sim.observers.plant_observers` (the energy watch, the fish counts, the recording),
+    called after every step (:mod:`plant.sim.observers`)."""
     plant = Plant(line, fish, params, comm_step_s, joint_factors)
-    watching = [*plant_watches(), *(observers or [])]
     ports = PlantPorts.of(line)
     rec = RunRecorder([f.fish_id for f in fish], list(ports.conveyor_ids), list(ports.photoeye_ids), comm_step_s,
                       ports.device_ids, record_poses=record_poses)
+    watching = [*plant_observers(recorder=rec), *(observers or [])]
     speed_fn = belt_speeds if callable(belt_speeds) else (lambda t, s=dict(belt_speeds): s)
 
     def step() -> None:
@@ -142,11 +142,8 @@ def simulate_plant(line: Line, fish: list[FishSpec], belt_speeds: BeltSpeeds, du
         commands = device_commands(plant.state.t_s) if device_commands is not None else dict.fromkeys(ports.device_ids,
                                                                                                        False)
         out = plant.step(speeds, commands)
-        state = plant.state
-        notify(watching, state, out, comm_step_s)  # a blow-up stops here, as in a co-simulation
-        rec.record(state.t_s, state.fish_poses, out.photoeyes, speeds, out.belt_speed_mps,
-                   state.body_poses if record_poses else None, state.detections, state.rejected_by,
-                   state.device_position, commands)
+        # the belts' setpoints are the speeds given; a blow-up stops the run here, as in a co-simulation
+        notify(watching, plant.state, out, StepInputs(out.belt_speed_mps, commands, speeds), comm_step_s)
         if on_step is not None:
             on_step(plant)
 
