@@ -376,6 +376,17 @@ def test_compare_refuses_a_fifo_in_a_dataset_before_it_writes(name: str, small_d
     assert_one_clear_line(code, err, name.split("/")[-1], "a FIFO")
 
 
+def test_diagnose_without_an_unknown_candidate_is_exit_2_before_it_writes(small_dataset: Path,  # noqa: F811
+                                                                          sandbox: Path, capsys, monkeypatch):
+    """Issue 41: --without names a candidate cause; a misspelt one is one line naming it and the known ones, exit 2,
+    and no output folder."""
+    out = sandbox / "out"
+    code, err = run_main(sandbox, capsys, monkeypatch, "diagnose", str(small_dataset), "--out", str(out),
+                         "--without", "rigor")
+    assert_one_clear_line(code, err, "--without rigor", "rigor_mortis")
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------- as a real process
 
 @pytest.mark.parametrize("args, expected", [
