@@ -125,6 +125,16 @@ def raise_if_stopped() -> None:
         raise Interrupted(s.signum)
 
 
+def raise_if_signalled() -> None:
+    """Raise :class:`Interrupted` if a signal came, also when its exception was raised already but lost: raised in
+    Python code that Exudyn's step called, it can be swallowed there, and the command would go on as if no signal
+    had come. Called where a step loop's work returned normally (nothing is unwinding)."""
+    s = _current
+    if s is not None and s.signum is not None and s._deferred == 0 and s._polled == 0:
+        s._raised = True
+        raise Interrupted(s.signum)
+
+
 @contextmanager
 def deferred_signals() -> Iterator[None]:
     """A block a signal does not break into (starting a cluster or a pool): the signal is raised at its end.

@@ -26,7 +26,6 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 import pandas as pd
 
 from plant.errors import InputError, SimulationError
@@ -42,7 +41,7 @@ from fishfmu.analysis.residuals import residuals_of
 from fishfmu.fmu.archive import open_fmu
 from fishfmu.fmu.build import builtin_fmu
 from fishfmu.fmu.instance import InProcessFmu
-from fishfmu.session import STOPS, deferred_signals
+from fishfmu.session import STOPS, deferred_signals, raise_if_signalled
 
 
 @dataclass
@@ -170,12 +169,7 @@ def resim_pool(workers: int | None = None) -> ProcessPoolExecutor | None:
     if workers == 1:
         return None
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_worker_start)
-
-
-def _worker_start() -> None:
-    _ignore_sigint()
-    threadpool_limits(1, user_api="blas")  # see pool_for
+                               initializer=_ignore_sigint)
 
 
 @contextlib.contextmanager
@@ -183,14 +177,11 @@ def pool_for(workers: int | None = None) -> Iterator[ProcessPoolExecutor | None]
     """A :func:`resim_pool` for the ``with`` block: shut down when it ends, stopped (not waited for) when
     it ends by an error, Ctrl-C or SIGTERM."""
     pool = resim_pool(workers)
-    # numpy's BLAS spreads each small least-squares fit over every core, its threads spinning against the processes
-    # re-simulating: guide wear's test took 61 s that way on the loaded 2-core machine, 2.2 s with one thread
-    with threadpool_limits(1, user_api="blas"):
-        try:
-            yield pool
-        except BaseException:
-            stop_pool(pool)
-            raise
+    try:
+        yield pool
+    except BaseException:
+        stop_pool(pool)
+        raise
     if pool is not None:
         pool.shutdown()
 
@@ -234,6 +225,7 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
             try:
                 for i, t in enumerate(tasks):
                     done[i] = _task(t)
+                    raise_if_signalled()  # a signal whose exception Exudyn's step swallowed
             except STOPS as exc:
                 exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
                 raise
