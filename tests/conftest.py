@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+import fishfmu  # noqa: F401  first, so that its one-BLAS-thread default is set before any test module loads numpy
+
 
 @pytest.fixture(scope="session")
 def builtin_fmus() -> dict[str, Path]:
