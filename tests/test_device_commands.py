@@ -18,7 +18,9 @@ import pytest
 from plant.contract.device_commands import command_schedule
 from plant.contract.measured import read_dataset
 from plant.errors import InputError
+from plant.sim.observers import StepInputs
 from plant.sim.recorder import RunRecorder
+from plant.sim.state import PlantOutputs, PlantState
 
 from tests.test_bad_input import assert_one_clear_line, run_main, sandbox  # noqa: F401 (a fixture, used by name)
 
@@ -176,7 +178,16 @@ def test_a_command_acts_from_the_first_step_starting_at_or_after_it():
 def test_the_recorder_logs_changes_at_the_steps_start_and_nothing_without_devices():
     rec = RunRecorder([], ["c1"], [], 0.01, ("g",))
     for k, on in enumerate([False, True, True, False], start=1):
-        rec.record(0.01 * k, None, {}, {"c1": 0.0}, {"c1": 0.0}, device_commands={"g": on})
+        rec.record(empty_line_state(0.01 * k), StepInputs({"c1": 0.0}, {"g": on}, {"c1": 0.0}))
     log = rec.tables()["device_commands"]
     assert list(log.itertuples(index=False, name=None)) == [(0.0, "g", 0), (0.01, "g", 1), (0.03, "g", 0)]
     assert RunRecorder([], ["c1"], [], 0.01).tables()["device_commands"] is None
+
+
+def empty_line_state(t_s: float) -> PlantState:
+    """A line without fish after a step ending at ``t_s``, its one belt still, its device home."""
+    none = np.zeros(0, dtype=np.int64)
+    return PlantState(t_s, (), np.zeros(0, dtype=np.int8), none, none, np.zeros((0, 3)), np.zeros((0, 3, 3)),
+                      np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0), np.zeros(3),
+                      outputs=PlantOutputs(t_s, {"c1": 0.0}, {"c1": 0.0}, {"c1": 0.0}, {}),
+                      rejected_by=np.zeros(0, dtype=np.int64), device_position=np.zeros(1))

@@ -22,7 +22,7 @@ import pandas as pd
 from plant.errors import SimulationError
 from plant.contract.kpis import compute_kpis
 from plant.contract.measured import Run
-from plant.sim.observers import StepObserver
+from plant.sim.observers import StepInputs, StepObserver
 from plant.sim.plant import Plant
 from plant.sim.state import PlantState
 from plant.contract.measured import fish_to_frame
@@ -119,8 +119,7 @@ def _record_start(recorder: RunRecorder, state: PlantState, cosim: CoSimulation 
     for c, v in speeds.items():
         sp = setpoint_value(sources.get(c), constants, values, v)
         setpoints[c] = float(sp) if isinstance(sp, (int, float)) and np.isfinite(sp) else v
-    recorder.record(0.0, state.fish_poses, {p: False for p in recorder.photoeye_ids}, setpoints, speeds,
-                    state.body_poses)
+    recorder.record(state, StepInputs(speeds, {}, setpoints))  # the state at rest: no beam blocked
 
 
 def signal_expectations(key: str, bound: Bound, signals: pd.DataFrame) -> list[ExpectResult]:

@@ -32,7 +32,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from plant.contract.line import Camera
+from plant.contract.line import Camera, Line
+from plant.sim.equipment import Seen, Step
 
 if TYPE_CHECKING:  # the system's outline cross-sections are read, the system is not built here
     from plant.sim.model import PlantModel
@@ -176,3 +177,33 @@ def output_fields(readings: dict[str, Reading]) -> dict[str, dict]:
             "camera_lead_heading": {i: r.lead_heading for i, r in readings.items()},
             "camera_events": {i: r.events for i, r in readings.items()},
             "camera_results": {i: r.results for i, r in readings.items()}}
+
+
+class Cameras:
+    """Every camera of the line in the plant's step (:mod:`plant.sim.equipment`): the fish seen from above only when
+    one of them takes a frame; the frames' detections of the last step in :attr:`detections`."""
+
+    def __init__(self, units: list[CameraUnit]) -> None:
+        self.units = units
+        self.detections: tuple[tuple, ...] = ()
+
+    @classmethod
+    def of(cls, line: Line, seed: int) -> Cameras:
+        # each camera's noise its own stream of the run's seed: adding a camera changes no other's
+        return cls([CameraUnit(c, np.random.default_rng([seed, 7, i])) for i, c in enumerate(line.cameras)])
+
+    def before_solve(self, step: Step, q: np.ndarray, v: np.ndarray) -> None:
+        pass  # a camera acts on nothing
+
+    def after_solve(self, step: Step, seen: Seen) -> dict[str, dict]:
+        t = step.t_end_s
+        due = [c for c in self.units if c.frame_due(t)]
+        view = seen.top_view() if due else None
+        self.detections = tuple(row for c in due for row in c.take_frame(t, view))
+        return output_fields({c.camera.id: c.output(t) for c in self.units})
+
+    def takes(self, mid_m: np.ndarray, on: np.ndarray) -> None:
+        return None
+
+    def published(self) -> dict:
+        return {"detections": self.detections}

@@ -22,14 +22,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant.contract.devices import DeviceShape, device_shapes
+from plant.contract.devices import DeviceShape, device_shapes, exits
 from plant.contract.line import Line
+from plant.sim.equipment import Seen, Step
+from plant.sim.model import BELT_MASS_KG
+
 
 
 @dataclass
 class DeviceActuators:
-    """Every device's actuator: positions (0 home, 1 end of travel) and the rate of the step under way."""
+    """Every device's actuator: positions (0 home, 1 end of travel) and the rate of the step under way; the devices
+    in the plant's step (:mod:`plant.sim.equipment`)."""
 
+    line: Line
+    ids: tuple[str, ...]
     shapes: tuple[DeviceShape, ...]
     stroke_s: np.ndarray
     position: np.ndarray
@@ -46,8 +52,34 @@ class DeviceActuators:
     @classmethod
     def of(cls, line: Line) -> DeviceActuators:
         n = len(line.devices)
-        return cls(device_shapes(line), np.array([d.stroke_s for d in line.devices], dtype=float), np.zeros(n),
+        return cls(line, tuple(d.id for d in line.devices), device_shapes(line), np.array([d.stroke_s for d in line.devices], dtype=float), np.zeros(n),
                    np.zeros(n), np.zeros(n))
+
+    def commands(self, device_commands: dict[str, bool] | None) -> np.ndarray:
+        """(n,) the step's commands in the line's order: True to the end of the travel; a device not named (or all,
+        with None) home; a name the line has no device for is a KeyError."""
+        if device_commands and (unknown := sorted(set(device_commands) - set(self.ids))):
+            raise KeyError(f"no device named {', '.join(unknown)} (devices: {', '.join(self.ids)})")
+        return np.array([bool((device_commands or {}).get(i, False)) for i in self.ids], dtype=bool)
+
+    def before_solve(self, step: Step, q: np.ndarray, v: np.ndarray) -> None:
+        """Each actuator a step further towards its command, its body put at its pose at the step's start."""
+        self.advance(step.device_commands, step.dt_s)
+        self.place(q, v, step.model.device_ltg, step.belt_speeds_mps, step.dt_s)
+
+    def after_solve(self, step: Step, seen: Seen) -> dict[str, dict]:
+        self.work_on_fish_j(seen.velocities[step.model.device_ltg], BELT_MASS_KG)
+        return self.output_fields(self.ids, seen.rejected_by)
+
+    def takes(self, mid_m: np.ndarray, on: np.ndarray) -> np.ndarray | None:
+        """Per fish in the system (its mid point ``mid_m`` (n, 3), ``on`` the line): the device through whose exit
+        it has gone, -1 for none."""
+        if not self.shapes:
+            return None
+        return np.where(on, exits(self.shapes, self.line, mid_m[:, 0], mid_m[:, 1], mid_m[:, 2]), -1)
+
+    def published(self) -> dict:
+        return {"device_position": self.position, "device_work_j": self.work_j}
 
     def advance(self, commands: np.ndarray, dt_s: float) -> np.ndarray:
         """Start a step of ``dt_s`` with each device commanded to its end (True) or home (False); returns the

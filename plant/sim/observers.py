@@ -14,25 +14,13 @@ step once it is counted and recorded.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from plant.sim.health import EnergyWatch
 from plant.sim.recorder import RunRecorder
-from plant.sim.state import FishStatus, PlantOutputs, PlantState
-
-
-@dataclass(frozen=True)
-class StepInputs:
-    """What a plant step was given, by id: each belt's speed and each device's command (the plant's inputs), and
-    each belt's setpoint as belts.csv logs it (its drive's target in a co-simulation; the speed itself where the
-    speed is given directly)."""
-
-    belt_speed_mps: dict[str, float]
-    device_commands: dict[str, bool]
-    belt_setpoint_mps: dict[str, float]
+from plant.sim.state import FishStatus, PlantOutputs, PlantState, StepInputs  # noqa: F401 (StepInputs: theirs too)
 
 
 class StepObserver(Protocol):
@@ -78,9 +66,7 @@ class Recording:
         self.recorder = recorder
 
     def after_step(self, state: PlantState, outputs: PlantOutputs, inputs: StepInputs, dt_s: float) -> None:
-        self.recorder.record(state.t_s, state.fish_poses, outputs.photoeyes, inputs.belt_setpoint_mps,
-                             inputs.belt_speed_mps, state.body_poses, state.detections, state.rejected_by,
-                             state.device_position, inputs.device_commands)
+        self.recorder.record(state, inputs)
 
 
 def plant_observers(outfeed: str | None = None, recorder: RunRecorder | None = None) -> list[StepObserver]:

@@ -36,7 +36,6 @@ import time
 
 import numpy as np
 
-from plant.contract.devices import exits
 from plant.contract.line import Line
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
@@ -44,20 +43,29 @@ from plant.fish.extensions import (adhesion_forces, body_friction_levels, direct
 from plant.fish.population import FishSpec
 from plant.sim.health import check_health
 from plant.sim.joints import relinearized, stack_laws
-from plant.sim.model import (BELT_MASS_KG, MAT_FISH0, Member, PlantModel, build_model, drop_height, exu,
+from plant.sim.model import (MAT_FISH0, Member, PlantModel, build_model, drop_height, exu,
                              park_positions, parked_member, pose_coordinates, prepare_fish)
 from plant.sim.params import PlantParams
 from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
-from plant.sim.camera import CameraUnit, TopView, fish_seen_from_above, output_fields
+from plant.sim.belts import Belts
+from plant.sim.camera import Cameras, TopView, fish_seen_from_above
 from plant.sim.devices import DeviceActuators
-from plant.sim.sensors import BeamDelay, beams_blocked, belt_loads, outline_reach_m, sphere_centres, spine_point_local
+from plant.sim.equipment import Equipment, Seen, Step
+from plant.sim.sensors import PhotoEyes, sphere_centres, spine_point_local
 from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
 
 WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
 ADMIT_AHEAD_S = 1.0
 """Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
+
+
+def equipment_of(line: Line, gravity_mps2: float, comm_step_s: float, seed: int) -> dict[str, Equipment]:
+    """Every kind of the line's equipment (:mod:`plant.sim.equipment`), by the ports' ``of``, in the order the step
+    runs them (belts before devices: a gate's surface runs at the speed of the belt before it)."""
+    return {"conveyor": Belts.of(line, gravity_mps2), "photoeye": PhotoEyes.of(line, comm_step_s),
+            "camera": Cameras.of(line, seed), "device": DeviceActuators.of(line)}
 
 
 class Plant:
@@ -80,12 +88,11 @@ class Plant:
         self._comm_step_s = comm_step_s
         self._ports = PlantPorts.of(line)
         self.conveyor_ids = list(self._ports.conveyor_ids)
-        self._beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
-        self._beam_span = np.column_stack(line.guide_y_at(self._beams[:, 0]))  # each beam from guide to guide
-        self._beam_delay = BeamDelay([p.latency_s for p in line.photoeyes], comm_step_s)  # as the eyes report them
         self._x_ends = np.array([c.x_end_m for c in line.conveyors])
         self._surfaces = line_surfaces(line, self._params.guide_height_m, self._params.extensions.guide_wear)
-        self._belt_dir = np.array([[np.cos(a), np.sin(a)] for a in np.radians([c.incline_deg for c in line.conveyors])])
+        # belts, photo-eyes, cameras, devices: each kind run alike in the step (plant.sim.equipment)
+        self._equipment = equipment_of(line, self._params.gravity_mps2, comm_step_s, seed)
+        self._belts, self._devices = self._equipment["conveyor"], self._equipment["device"]
         tilt = np.radians(self._params.incline_deg)  # > 0: rising downstream (as a belt's), pulling fish back upstream
         self._gravity = self._params.gravity_mps2 * np.array([-np.sin(tilt), 0.0, -np.cos(tilt)])
         self._gravity.setflags(write=False)
@@ -103,14 +110,11 @@ class Plant:
         self._level = friction_level(self._mucus) if len(self._fish_specs) else np.zeros(0, dtype=np.int64)
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self._prepared]
         self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
-        # each camera's noise its own stream of the run's seed: adding a camera changes no other's
-        self._cameras = [CameraUnit(c, np.random.default_rng([seed, 7, i])) for i, c in enumerate(line.cameras)]
-        self._devices = DeviceActuators.of(line)
         self._rejected_by = np.full(len(self._fish_specs), -1, dtype=np.int64)
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._geometry = tuple(p.geometry for p in self._prepared)
         self.status = np.full(len(self._fish_specs), WAITING, dtype=np.int8)
-        self._drop_adjustments, self._detections = (), ()  # tuple[DropAdjustment, ...], camera rows of the step
+        self._drop_adjustments = ()  # tuple[DropAdjustment, ...]
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
         self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line), [])
@@ -131,23 +135,21 @@ class Plant:
              device_commands: dict[str, bool] | None = None) -> PlantOutputs:
         """Advance one communication step with the given belt surface speeds and device commands (by device id;
         a device not named, or all with None, is commanded home)."""
-        speeds = self._speeds_array(belt_speeds_mps)
-        self._admit_and_release(self.t_s + 1e-9)
-        if device_commands and (unknown := sorted(set(device_commands) - set(self._ports.device_ids))):
-            raise KeyError(f"no device named {', '.join(unknown)} (devices: {', '.join(self._ports.device_ids)})")
-        commands = [bool((device_commands or {}).get(i, False)) for i in self._ports.device_ids]
-        self._devices.advance(np.array(commands, dtype=bool), self._comm_step_s)
-        self._set_belts(speeds)
+        speeds = self._belts.speeds(belt_speeds_mps, self.t_s)
+        self._admit_and_release(self.t_s + 1e-9)  # may rebuild the system: the step's model is the one after it
+        step = Step((self._steps + 1) * self._comm_step_s, self._comm_step_s, self.model, speeds,
+                    self._devices.commands(device_commands))
+        self._set_equipment(step)
         self._relinearize_joints()
         self._update_friction(speeds)
         self._apply_adhesion()
-        self._solver.it.endTime = (self._steps + 1) * self._comm_step_s - self._t_model0
+        self._solver.it.endTime = step.t_end_s - self._t_model0
         t0 = time.perf_counter()
         self._solver.SolveSteps(self.model.mbs, self.model.settings)
         self._timings_s["exudyn"] += time.perf_counter() - t0
         self._steps += 1
         self._read_state()
-        outputs = self._sensors(speeds)
+        outputs = self._sensors(step)
         self._retire_fish()
         self._publish(outputs)
         self._check_health()
@@ -157,7 +159,7 @@ class Plant:
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
         self.model = model
         self._slot_of = {m.index: i for i, m in enumerate(members)}
-        self._member, self._outline_reach_m = model.member_index, outline_reach_m(model)
+        self._member = model.member_index
         self._fish_of_body = np.repeat(self._member, nb := model.bodies_per_fish)  # every fish of a run: as many
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
                                    dtype=float)
@@ -238,32 +240,15 @@ class Plant:
         self.status[k] = ON_LINE
         self._read_state()
 
-    # ---- 2. belts ----------------------------------------------------------------------------
-    def _speeds_array(self, belt_speeds_mps: dict[str, float] | np.ndarray) -> np.ndarray:
-        if isinstance(belt_speeds_mps, dict):
-            missing = [c for c in self.conveyor_ids if c not in belt_speeds_mps]
-            if missing:
-                raise KeyError(f"no speed given for conveyor(s) {', '.join(missing)}")
-            speeds = np.array([float(belt_speeds_mps[c]) for c in self.conveyor_ids])
-        else:
-            speeds = np.asarray(belt_speeds_mps, dtype=float).reshape(len(self.conveyor_ids))
-        if not np.all(np.isfinite(speeds)):
-            raise SimulationError(f"belt speed is not a number: {dict(zip(self.conveyor_ids, speeds))}", self.t_s)
-        return speeds
-
-    def _set_belts(self, speeds: np.ndarray) -> None:
-        """Each belt body back at its place, shifted back half a step of travel, moving at its speed; each device body
-        at its pose, moving at its actuator's rate."""
+    # ---- 2. belts and devices ---------------------------------------------------------------
+    def _set_equipment(self, step: Step) -> None:
+        """What the equipment does before the solve: each belt body back at its place moving at its speed, each
+        device body at its pose moving at its actuator's rate (plant.sim.belts, plant.sim.devices)."""
         sd = self.model.mbs.systemData
         q = sd.GetODE2Coordinates()
         v = sd.GetODE2Coordinates_t()
-        ltg = self.model.belt_ltg
-        q[ltg] = 0.0
-        v[ltg] = 0.0
-        for axis, share in ((0, self._belt_dir[:, 0]), (2, self._belt_dir[:, 1])):  # along an inclined belt's slope
-            q[ltg[:, axis]] = -0.5 * speeds * self._comm_step_s * share
-            v[ltg[:, axis]] = speeds * share
-        self._devices.place(q, v, self.model.device_ltg, speeds, self._comm_step_s)
+        for equipment in self._equipment.values():
+            equipment.before_solve(step, q, v)
         sd.SetODE2Coordinates(q)
         sd.SetODE2Coordinates_t(v)
 
@@ -344,31 +329,16 @@ class Plant:
         self._rot = rotvec_to_matrix(coords[:, 3:])
         self._vel = vel[:, :3]
         self._omega_local = vel[:, 3:]
-        self._belt_vel_end = v[self.model.belt_ltg[:, :3]] if len(self.model.belt_ltg) else np.zeros((0, 3))
-        self._device_vel_end = v[self.model.device_ltg]
+        self._velocities = v  # the belt and device bodies' too: what the equipment reads of the step
 
-    def _sensors(self, speeds: np.ndarray) -> PlantOutputs:
-        load, mass = belt_loads(self._belt_vel_end, speeds, BELT_MASS_KG, self._comm_step_s, self._params.gravity_mps2,
-                                self._belt_dir)
-        blocked = beams_blocked(self.model, self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE,
-                                self._beams, self._beam_span, self._outline_reach_m)
-        readings = self._camera_readings()
-        self._devices.work_on_fish_j(self._device_vel_end, BELT_MASS_KG)
-        return PlantOutputs(
-            t_s=self.t_s,
-            belt_speed_mps=dict(zip(self.conveyor_ids, map(float, speeds))),
-            belt_load_force_n=dict(zip(self.conveyor_ids, map(float, load))),
-            belt_load_mass_kg=dict(zip(self.conveyor_ids, map(float, mass))),
-            photoeyes=dict(zip(self._ports.photoeye_ids, map(bool, self._beam_delay(blocked)))), **output_fields(readings),
-            **self._devices.output_fields(self._ports.device_ids, self._rejected_by))
-
-    def _camera_readings(self) -> dict:
-        """Each camera's outputs after this step; the fish seen from above only when a camera takes a frame."""
-        t = self.t_s
-        due = [c for c in self._cameras if c.frame_due(t)]
-        view = self._top_view() if due else None
-        self._detections = tuple(row for c in due for row in c.take_frame(t, view))
-        return {c.camera.id: c.output(t) for c in self._cameras}
+    def _sensors(self, step: Step) -> PlantOutputs:
+        """What the equipment reads after the solve: every output of the step."""
+        seen = Seen(self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE, self._velocities, self._top_view,
+                    self._rejected_by)
+        fields: dict[str, dict] = {}
+        for equipment in self._equipment.values():
+            fields.update(equipment.after_solve(step, seen))
+        return PlantOutputs(t_s=self.t_s, **fields)
 
     def _top_view(self) -> TopView:
         slots = np.flatnonzero(self.status[self._member] == ON_LINE)
@@ -385,11 +355,12 @@ class Plant:
         on = self.status[self._member] == ON_LINE
         if not np.any(on):
             return
-        through = np.full(len(on), -1)
-        if self._devices.shapes:
-            mid = self._pos[self._pose_bodies[:, 0]] + np.einsum("mij,mj->mi", self._rot[self._pose_bodies[:, 0]],
-                                                                 self._pose_local[:, 0])
-            through = np.where(on, exits(self._devices.shapes, self._line, mid[:, 0], mid[:, 1], mid[:, 2]), -1)
+        through = np.full(len(on), -1)  # the index of the device that takes each fish, -1 for none
+        mid = self._pos[self._pose_bodies[:, 0]] + np.einsum("mij,mj->mi", self._rot[self._pose_bodies[:, 0]],
+                                                             self._pose_local[:, 0])
+        for equipment in self._equipment.values():
+            if (taken := equipment.takes(mid, on)) is not None:
+                through = np.where(through >= 0, through, taken)
         pos = self._pos.reshape(-1, self.model.bodies_per_fish, 3)
         x_gone = self._line.x_end_m + self._params.retire_after_m
         z_floor = self._line.z_range_m[0] - 0.5
@@ -439,8 +410,8 @@ class Plant:
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
             outputs=outputs, pose_bodies=self._pose_bodies, pose_local=self._pose_local, geometry=self._geometry,
-            drop_adjustments=self._drop_adjustments, detections=self._detections, rejected_by=self._rejected_by.copy(),
-            device_position=self._devices.position, device_work_j=self._devices.work_j, timings_s=dict(self._timings_s))
+            drop_adjustments=self._drop_adjustments, rejected_by=self._rejected_by.copy(), timings_s=dict(self._timings_s),
+            **{k: v for e in self._equipment.values() for k, v in e.published().items()})
 
     def _check_health(self) -> None:
         s = self._state

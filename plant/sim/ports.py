@@ -55,6 +55,15 @@ class Signal:
     """The :class:`~plant.sim.state.PlantOutputs` field holding its output values, by id ("" for an input only)."""
     description: str
     is_output: bool = True
+    at_rest: float | int | bool | None = None
+    """Its output before the first step (belts stopped, beams clear, nothing seen, devices home); None: the type's
+    zero."""
+
+    @property
+    def rest_value(self) -> float | int | bool:
+        if self.at_rest is not None:
+            return self.at_rest
+        return {"Real": 0.0, "Integer": 0, "Boolean": False}[self.type]
 
 
 SIGNALS: dict[str, Signal] = {s.name: s for s in (
@@ -85,7 +94,8 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
            "true: move to the end of the travel (open the gate, stroke the pusher, swing the arm); false: home", False),
     Signal("position", "device", "Real", None, None, False, "device_position",
            "where the device is along its travel: 0 home, 1 at its end"),
-    Signal("at_home", "device", "Boolean", None, None, False, "device_at_home", "limit switch: the device is home"),
+    Signal("at_home", "device", "Boolean", None, None, False, "device_at_home", "limit switch: the device is home",
+           at_rest=True),
     Signal("at_end", "device", "Boolean", None, None, False, "device_at_end",
            "limit switch: the device is at the end of its travel"),
     Signal("rejected", "device", "Integer", None, None, False, "device_rejected",
@@ -93,6 +103,10 @@ SIGNALS: dict[str, Signal] = {s.name: s for s in (
 )}
 """Every signal of the plant's ports, conveyors' first; each conveyor's, each photo-eye's and each camera's ports
 come in this order."""
+
+
+KINDS = ("conveyor", "photoeye", "camera", "device")
+"""The kinds of the line's equipment that have ports, in the order their ports come."""
 
 
 def signal_of(port: str) -> Signal:
@@ -114,11 +128,14 @@ class PlantPorts:
         return cls(tuple(c.id for c in line.conveyors), tuple(p.id for p in line.photoeyes),
                    tuple(c.id for c in line.cameras), tuple(d.id for d in line.devices))
 
+    def ids_of(self, of: str) -> tuple[str, ...]:
+        """The ids of the units of one kind (a :attr:`Signal.of`)."""
+        return {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids, "camera": self.camera_ids,
+                "device": self.device_ids}[of]
+
     def _names(self, signals: Iterable[Signal]) -> list[str]:
         signals = list(signals)
-        ids = {"conveyor": self.conveyor_ids, "photoeye": self.photoeye_ids, "camera": self.camera_ids,
-               "device": self.device_ids}
-        return [f"{i}.{s.name}" for of in ids for i in ids[of] for s in signals if s.of == of]
+        return [f"{i}.{s.name}" for of in KINDS for i in self.ids_of(of) for s in signals if s.of == of]
 
     def inputs(self) -> list[str]:
         """Input port names (every conveyor's ``speed``, every device's ``command``)."""

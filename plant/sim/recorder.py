@@ -13,7 +13,6 @@ seen blocked and first seen clear again (resolution: one communication step).
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,7 +20,7 @@ import pandas as pd
 
 from plant.contract.measured import BELTS, DETECTIONS, DEVICE_COMMANDS, PHOTOEYES, REJECTIONS, TRACKS
 from plant.sim.rotations import matrix_to_quaternion
-from plant.sim.state import FishState, FishStatus, PlantState
+from plant.sim.state import FishStatus, PlantState, StepInputs
 
 TRACK_PERIOD_S = 0.04
 BELT_PERIOD_S = 0.01
@@ -59,17 +58,13 @@ class RunRecorder:
     def __post_init__(self) -> None:
         self._blocked_since = {p: None for p in self.photoeye_ids}
 
-    def record(self, t_s: float, fish: Callable[[], FishState] | None, photoeyes: dict[str, bool],
-               belt_setpoint_mps: dict[str, float], belt_speed_mps: dict[str, float],
-               body_poses: Callable[[], tuple[np.ndarray, np.ndarray]] | None = None,
-               detections: tuple[tuple, ...] = (), rejected_by: np.ndarray | None = None,
-               device_position: np.ndarray | None = None, device_commands: dict[str, bool] | None = None) -> None:
-        """One communication step, ending at ``t_s``; ``fish`` and ``body_poses`` are called only when a sample is due;
-        ``detections`` the cameras' rows of the step (:attr:`plant.sim.state.PlantState.detections`), ``rejected_by``
-        and ``device_position`` the state's, ``device_commands`` what the step's devices were commanded (by device
-        id: logged where it changed, at the step's start)."""
-        self._detections.extend(detections)
-        for d, on in (device_commands or {}).items():
+    def record(self, state: PlantState, inputs: StepInputs) -> None:
+        """One communication step: the state the plant published at its end (its outputs, fish and body poses only
+        when a sample is due, the cameras' detections, the devices' rejections and positions) and what the step was
+        given (belt setpoints and speeds; device commands, logged where they changed, at the step's start)."""
+        t_s, photoeyes, rejected_by = state.t_s, state.outputs.photoeyes, state.rejected_by
+        self._detections.extend(state.detections)
+        for d, on in inputs.device_commands.items():
             if self._last_command.get(d) != bool(on):
                 self._commands.append((self._t_last, d, int(bool(on))))
                 self._last_command[d] = bool(on)
@@ -79,23 +74,23 @@ class RunRecorder:
                 self._rejections.append((t_s, self.device_ids[int(rejected_by[k])], self.fish_ids[k]))
             self._rejected_by = rejected_by
         eps = 1e-9
-        if fish is not None and t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
+        if t_s - self._last_track_t >= TRACK_PERIOD_S - eps:
             self._last_track_t = t_s
-            fish = fish()
+            fish = state.fish_poses()
             for k in np.flatnonzero(fish.status == FishStatus.ON_LINE):
                 self._tracks.append((t_s, self.fish_ids[k], fish.x_m[k], fish.y_m[k], fish.yaw_rad[k]))
-            if self.record_poses and body_poses is not None:
-                pos, rot = body_poses()
+            if self.record_poses:
+                pos, rot = state.body_poses()
                 self._pose_t.append(t_s)
                 self._pose_pos.append(pos.astype(np.float32))
                 self._pose_quat.append(matrix_to_quaternion(rot).astype(np.float32))
                 self._pose_status.append(fish.status.copy())
-                if device_position is not None and self.device_ids:
-                    self._device_position.append(np.asarray(device_position, dtype=np.float32))
+                if self.device_ids:
+                    self._device_position.append(np.asarray(state.device_position, dtype=np.float32))
         if t_s - self._last_belt_t >= BELT_PERIOD_S - eps:
             self._last_belt_t = t_s
             for c in self.conveyor_ids:
-                self._belts.append((t_s, c, belt_setpoint_mps[c], belt_speed_mps[c]))
+                self._belts.append((t_s, c, inputs.belt_setpoint_mps[c], inputs.belt_speed_mps[c]))
         for p, blocked in photoeyes.items():
             since = self._blocked_since[p]
             if blocked and since is None:

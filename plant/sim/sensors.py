@@ -16,7 +16,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from plant.contract.line import Line
 from plant.fish.fish_body import FishGeometry
+from plant.sim.equipment import Seen, Step
 
 if TYPE_CHECKING:  # the system's outline cross-sections are read, the system is not built here
     from plant.sim.model import PlantModel
@@ -104,6 +106,37 @@ class BeamDelay:
         self._now = (self._now + 1) % len(self._past)
         self._past[self._now] = blocked
         return self._past[(self._now - self.steps) % len(self._past), np.arange(len(self.steps))]
+
+
+class PhotoEyes:
+    """Every photo-eye of the line in the plant's step (:mod:`plant.sim.equipment`): each beam from guide to guide at
+    its (x, z), blocked by the outlines of the fish on the line, reported after its latency."""
+
+    def __init__(self, ids: tuple[str, ...], beams_xz: np.ndarray, span_y_m: np.ndarray, delay: BeamDelay) -> None:
+        self.ids, self.beams_xz, self.span_y_m, self.delay = ids, beams_xz, span_y_m, delay
+        self._model, self._reach_m = None, 0.0  # the system the reach was worked out for
+
+    @classmethod
+    def of(cls, line: Line, comm_step_s: float) -> PhotoEyes:
+        beams = np.array([[p.x_m, p.z_m] for p in line.photoeyes]).reshape(-1, 2)
+        return cls(tuple(p.id for p in line.photoeyes), beams, np.column_stack(line.guide_y_at(beams[:, 0])),
+                   BeamDelay([p.latency_s for p in line.photoeyes], comm_step_s))
+
+    def before_solve(self, step: Step, q: np.ndarray, v: np.ndarray) -> None:
+        pass  # a beam acts on nothing
+
+    def after_solve(self, step: Step, seen: Seen) -> dict[str, dict]:
+        if step.model is not self._model:  # once per system: it changes only when the plant rebuilds it
+            self._model, self._reach_m = step.model, outline_reach_m(step.model)
+        blocked = beams_blocked(step.model, seen.pos, seen.rot, seen.body_on, self.beams_xz, self.span_y_m,
+                                self._reach_m)
+        return {"photoeyes": dict(zip(self.ids, map(bool, self.delay(blocked))))}
+
+    def takes(self, mid_m: np.ndarray, on: np.ndarray) -> None:
+        return None
+
+    def published(self) -> dict:
+        return {}
 
 
 def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, dt_s: float,

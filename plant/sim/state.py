@@ -27,12 +27,12 @@ ValueError: assignment destination is read-only
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, make_dataclass
 
 import numpy as np
 
 from plant.fish.fish_body import FishGeometry
-from plant.sim.ports import SIGNALS, PlantPorts
+from plant.sim.ports import KINDS, SIGNALS, PlantPorts
 
 
 class FishStatus(enum.IntEnum):
@@ -48,56 +48,44 @@ class FishStatus(enum.IntEnum):
     """Taken off the line by one of its devices (a gate, pusher or diverter)."""
 
 
+def _port_values(self: PlantOutputs) -> dict[str, float | bool]:
+    """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
+    :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`."""
+    out: dict[str, float | bool] = {}
+    for of in KINDS:
+        signals = [(s.name, getattr(self, s.field)) for s in OUTPUT_SIGNALS if s.of == of]
+        for i in (signals[0][1] if signals else ()):  # each field holds every unit of its kind, by id
+            for name, values in signals:
+                out[f"{i}.{name}"] = values[i]
+    return out
+
+
+def _at_rest(cls: type, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
+    """Belts stopped and unloaded, every beam clear, every camera with nothing seen, every device home (the outputs
+    before the first step: each signal's ``rest_value``)."""
+    return cls(t_s, **{s.field: dict.fromkeys(ports.ids_of(s.of), s.rest_value) for s in OUTPUT_SIGNALS})
+
+
+OUTPUT_SIGNALS = tuple(s for s in SIGNALS.values() if s.is_output)
+
+PlantOutputs = make_dataclass(
+    "PlantOutputs", [("t_s", float)] + [(s.field, dict, field(default_factory=dict)) for s in OUTPUT_SIGNALS],
+    frozen=True, namespace={"port_values": _port_values, "at_rest": classmethod(_at_rest)})
+PlantOutputs.__module__ = __name__  # make_dataclass's module= is Python 3.12's
+PlantOutputs.__doc__ = """Sensor readings at the end of a communication step: ``t_s`` and, for each output signal of the
+ports table (:data:`plant.sim.ports.SIGNALS`), a field named by its ``field`` holding its value by unit id (the
+class is built from that table: a new signal is a row there, not a field here)."""
+
+
 @dataclass(frozen=True)
-class PlantOutputs:
-    """Sensor readings at the end of a communication step."""
+class StepInputs:
+    """What a plant step was given, by id: each belt's speed and each device's command (the plant's inputs), and
+    each belt's setpoint as belts.csv logs it (its drive's target in a co-simulation; the speed itself where the
+    speed is given directly)."""
 
-    t_s: float
     belt_speed_mps: dict[str, float]
-    belt_load_force_n: dict[str, float]
-    belt_load_mass_kg: dict[str, float]
-    photoeyes: dict[str, bool]
-    camera_count: dict[str, int] = field(default_factory=dict)
-    camera_double: dict[str, bool] = field(default_factory=dict)
-    camera_lead_double: dict[str, bool] = field(default_factory=dict)
-    camera_lead_x_m: dict[str, float] = field(default_factory=dict)
-    camera_lead_length_m: dict[str, float] = field(default_factory=dict)
-    camera_lead_heading: dict[str, int] = field(default_factory=dict)
-    camera_events: dict[str, int] = field(default_factory=dict)
-    camera_results: dict[str, int] = field(default_factory=dict)
-    device_position: dict[str, float] = field(default_factory=dict)
-    device_at_home: dict[str, bool] = field(default_factory=dict)
-    device_at_end: dict[str, bool] = field(default_factory=dict)
-    device_rejected: dict[str, int] = field(default_factory=dict)
-
-    def port_values(self) -> dict[str, float | bool]:
-        """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
-        :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`."""
-        out: dict[str, float | bool] = {}
-        for of, ids in _IDS_OF:
-            signals = [(s.name, getattr(self, s.field)) for s in SIGNALS.values() if s.of == of and s.is_output]
-            for i in getattr(self, ids):
-                for name, values in signals:
-                    out[f"{i}.{name}"] = values[i]
-        return out
-
-    @classmethod
-    def at_rest(cls, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
-        """Belts stopped and unloaded, every beam clear, every camera with nothing seen, every device home (the
-        outputs before the first step)."""
-        conveyors, cameras, devices = ports.conveyor_ids, ports.camera_ids, ports.device_ids
-        return cls(t_s, dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0), dict.fromkeys(conveyors, 0.0),
-                   dict.fromkeys(ports.photoeye_ids, False), dict.fromkeys(cameras, 0), dict.fromkeys(cameras, False),
-                   dict.fromkeys(cameras, False), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0.0), dict.fromkeys(cameras, 0),
-                   dict.fromkeys(cameras, 0), dict.fromkeys(cameras, 0), dict.fromkeys(devices, 0.0),
-                   dict.fromkeys(devices, True),
-                   dict.fromkeys(devices, False), dict.fromkeys(devices, 0))
-
-
-_IDS_OF = (("conveyor", "belt_speed_mps"), ("photoeye", "photoeyes"), ("camera", "camera_count"),
-           ("device", "device_position"))
-"""Which :class:`PlantOutputs` field holds the ids of the conveyors, of the photo-eyes, of the cameras, of the
-devices."""
+    device_commands: dict[str, bool]
+    belt_setpoint_mps: dict[str, float]
 
 
 @dataclass
