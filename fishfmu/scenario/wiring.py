@@ -199,9 +199,34 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
                    scenario_file: str | None = None, feedthrough: dict[str, set[str]] | None = None) -> Wiring:
     """Check every connection, constant input and event target; order the FMUs."""
     plant = plant_ports(scenario.line)
+    connections, taken = _connections(scenario, fmu_variables, plant, scenario_file)
+    constants = _constant_inputs(scenario, fmu_variables, plant, scenario_file, taken)
+    external = _opcua_inputs(scenario, fmu_variables, plant, scenario_file, taken, constants)
+    missing = [key for key in (f"{PLANT}.{name}" for name in PlantPorts.of(scenario.line).inputs())
+               if key not in taken and key not in constants]
+    if missing:
+        raise InputError(f"plant input (belt speed, device command) not connected and no constant given for: "
+                         f"{', '.join(missing)}",
+                         file=scenario_file, where="wiring.connections")
+    _check_events(scenario, fmu_variables, plant, scenario_file)
+    names = [f.name for f in scenario.fmu]
+    if scenario.run.coupling == "jacobi":
+        order = names
+    else:
+        order = stepping_order(names, connections, scenario_file, feedthrough)
+    wiring = Wiring(connections, order, constants, jacobi=scenario.run.coupling == "jacobi", external=external)
+    wiring.recorded = _recorded(scenario, wiring, fmu_variables, plant, scenario_file)
+    signals = _signal_types(wiring, fmu_variables, plant)
+    _check_expectations(scenario, signals, scenario_file)
+    wiring.setpoints = setpoint_signals(scenario, wiring, signals, scenario_file)
+    return wiring
+
+
+def _connections(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVariable]], plant: dict[str, list[Port]],
+                 scenario_file: str | None) -> tuple[list[Connection], dict[str, tuple[tuple, str]]]:
+    """The connections, each checked, and what they take: target key -> (its variable's identity, the source key)."""
     connections: list[Connection] = []
     taken: dict[str, tuple[tuple, str]] = {}
-    """target key -> (its variable's identity, the source key)"""
     for spec in scenario.connection_specs():
         where = spec.where
         src = _lookup(scenario_file, *spec.source, "output", fmu_variables, plant, where)
@@ -221,7 +246,12 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
                              file=scenario_file, where=where)
         taken[dst.key] = (same, src.key)
         connections.append(conn)
+    return connections, taken
 
+
+def _constant_inputs(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVariable]], plant: dict[str, list[Port]],
+                     scenario_file: str | None, taken: dict[str, tuple[tuple, str]]) -> dict[str, float | bool]:
+    """``wiring.inputs``: each a number or boolean for an input no connection sets."""
     constants: dict[str, float | bool] = {}
     for key, value in scenario.wiring.inputs.items():
         comp, _, var = key.partition(".")
@@ -237,6 +267,13 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
             raise InputError(f"'{key}' is a Boolean input: its constant must be true or false (or 1 or 0), not "
                              f"{value!r}", file=scenario_file, where=f"wiring.inputs.{key}")
         constants[port.key] = value
+    return constants
+
+
+def _opcua_inputs(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVariable]], plant: dict[str, list[Port]],
+                  scenario_file: str | None, taken: dict[str, tuple[tuple, str]],
+                  constants: dict[str, float | bool]) -> list[str]:
+    """``opcua.inputs``: inputs OPC UA clients write, each starting at its start value (added to ``constants``)."""
     external = []
     for i, key in enumerate(scenario.opcua.inputs):
         comp, _, var = key.partition(".")
@@ -257,14 +294,12 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
         except (TypeError, ValueError):
             constants[port.key] = zero
         external.append(port.key)
+    return external
 
-    missing = [key for key in (f"{PLANT}.{name}" for name in PlantPorts.of(scenario.line).inputs())
-               if key not in taken and key not in constants]
-    if missing:
-        raise InputError(f"plant input (belt speed, device command) not connected and no constant given for: "
-                         f"{', '.join(missing)}",
-                         file=scenario_file, where="wiring.connections")
 
+def _check_events(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVariable]], plant: dict[str, list[Port]],
+                  scenario_file: str | None) -> None:
+    """Each ``[[event]]`` acts on an input or output whose type its action fits."""
     for i, ev in enumerate(scenario.event):
         comp, _, var = ev.target.partition(".")
         if comp == PLANT:
@@ -288,14 +323,9 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
             raise InputError(f"event target '{ev.target}' is a Boolean: the value must be true or false (or 1 or 0), "
                              f"not {ev.value!r}", file=scenario_file, where=f"event[{i}].value")
 
-    names = [f.name for f in scenario.fmu]
-    if scenario.run.coupling == "jacobi":
-        order = names
-    else:
-        order = stepping_order(names, connections, scenario_file, feedthrough)
-    wiring = Wiring(connections, order, constants, jacobi=scenario.run.coupling == "jacobi", external=external)
-    wiring.recorded = _recorded(scenario, wiring, fmu_variables, plant, scenario_file)
-    signals = _signal_types(wiring, fmu_variables, plant)
+
+def _check_expectations(scenario: Scenario, signals: dict[str, str], scenario_file: str | None) -> None:
+    """Each ``[expect]`` bound on a signal names a recorded signal of a type bounds take."""
     for key, bound in scenario.expect.items():
         if "." not in key:
             continue
@@ -308,8 +338,6 @@ def resolve_wiring(scenario: Scenario, fmu_variables: dict[str, dict[str, FmuVar
                              where=f"expect.{key}")
         if bound.final is None and bound.tolerance:
             raise InputError("tolerance goes with final", file=scenario_file, where=f"expect.{key}.tolerance")
-    wiring.setpoints = setpoint_signals(scenario, wiring, signals, scenario_file)
-    return wiring
 
 
 def alias_key(port: Port) -> tuple:

@@ -52,8 +52,8 @@ class DeviceActuators:
     @classmethod
     def of(cls, line: Line) -> DeviceActuators:
         n = len(line.devices)
-        return cls(line, tuple(d.id for d in line.devices), device_shapes(line), np.array([d.stroke_s for d in line.devices], dtype=float), np.zeros(n),
-                   np.zeros(n), np.zeros(n))
+        return cls(line, tuple(d.id for d in line.devices), device_shapes(line),
+                   np.array([d.stroke_s for d in line.devices], dtype=float), np.zeros(n), np.zeros(n), np.zeros(n))
 
     def commands(self, device_commands: dict[str, bool] | None) -> np.ndarray:
         """(n,) the step's commands in the line's order: True to the end of the travel; a device not named (or all,
