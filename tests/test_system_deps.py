@@ -66,7 +66,7 @@ def test_missing_libgl_is_one_line_naming_the_library_and_its_package(exudyn_wit
 
 
 def test_each_library_exudyn_loads_names_its_package_and_an_unknown_one_how_to_find_it() -> None:
-    from plant.sim.model import EXUDYN_LIBRARY_PACKAGES, exudyn_import_error
+    from plant.sim.exudyn_module import EXUDYN_LIBRARY_PACKAGES, exudyn_import_error
     assert EXUDYN_LIBRARY_PACKAGES["libX11.so.6"] == "libx11-6"
     both = exudyn_import_error(ImportError("Exudyn could not import its compiled module. Tried, in order:\n"
                                            "  .exudynCPP  ->  libX11.so.6: cannot open shared object file: No such "

@@ -229,7 +229,7 @@ class RunFolder:
             # slow (matplotlib, about 0.5 s) and optional (--no-report)
             from fishfmu.output.report import write_report
             write_report(result, out)
-        from plant.sim.model import exu  # where exudyn is imported (a missing system library is reported there)
+        from plant.sim.exudyn_module import exu  # where exudyn is imported (a missing system library is reported there)
         self.finish(
             "partial" if partial else result.status,
             error=result.error,

@@ -26,6 +26,10 @@ controller reading the speeds of the drives it commands), the one listed first s
 the other's value reaches it one step later; only an algebraic loop (a cycle of outputs declared as
 direct feedthrough) cannot be ordered and is an input error.  Jacobi: every component sees the
 previous step's values, in any order.
+
+Over 450 lines: every check of a scenario's wiring against its FMUs' variables and the plant's ports is here (the
+connections, constants, OPC UA inputs, events, bounds and setpoints), each a function of its own, since they share
+the lookup of a port and its errors' wording.
 """
 
 from __future__ import annotations

@@ -24,75 +24,25 @@ The numbers that decide stability are documented in ``plant.sim.params.NumericsP
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import io
-import re
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant.errors import SystemDependencyError
-
-EXUDYN_LIBRARY_PACKAGES = {
-    # What Exudyn 1.13's compiled module loads from the system (readelf -d: libGL.so.1 and, through the
-    # libglfw bundled in exudyn.libs, libX11.so.6; ldd: what those load), even when nothing is drawn,
-    # with the Debian/Ubuntu package of each (dpkg -S).  libgl1 and libx11-6 pull in the rest.
-    "libGL.so.1": "libgl1", "libX11.so.6": "libx11-6", "libGLX.so.0": "libglx0", "libGLdispatch.so.0": "libglvnd0",
-    "libxcb.so.1": "libxcb1", "libXau.so.6": "libxau6", "libXdmcp.so.6": "libxdmcp6", "libbsd.so.0": "libbsd0",
-    "libmd.so.0": "libmd0", "libstdc++.so.6": "libstdc++6", "libgcc_s.so.1": "libgcc-s1",
-}
-_MISSING_LIBRARY = re.compile(r"([^\s:/]+\.so(?:\.\d+)*): cannot open shared object file")
-"""The dynamic loader's words for a library it cannot find (dlopen: "libGL.so.1: cannot open shared ...")."""
-
-
-def exudyn_import_error(exc: ImportError) -> SystemDependencyError | None:
-    """The one-line error for an ``import exudyn`` that failed because the system lacks a shared
-    library (None when that is not why): names the library and the Debian/Ubuntu package that has it.
-
-    >>> print(exudyn_import_error(ImportError("libGL.so.1: cannot open shared object file: No such file")))
-    ... # doctest: +NORMALIZE_WHITESPACE
-    this machine lacks libGL.so.1, which Exudyn (the plant's physics) loads even when nothing is drawn;
-    install the Debian/Ubuntu package libgl1 (apt-get install libgl1)
-    """
-    missing = list(dict.fromkeys(_MISSING_LIBRARY.findall(str(exc))))
-    if not missing:
-        return None
-    lacks = (f"this machine lacks {' and '.join(missing)}, which Exudyn (the plant's physics) loads even when "
-             "nothing is drawn")
-    packages = list(dict.fromkeys(EXUDYN_LIBRARY_PACKAGES.get(lib, "") for lib in missing))
-    if "" in packages:
-        return SystemDependencyError(f"{lacks}; install the system package that provides it (Debian/Ubuntu: "
-                                     f"apt-file search {missing[0]})")
-    names = " ".join(packages)
-    return SystemDependencyError(f"{lacks}; install the Debian/Ubuntu package{'s' if len(packages) > 1 else ''} "
-                                 f"{names} (apt-get install {names})")
-
-
-if "exudyn" not in sys.modules:
-    sys.exudynFast = True  # the build without range checks (~30 % faster); our inputs are checked here
-try:
-    with contextlib.redirect_stdout(io.StringIO()):  # it announces the fast build on stdout
-        import exudyn as exu  # noqa: E402
-except ImportError as exc:  # a bare host or container without the GL/X11 client libraries: not a bug of ours
-    if (error := exudyn_import_error(exc)) is None:
-        raise
-    raise error from exc
-from exudyn.itemInterface import (  # noqa: E402
+from plant.sim.exudyn_module import exu  # the fast build, quiet; a missing system library in one line
+from exudyn.itemInterface import (  # after exudyn_module: Exudyn loaded as the plant wants it
     LoadForceVector, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectGround, ObjectRigidBody)
 
-from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels  # noqa: E402
-from plant.fish.fish_body import FISH_MODELS, FishGeometry, fish_geometry  # noqa: E402
-from plant.sim.joints import JointLaws, joint_laws  # noqa: E402
-from plant.contract.devices import BIN_DEPTH_M, device_shapes  # noqa: E402
-from plant.contract.line import Line  # noqa: E402
-from plant.sim.params import PlantParams  # noqa: E402
-from plant.fish.population import FishSpec  # noqa: E402
-from plant.sim.rotations import matrix_to_rotvec  # noqa: E402
-from plant.sim.surfaces import LineSurfaces  # noqa: E402
+from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels
+from plant.fish.fish_body import FISH_MODELS, FishGeometry, fish_geometry
+from plant.sim.joints import JointLaws, joint_laws
+from plant.contract.devices import BIN_DEPTH_M, device_shapes
+from plant.contract.line import Line
+from plant.sim.params import PlantParams
+from plant.fish.population import FishSpec
+from plant.sim.rotations import matrix_to_rotvec
+from plant.sim.surfaces import LineSurfaces
 
-exu.config.printToConsole = False  # no solver chatter (and no VelocityVerlet banner) on the user's terminal
 
 MAT_BELT, MAT_GUIDE, MAT_FISH0 = 0, 1, 2
 """Friction materials: belts, guides, then one per fish friction level (plant.fish.extensions.FRICTION_LEVELS), then
@@ -300,8 +250,34 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     section_factors = tuple(wear.sections(line.x_start_m, line.x_end_m)[1].tolist()) if wear.on else ()
     gc.SetFrictionPairings(friction_pairings(params.friction.fish_belt, params.friction.fish_guide,
                                           params.friction.fish_fish, section_factors))
-    adhesion = params.extensions.adhesion.on
+    belt_nodes, device_nodes = _add_line(mbs, gc, surfaces, line, section_factors)
+    items = _FishItems()
+    fish_models = [_add_fish(mbs, gc, mem, params, gravity, items) for mem in members]
 
+    # contact search: a box over the line, the space above it and the parking grid below it
+    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
+                   park_top_z(line) - PARK_SPACING_M[2] * 4 - 0.3])
+    hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
+                   line.z_range_m[1] + 1.2])
+    gc.SetSearchTreeBox(lo, hi)
+    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / c_))) for s_, c_ in zip(hi - lo, SEARCH_CELL_M)])
+    mbs.Assemble()
+
+    sd = mbs.systemData
+    body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in items.body_nodes], dtype=np.int64).reshape(-1, 6)
+    body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in items.body_nodes]).reshape(-1, 6)
+    belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
+    device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in device_nodes], dtype=np.int64).reshape(-1, 6)
+    return PlantModel(system, mbs, gc, _solver_settings(num), line, params, fish_models, body_ltg, body_ref, belt_ltg,
+                      np.array(items.sphere_body, dtype=np.int64), np.array(items.sphere_local).reshape(-1, 3),
+                      np.array(items.sphere_radius), np.array(items.section_body, dtype=np.int64),
+                      np.array(items.section_x), np.array(items.section_half_len), np.array(items.section_radius),
+                      (lo, hi), device_ltg)
+
+
+def _add_line(mbs, gc, surfaces: LineSurfaces, line: Line, section_factors: tuple[float, ...]) -> tuple[list, list]:
+    """The line's surfaces into the system: guides, parts and bins static, then a body for each belt and each device
+    (moved by the plant every step); returns the belts' and the devices' nodes."""
     ground = mbs.AddObject(ObjectGround())
     m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
     # guides (in sections of their own friction with guide wear), fixed parts and the gates' bins: static, added
@@ -333,75 +309,84 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
                                       pointList=shape.points_m.tolist(),
                                       triangleList=shape.triangles.tolist(), staticTriangles=False)
         device_nodes.append(node)
+    return belt_nodes, device_nodes
 
-    fish_models: list[FishModel] = []
-    body_nodes: list[int] = []
-    sphere_body, sphere_local, sphere_radius = [], [], []
-    section_body, section_x, section_half_len, section_radius = [], [], [], []
-    for mem in members:
-        prep = mem.prepared
-        geo = prep.geometry
-        first = len(body_nodes)
-        # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
-        # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
-        m_share = prep.spec.weight_kg / prep.n_spheres
-        k_c = m_share * num.contact_omega_rad_s**2
-        d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
-        objects, loads, sticky = [], [], []
-        first_sphere = len(sphere_body)
-        materials = MAT_FISH0 + body_friction_levels(mem.friction_level, params.friction.belt_gradient,
-                                                     len(geo.bodies))
-        for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
-            # a fish's items as plain dicts: Exudyn's item classes cost 3.5 us more an item (2 ms a rebuild of 8 fish)
-            node = mbs.AddNode({"nodeType": "RigidBodyRotVecLG", "referenceCoordinates": mem.coords[i].tolist(),
-                                "initialVelocities": mem.velocities[i].tolist()})
-            obj = mbs.AddObject({"objectType": "RigidBody", "mass": b.mass_kg, "inertia": [*inertia, 0.0, 0.0, 0.0],
-                                 "nodeNumber": node})
-            mass = mbs.AddMarker({"markerType": "BodyMass", "bodyNumber": obj})
-            loads.append(mbs.AddLoad({"loadType": "MassProportional", "markerNumber": mass,
-                                      "loadVector": list(gravity) if mem.gravity else [0.0, 0.0, 0.0]}))
-            for (x, y, r) in b.spheres:
-                marker = mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": obj, "localPosition": [x, y, 0.0]})
-                gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
-                                       frictionMaterialIndex=int(materials[i]))
-                sphere_body.append(first + i)
-                sphere_local.append((x, y, 0.0))
-                sphere_radius.append(r)
-            for (x, half_h, half_w) in b.outline:
-                section_body.append(first + i)
-                section_x.append(x)
-                section_half_len.append(max(half_h - half_w, 0.0))
-                section_radius.append(half_w)
-            if adhesion:
-                com = mbs.AddMarker(MarkerBodyPosition(bodyNumber=obj, localPosition=[0.0, 0.0, 0.0]))
-                sticky.append(mbs.AddLoad(LoadForceVector(markerNumber=com, loadVector=[0.0, 0.0, 0.0])))
-            objects.append(obj)
-            body_nodes.append(node)
-        connectors = []
-        for j in range(len(geo.bodies) - 1):
-            a, b = geo.bodies[j], geo.bodies[j + 1]
-            xj = geo.joint_from_snout_m[j]
-            m0, m1 = (mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": objects[j + e],
-                                     "localPosition": [body.com_from_snout_m - xj, 0.0, 0.0]}) for e, body in ((0, a), (1, b)))
-            m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
-            k_t = m_red * num.joint_translation_omega_rad_s**2
-            d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
-            connectors.append(mbs.AddObject({
-                "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1],
-                "stiffness": np.diag([k_t] * 3 + list(mem.joint_k[j])), "damping": np.diag([d_t] * 3 + list(prep.laws.damping[j])),
-                "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
-        fish_models.append(FishModel(mem.index, prep, first, connectors, loads, first_sphere,
-                                     len(sphere_body) - first_sphere, sticky))
 
-    # contact search: a box over the line, the space above it and the parking grid below it
-    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
-                   park_top_z(line) - PARK_SPACING_M[2] * 4 - 0.3])
-    hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
-                   line.z_range_m[1] + 1.2])
-    gc.SetSearchTreeBox(lo, hi)
-    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / c_))) for s_, c_ in zip(hi - lo, SEARCH_CELL_M)])
-    mbs.Assemble()
+@dataclass
+class _FishItems:
+    """What the fish added to the system so far, in order: their body nodes, contact spheres (body, position in it,
+    radius) and outline cross-sections (body, offset along it, half length, radius)."""
 
+    body_nodes: list[int] = field(default_factory=list)
+    sphere_body: list[int] = field(default_factory=list)
+    sphere_local: list[tuple] = field(default_factory=list)
+    sphere_radius: list[float] = field(default_factory=list)
+    section_body: list[int] = field(default_factory=list)
+    section_x: list[float] = field(default_factory=list)
+    section_half_len: list[float] = field(default_factory=list)
+    section_radius: list[float] = field(default_factory=list)
+
+
+def _add_fish(mbs, gc, mem: Member, params: PlantParams, gravity: np.ndarray, items: _FishItems) -> FishModel:
+    """One fish into the system in its given state: its bodies with their gravity (none while parked), contact
+    spheres, outline and (with adhesion) a force load each, and its joints."""
+    num = params.numerics
+    prep = mem.prepared
+    geo = prep.geometry
+    first = len(items.body_nodes)
+    # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
+    # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
+    m_share = prep.spec.weight_kg / prep.n_spheres
+    k_c = m_share * num.contact_omega_rad_s**2
+    d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
+    objects, loads, sticky = [], [], []
+    first_sphere = len(items.sphere_body)
+    materials = MAT_FISH0 + body_friction_levels(mem.friction_level, params.friction.belt_gradient, len(geo.bodies))
+    for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
+        # a fish's items as plain dicts: Exudyn's item classes cost 3.5 us more an item (2 ms a rebuild of 8 fish)
+        node = mbs.AddNode({"nodeType": "RigidBodyRotVecLG", "referenceCoordinates": mem.coords[i].tolist(),
+                            "initialVelocities": mem.velocities[i].tolist()})
+        obj = mbs.AddObject({"objectType": "RigidBody", "mass": b.mass_kg, "inertia": [*inertia, 0.0, 0.0, 0.0],
+                             "nodeNumber": node})
+        mass = mbs.AddMarker({"markerType": "BodyMass", "bodyNumber": obj})
+        loads.append(mbs.AddLoad({"loadType": "MassProportional", "markerNumber": mass,
+                                  "loadVector": list(gravity) if mem.gravity else [0.0, 0.0, 0.0]}))
+        for (x, y, r) in b.spheres:
+            marker = mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": obj, "localPosition": [x, y, 0.0]})
+            gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
+                                   frictionMaterialIndex=int(materials[i]))
+            items.sphere_body.append(first + i)
+            items.sphere_local.append((x, y, 0.0))
+            items.sphere_radius.append(r)
+        for (x, half_h, half_w) in b.outline:
+            items.section_body.append(first + i)
+            items.section_x.append(x)
+            items.section_half_len.append(max(half_h - half_w, 0.0))
+            items.section_radius.append(half_w)
+        if params.extensions.adhesion.on:
+            com = mbs.AddMarker(MarkerBodyPosition(bodyNumber=obj, localPosition=[0.0, 0.0, 0.0]))
+            sticky.append(mbs.AddLoad(LoadForceVector(markerNumber=com, loadVector=[0.0, 0.0, 0.0])))
+        objects.append(obj)
+        items.body_nodes.append(node)
+    connectors = []
+    for j in range(len(geo.bodies) - 1):
+        a, b = geo.bodies[j], geo.bodies[j + 1]
+        xj = geo.joint_from_snout_m[j]
+        m0, m1 = (mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": objects[j + e],
+                                 "localPosition": [body.com_from_snout_m - xj, 0.0, 0.0]}) for e, body in ((0, a), (1, b)))
+        m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
+        k_t = m_red * num.joint_translation_omega_rad_s**2
+        d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
+        connectors.append(mbs.AddObject({
+            "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1],
+            "stiffness": np.diag([k_t] * 3 + list(mem.joint_k[j])), "damping": np.diag([d_t] * 3 + list(prep.laws.damping[j])),
+            "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
+    return FishModel(mem.index, prep, first, connectors, loads, first_sphere, len(items.sphere_body) - first_sphere,
+                     sticky)
+
+
+def _solver_settings(num) -> exu.SimulationSettings:
+    """Explicit integration (VelocityVerlet), each body's mass matrix inverted alone, no files, ``num.threads``."""
     ss = exu.SimulationSettings()
     ss.timeIntegration.solverType = exu.DynamicSolverType.VelocityVerlet
     ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
@@ -410,16 +395,7 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     ss.solution.file.write = False
     ss.timeIntegration.verboseMode = 0
     ss.parallel.numberOfThreads = num.threads
-
-    sd = mbs.systemData
-    body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in body_nodes], dtype=np.int64).reshape(-1, 6)
-    body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in body_nodes]).reshape(-1, 6)
-    belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
-    device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in device_nodes], dtype=np.int64).reshape(-1, 6)
-    return PlantModel(system, mbs, gc, ss, line, params, fish_models, body_ltg, body_ref, belt_ltg,
-                      np.array(sphere_body, dtype=np.int64), np.array(sphere_local).reshape(-1, 3),
-                      np.array(sphere_radius), np.array(section_body, dtype=np.int64), np.array(section_x),
-                      np.array(section_half_len), np.array(section_radius), (lo, hi), device_ltg)
+    return ss
 
 
 def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
