@@ -192,6 +192,8 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
         say(f"{c}: not named, {why}")
     for f in found.findings:
         say(f"unexplained: {f.text}")
+    for f in found.mismatch_findings:
+        say(f"the base model's own mismatch: {f.text}")
     timing["scan"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     ctx = FitContext(dataset, cal, drive, pool, rng, say)

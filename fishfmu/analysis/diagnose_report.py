@@ -77,6 +77,9 @@ def decision_text(d: Diagnosis) -> str:
                      "follows any covariate beyond what the model predicts (the unexplained-discrepancy scan)."
                      + quality_text(d))
         parts.extend(f"Cannot decide {u}." for u in j.undecided)
+    if d.scan is not None and d.scan.mismatch_findings:
+        parts.append("The base model's own mismatch (how it responds to what it is given of each fish, its size and "
+                     "heading; not a cause): " + "; ".join(f.text for f in d.scan.mismatch_findings) + ".")
     if d.judgement.left_out:
         parts.append(f"Left out (--without): {', '.join(d.judgement.left_out)}.")
     return " ".join(parts)
@@ -130,7 +133,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "further": [{"name": f.name, "values": f.values, "ci95": {k: list(v) for k, v in f.ci95.items()},
                      "terms": d.further_terms.get(f.name, {}), "confirmed": f.confirmed, "heldout_gain": f.heldout_gain,
                      "heldout_gain_ci95": list(f.heldout_gain_ci95)} for f in d.further],
-        "base_mismatch": d.mismatch,
+        "base_mismatch": {"transfers": d.mismatch,
+                          "dependences": [x.as_dict() for x in (d.scan.mismatch_findings if d.scan is not None else [])]},
         "fit_quality": d.quality,
         "scan": ({"threshold": d.scan.threshold, "tests": len(d.scan.tests)} if d.scan is not None else None),
         "decision": decision_text(d),

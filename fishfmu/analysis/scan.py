@@ -55,6 +55,8 @@ class Quantity:
     min_effect: float
     """The smallest dependence worth reporting, in ``unit`` over the covariate's range in the data."""
     nuisance: tuple[str, ...] = ()
+    against_model: bool = False
+    """Read as the measured value minus the calibrated model's (the transfers' lags), not as measured alone."""
 
 
 @dataclass(frozen=True)
@@ -104,7 +106,7 @@ QUANTITIES: tuple[Quantity, ...] = (
     Quantity("drops", "slip_s", "slip of fish dropped alone", "s", "drop", "conveyor_id", 0.005, ("belt_speed_mps",)),
     # 5 mm: about the tracker's noise, and a twentieth of a fish's body height
     Quantity("transfers", "lag_m", "lag of fish alone across the transfer (model minus measured)", "m", "transfer",
-             "conveyor_id", 0.005),
+             "conveyor_id", 0.005, against_model=True),
     # 1 % of a passage: what rigor's test takes as the smallest flicker a photo-eye input can tell
     Quantity("passages", "blocked", "blocked share of photo-eye passages of fish alone", "share", "photoeye",
              "sensor_id", 0.01),
@@ -166,8 +168,8 @@ class Scan:
     """Every test run: quantity, location id, covariate key, the test."""
     threshold: float
     """The p-value a finding needs (``ALPHA`` over the number of deciding tests)."""
-    size_findings: list[Finding] = field(default_factory=list)
-    """Dependences on the fish's size (:data:`SIZE_COVARIATES`): the base model's own mismatch."""
+    mismatch_findings: list[Finding] = field(default_factory=list)
+    """Dependences that are the base model's own mismatch (:func:`is_base_mismatch`), reported as such."""
     tables: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
     """What it read (:func:`scan_tables`), for plots."""
 
@@ -219,9 +221,24 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
 # ------------------------------------------------------------------------------------------------- the scan
 
 SIZE_COVARIATES = ("weight_kg", "length_m")
-"""The model takes every fish's weight and length from the data: a dependence on them is the base model's response to
-the fish's size being wrong, the base model's own mismatch (not uniform over fish), reported as such
-(:attr:`Scan.size_findings`), never as a cause or an unexplained effect."""
+GIVEN_COVARIATES = (*SIZE_COVARIATES, "heading")
+"""What the model takes of every fish from the data: its weight, its length and the heading it was dropped with."""
+
+
+def is_base_mismatch(q: Quantity, covariate_key: str, location_id: str) -> bool:
+    """Whether a dependence is the base model's own mismatch (not uniform over fish), reported as such
+    (:attr:`Scan.mismatch_findings`), never as a cause or an unexplained effect:
+
+    - on the fish's size, anywhere: the model is given each fish's size, so a quantity following it is the model's
+      response to size being wrong (the drops and passages are read as measured; what the model predicts of size
+      is the part this stands in for);
+    - on anything else the model is given of each fish (its heading), in a quantity read against the model, at every
+      location alike: the model responds to it differently everywhere, as a property of the model. An effect that
+      acts at one place (a slippery zone, a worn guide) shows at that location, and is judged there; one that acts
+      through the heading on the line's physics (friction by direction) shows in the drops, read as measured."""
+    if covariate_key in SIZE_COVARIATES:
+        return True
+    return q.against_model and location_id == "all" and covariate_key in GIVEN_COVARIATES
 
 
 def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple[Design, str] | None:
@@ -291,7 +308,7 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
             if made is not None:
                 plans.append((q, cov, t, *made))
     threshold = alpha / max(len(plans), 1)
-    tests, findings, size = [], [], []
+    tests, findings, mismatch = [], [], []
     for q, cov, t, d, shuffle in plans:
         test = _test(f"scan:{q.table}~{cov.key}", q, cov, d, shuffle, rng, deciding=True)
         tests.append((q, "all", cov.key, test))
@@ -300,9 +317,9 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         place = test.shape.rsplit(" at ", 1)[1] if " at " in test.shape else "all"
         shown = sorted(((g, r) for r, g in test.gain_by_run.items() if g > 0), reverse=True)[:3]
         f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table)
-        (size if cov.key in SIZE_COVARIATES else findings).append(f)
+        (mismatch if is_base_mismatch(q, cov.key, place) else findings).append(f)
     findings.sort(key=lambda f: (f.test.p_value, -f.test.heldout_gain))
-    return Scan(findings, tests, threshold, size, tables)
+    return Scan(findings, tests, threshold, mismatch, tables)
 
 
 # ------------------------------------------------------------------------------------------------- how well it fits
