@@ -53,12 +53,11 @@ from plant.sim.camera import Cameras, TopView, fish_seen_from_above
 from plant.sim.devices import DeviceActuators
 from plant.sim.equipment import Equipment, Seen, Step
 from plant.sim.sensors import PhotoEyes, sphere_centres, spine_point_local
-from plant.sim.state import DropAdjustment, FishState, FishStatus, PlantOutputs, PlantState
+from plant.sim.roster import ADMIT_AHEAD_S, FishRoster
+from plant.sim.state import FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
 
-WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
-ADMIT_AHEAD_S = 1.0
-"""Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
+ON_LINE = FishStatus.ON_LINE
 
 
 def equipment_of(line: Line, gravity_mps2: float, comm_step_s: float, seed: int) -> dict[str, Equipment]:
@@ -80,7 +79,7 @@ class Plant:
         self._params = params or PlantParams()
         self._fish_specs = list(fish)
         self._fish_ids = tuple(f.fish_id for f in self._fish_specs)
-        self._drop_t_s = np.array([f.drop_t_s for f in self._fish_specs], dtype=float)  # one comparison per step
+        self._roster = FishRoster.of(self._fish_specs)  # which fish waits, is in the system, on the line, gone
         n_sub = comm_step_s / self._params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
             raise ValueError(f"communication step {comm_step_s} s is not a whole multiple of the integration "
@@ -110,15 +109,17 @@ class Plant:
         self._level = friction_level(self._mucus) if len(self._fish_specs) else np.zeros(0, dtype=np.int64)
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self._prepared]
         self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
-        self._rejected_by = np.full(len(self._fish_specs), -1, dtype=np.int64)
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._geometry = tuple(p.geometry for p in self._prepared)
-        self.status = np.full(len(self._fish_specs), WAITING, dtype=np.int8)
-        self._drop_adjustments = ()  # tuple[DropAdjustment, ...]
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
         self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line), [])
         self._publish(PlantOutputs.at_rest(self._ports))
+
+    @property
+    def status(self) -> np.ndarray:
+        """(n_fish,) every fish's :class:`~plant.sim.state.FishStatus` now (the roster's, written in place)."""
+        return self._roster.status
 
     @property
     def t_s(self) -> float:
@@ -158,7 +159,7 @@ class Plant:
     # ---- the system: which fish are in it ----------------------------------------------------
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
         self.model = model
-        self._slot_of = {m.index: i for i, m in enumerate(members)}
+        self._roster.seated(model.member_index)
         self._member = model.member_index
         self._fish_of_body = np.repeat(self._member, nb := model.bodies_per_fish)  # every fish of a run: as many
         self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
@@ -196,7 +197,7 @@ class Plant:
                 j = slice((nb - 1) * slot, (nb - 1) * (slot + 1))
                 members.append(Member(int(k), self._prepared[k], coords, vel, True, self._k_now[j].copy(),
                                       self._offset_now[j].copy(), int(self._level[k])))
-        due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t + ADMIT_AHEAD_S))]
+        due = self._roster.due(t, ADMIT_AHEAD_S)
         parks = park_positions(self._line, len(members) + len(due))  # each slot its own place, as _retire_fish parks
         members += [parked_member(int(k), self._prepared[k], parks[len(members) + i], int(self._level[k]))
                     for i, k in enumerate(due)]
@@ -206,10 +207,10 @@ class Plant:
         self._timings_s["rebuild_longest"] = max(self._timings_s["rebuild_longest"], took_s)
 
     def _admit_and_release(self, t: float) -> None:
-        due = [int(k) for k in np.flatnonzero((self.status == WAITING) & (self._drop_t_s <= t))]
+        due = self._roster.due(t)
         if not due:
             return
-        if any(k not in self._slot_of for k in due):
+        if self._roster.must_admit(due):
             self._rebuild(t)
         for k in due:
             self._release(k)
@@ -218,7 +219,7 @@ class Plant:
     # ---- 1. drops ----------------------------------------------------------------------------
     def _release(self, k: int) -> None:
         spec = self._fish_specs[k]
-        slot = self._slot_of[k]
+        slot = self._roster.slot_of[k]
         fm = self.model.fish[slot]
         rot = lying_orientation(spec.drop_yaw_rad, spec.side)
         mid = np.array([spec.drop_x_m, spec.drop_y_m, 0.0])
@@ -233,11 +234,9 @@ class Plant:
         others = sphere_centres(self._pos, self._rot, sph[on_line], self.model.sphere_local[on_line])
         z_mid, raised_by = drop_height(centres, radii, surface, spec.drop_z_m, others,
                                        self.model.sphere_radius[on_line])
-        if raised_by > 0:
-            self._drop_adjustments += (DropAdjustment(spec.fish_id, raised_by),)
         mid[2] = z_mid
         self._place(slot, mid, rot, list(self._gravity))
-        self.status[k] = ON_LINE
+        self._roster.released(k, raised_by)
         self._read_state()
 
     # ---- 2. belts and devices ---------------------------------------------------------------
@@ -334,7 +333,7 @@ class Plant:
     def _sensors(self, step: Step) -> PlantOutputs:
         """What the equipment reads after the solve: every output of the step."""
         seen = Seen(self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE, self._velocities, self._top_view,
-                    self._rejected_by)
+                    self._roster.rejected_by)
         fields: dict[str, dict] = {}
         for equipment in self._equipment.values():
             fields.update(equipment.after_solve(step, seen))
@@ -348,11 +347,11 @@ class Plant:
 
     def _retire_fish(self) -> None:
         """Fish past the end of the line (or fallen off its end) or through a device's exit are parked; the next
-        rebuild drops them. Checked every tenth step: a fish takes far longer than that to clear the end of the line
-        or a device's exit zone."""
+        rebuild drops them (plant.sim.roster decides which and when). Checked every tenth step: a fish takes far
+        longer than that to clear the end of the line or a device's exit zone."""
         if self._steps % 10:
             return
-        on = self.status[self._member] == ON_LINE
+        on = self._roster.on_line_slots()
         if not np.any(on):
             return
         through = np.full(len(on), -1)  # the index of the device that takes each fish, -1 for none
@@ -361,24 +360,15 @@ class Plant:
         for equipment in self._equipment.values():
             if (taken := equipment.takes(mid, on)) is not None:
                 through = np.where(through >= 0, through, taken)
-        pos = self._pos.reshape(-1, self.model.bodies_per_fish, 3)
-        x_gone = self._line.x_end_m + self._params.retire_after_m
-        z_floor = self._line.z_range_m[0] - 0.5
-        past = np.all(pos[:, :, 0] > x_gone, axis=1)
-        fell_off_end = np.all(pos[:, :, 0] > self._line.x_end_m, axis=1) & np.all(pos[:, :, 2] < z_floor, axis=1)
-        # one that left slowly drops beside the end drum, some of it not past the end: gone once far below
-        fell_off_end |= (np.max(pos[:, :, 0], axis=1) > self._line.x_end_m - 0.1) & np.all(pos[:, :, 2] < z_floor - 0.5,
-                                                                                        axis=1)
-        slots = np.flatnonzero(on & (past | fell_off_end | (through >= 0)))
+        slots = self._roster.leaving(self._pos.reshape(-1, self.model.bodies_per_fish, 3), self._line,
+                                     self._params.retire_after_m, through)
         if not len(slots):
             return
         parks = park_positions(self._line, len(self.model.fish))
         for slot in slots:
             self._park(int(slot), parks[slot])
-            k = self._member[slot]
-            self.status[k], self._rejected_by[k] = (REJECTED, through[slot]) if through[slot] >= 0 else (LEFT, -1)
-        gone = int(np.sum(self.status[self._member] >= LEFT))
-        if gone >= max(2, len(self._member) // 4):
+            self._roster.retired(int(slot), int(through[slot]))
+        if self._roster.rebuild_due():
             self._rebuild(self.t_s)
         else:
             self._read_state()
@@ -410,7 +400,8 @@ class Plant:
             omega_local=self._omega_local, body_mass_kg=self._body_mass, body_inertia=self._body_inertia,
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
             outputs=outputs, pose_bodies=self._pose_bodies, pose_local=self._pose_local, geometry=self._geometry,
-            drop_adjustments=self._drop_adjustments, rejected_by=self._rejected_by.copy(), timings_s=dict(self._timings_s),
+            drop_adjustments=self._roster.drop_adjustments, rejected_by=self._roster.rejected_by.copy(),
+            timings_s=dict(self._timings_s),
             **{k: v for e in self._equipment.values() for k, v in e.published().items()})
 
     def _check_health(self) -> None:

@@ -1,0 +1,103 @@
+"""The run's fish roster: which fish waits, which is in the system and where, which is on the line, which is gone.
+
+The plant keeps only the fish in play in its Exudyn system (:mod:`plant.sim.model`: every contact sphere costs time
+whether it touches anything or not).  The roster decides which: the fish due within :data:`ADMIT_AHEAD_S` are admitted
+together (fewer rebuilds; they wait parked below the line, gravity off), a fish whose drop time has come is released
+onto the line, a fish past the line's end, fallen off it or gone through a device's exit is retired (parked; the next
+rebuild drops it), and the system is rebuilt when fish are to be admitted or a quarter of those in it are gone.  The
+plant carries out what it decides against the system (placing, parking, rebuilding); the roster holds no Exudyn item.
+
+>>> import numpy as np
+>>> from plant.fish.population import FishSpec
+>>> fish = [FishSpec(f"f{i}", 0.7, 0.12, 0.08, 3.0, 2.0, t, 0.3, 0.0, 0.0, 0.05) for i, t in ((1, 0.5), (2, 3.0))]
+>>> roster = FishRoster.of(fish)
+>>> roster.due(0.6), roster.due(2.5, ADMIT_AHEAD_S), roster.must_admit(roster.due(0.6))
+([0], [0, 1], True)
+>>> roster.seated(np.array([0])); roster.must_admit(roster.due(0.6))
+False
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant.contract.line import Line
+from plant.fish.population import FishSpec
+from plant.sim.state import DropAdjustment, FishStatus
+
+WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
+ADMIT_AHEAD_S = 1.0
+"""Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
+
+
+@dataclass
+class FishRoster:
+    """Every fish of the run: where it is (:class:`~plant.sim.state.FishStatus`), which device took it, the drops
+    raised to clear the fish below, and which slot of the system holds it."""
+
+    fish_ids: tuple[str, ...]
+    drop_t_s: np.ndarray
+    """(n_fish,) when each is due; one comparison a step."""
+    status: np.ndarray
+    """(n_fish,) int8 :class:`~plant.sim.state.FishStatus`."""
+    rejected_by: np.ndarray
+    """(n_fish,) the index of the device that took each off the line, -1 for none."""
+    drop_adjustments: tuple[DropAdjustment, ...] = ()
+    member: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    """(n_slots,) the fish in each slot of the system."""
+    slot_of: dict[int, int] = field(default_factory=dict)
+    """Fish index -> its slot, for the fish in the system."""
+
+    @classmethod
+    def of(cls, fish: list[FishSpec]) -> FishRoster:
+        n = len(fish)
+        return cls(tuple(f.fish_id for f in fish), np.array([f.drop_t_s for f in fish], dtype=float),
+                   np.full(n, WAITING, dtype=np.int8), np.full(n, -1, dtype=np.int64))
+
+    def seated(self, member: np.ndarray) -> None:
+        """The system was (re)built with these fish in its slots."""
+        self.member = member
+        self.slot_of = {int(k): i for i, k in enumerate(member)}
+
+    def due(self, t_s: float, ahead_s: float = 0.0) -> list[int]:
+        """The waiting fish whose drop comes by ``t_s + ahead_s``."""
+        return [int(k) for k in np.flatnonzero((self.status == WAITING) & (self.drop_t_s <= t_s + ahead_s))]
+
+    def must_admit(self, due: list[int]) -> bool:
+        """Whether some of ``due`` is not in the system yet (it must be rebuilt with them)."""
+        return any(k not in self.slot_of for k in due)
+
+    def on_line_slots(self) -> np.ndarray:
+        """(n_slots,) True for the slots whose fish is on the line."""
+        return self.status[self.member] == ON_LINE
+
+    def released(self, k: int, raised_by_m: float) -> None:
+        """Fish ``k`` is on the line, dropped ``raised_by_m`` higher than asked (to clear the fish below it)."""
+        if raised_by_m > 0:
+            self.drop_adjustments += (DropAdjustment(self.fish_ids[k], raised_by_m),)
+        self.status[k] = ON_LINE
+
+    def leaving(self, pos: np.ndarray, line: Line, retire_after_m: float, taken: np.ndarray) -> np.ndarray:
+        """The slots whose fish is to be retired: on the line and past its end (every body ``retire_after_m`` beyond
+        it), fallen off its end, or taken by a device (``taken``: per slot, the device's index, -1 for none);
+        ``pos`` (n_slots, bodies per fish, 3) the bodies' centres."""
+        x_gone = line.x_end_m + retire_after_m
+        z_floor = line.z_range_m[0] - 0.5
+        past = np.all(pos[:, :, 0] > x_gone, axis=1)
+        fell_off_end = np.all(pos[:, :, 0] > line.x_end_m, axis=1) & np.all(pos[:, :, 2] < z_floor, axis=1)
+        # one that left slowly drops beside the end drum, some of it not past the end: gone once far below
+        fell_off_end |= (np.max(pos[:, :, 0], axis=1) > line.x_end_m - 0.1) & np.all(pos[:, :, 2] < z_floor - 0.5,
+                                                                                 axis=1)
+        return np.flatnonzero(self.on_line_slots() & (past | fell_off_end | (taken >= 0)))
+
+    def retired(self, slot: int, taken_by: int) -> None:
+        """The fish of ``slot`` has left the line: rejected by device ``taken_by``, or (-1) gone past its end."""
+        k = self.member[slot]
+        self.status[k], self.rejected_by[k] = (REJECTED, taken_by) if taken_by >= 0 else (LEFT, -1)
+
+    def rebuild_due(self) -> bool:
+        """A quarter of the fish in the system (two at least) are gone: rebuilt without them it steps faster."""
+        gone = int(np.sum(self.status[self.member] >= LEFT))
+        return gone >= max(2, len(self.member) // 4)
