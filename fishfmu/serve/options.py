@@ -17,10 +17,6 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import urlparse
 
-from cryptography import x509
-from cryptography.exceptions import UnsupportedAlgorithm
-from cryptography.hazmat.primitives import serialization
-from cryptography.hazmat.primitives.asymmetric import rsa
 
 from plant.errors import InputError
 
@@ -134,6 +130,7 @@ class Certificates:
 
     def problem(self) -> tuple[str, str] | None:
         """(the option, what is wrong with its file) for the first file the server could not use, or None."""
+        from cryptography.hazmat.primitives.asymmetric import rsa  # see read_crypto
         cert = read_crypto(self.certificate, "certificate")
         if isinstance(cert, str):
             return "--certificate", cert
@@ -164,6 +161,11 @@ class Certificates:
 
 def read_crypto(path: Path, what: str) -> Any:
     """The certificate or private key in ``path``, or what is wrong with the file (a str)."""
+    # cryptography imported here: every fishfmu command imports this module (its defaults), and only serving with
+    # certificates reads one (about 25 ms a process, -X importtime)
+    from cryptography import x509
+    from cryptography.exceptions import UnsupportedAlgorithm
+    from cryptography.hazmat.primitives import serialization
     pem = path.suffix.lower() == ".pem"  # asyncua's rule (uacrypto.load_certificate / load_private_key)
     form = "PEM" if pem else "DER (a name not ending in .pem is read as DER)"
     try:
