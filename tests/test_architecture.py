@@ -294,6 +294,25 @@ def test_no_module_over_450_lines_without_a_reason_at_its_top():
         + ", ".join(unexplained))
 
 
+MAX_FUNCTION_LINES = 100
+
+
+def long_functions() -> list[str]:
+    """Every function (or method) of the packages longer than MAX_FUNCTION_LINES lines, with its place."""
+    out = []
+    for path in sorted(p for pkg in PACKAGES for p in (ROOT / pkg).rglob("*.py")):
+        for node in ast.walk(_tree(path)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES:
+                    out.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
+    return out
+
+
+def test_no_function_over_100_lines():
+    # issue 43: build_model was 128 lines and resolve_wiring 109, each doing several things one after another
+    assert long_functions() == []
+
+
 def imports_without_a_reason(path: Path) -> list[int]:
     """Lines of imports inside a function with no comment saying why: neither on the import itself nor on the
     line just above the run of imports it belongs to."""
