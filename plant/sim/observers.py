@@ -45,11 +45,11 @@ class FishCounts:
 
     def after_step(self, state: PlantState, outputs: PlantOutputs, inputs: StepInputs, dt_s: float) -> None:
         status = state.status
-        waiting = int(np.count_nonzero(status == FishStatus.WAITING))
+        n = np.bincount(status, minlength=len(FishStatus))  # fish of each status, in one pass
+        waiting = int(n[FishStatus.WAITING])
         self.values.update(fish_waiting=waiting, fish_dropped=len(status) - waiting,
-                           fish_on_line=int(np.count_nonzero(status == FishStatus.ON_LINE)),
-                           fish_left=int(np.count_nonzero(status == FishStatus.LEFT)),
-                           fish_rejected=int(np.count_nonzero(status == FishStatus.REJECTED)))
+                           fish_on_line=int(n[FishStatus.ON_LINE]), fish_left=int(n[FishStatus.LEFT]),
+                           fish_rejected=int(n[FishStatus.REJECTED]))
         if self.outfeed is not None:
             blocked = bool(outputs.photoeyes[self.outfeed])
             if blocked and not self._was_blocked:
