@@ -24,8 +24,9 @@ ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = ROOT / "scenarios" / "paper_dump.toml"
 
 VALUES = {  # a fitted value per parameter (exact in four digits), and what the plant (or drive) must then hold
-    "mucus_friction": ({"gain": -0.25, "time_constant_h": 8.0},
-                       {"extensions.mucus_friction.gain": -0.25, "extensions.mucus_friction.time_constant_h": 8.0}),
+    "mucus_friction": ({"gain": 1.5, "time_constant_h": 8.0, "friction_level": 0.6},  # fresh fish slide more
+                       {"extensions.mucus_friction.gain": 1.5, "extensions.mucus_friction.time_constant_h": 8.0,
+                        "friction.fish_belt": lambda base: 0.6 * base.friction.fish_belt}),
     "rigor_mortis": ({"stiffness_gain": 3.0, "peak_h": 12.0, "width_h": 40.0},  # limit loss 0.6 * 3 / (3 + 3)
                      {"extensions.rigor_mortis.stiffness_gain": 3.0, "extensions.rigor_mortis.limit_loss": 0.3,
                       "extensions.rigor_mortis.peak_h": 12.0, "extensions.rigor_mortis.width_h": 40.0}),

@@ -39,10 +39,11 @@ class Terms:
     setpoint_mps: dict[str, float]
 
 
-Group = Literal["alone", "transfers", "pairs"] | None
+Group = Literal["alone", "transfers", "pairs", "drops"] | None
 """Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.residuals.RunResiduals.squares`):
 None all (lags of fish alone and pairs), ``alone`` lags of fish alone (the first belt's is the drop's), ``transfers``
-lags of fish alone after a transfer, ``pairs`` the extra separation of close pairs."""
+lags of fish alone after a transfer, ``pairs`` the extra separation of close pairs, ``drops`` the drops alone (their
+lags on the first belt; mucus fits their slips, each drop dropped again alone)."""
 
 
 @dataclass(frozen=True)
@@ -175,7 +176,14 @@ class Candidate:
                    "the mass carried: this part is reported, not modelled)\n" if per_kg.get(c, 0.0) > 0.0 else "")
                 for c, v in slip.items())
         if self.level_model is None:
-            return cal.fragment(base) + self.fragment(fit.values, cal.params)
+            p = self.params(cal.params, *[fit.values[k] for k in self.parameters])
+            mine = {path: plant_value(p, path) for path in self.writes}
+            calibrated = {path: value for path, (_, value) in cal.changed(base).items()}
+            if not {k.rsplit(".", 1)[0] for k in mine} & {k.rsplit(".", 1)[0] for k in calibrated}:
+                return cal.fragment(base) + self.fragment(fit.values, cal.params)
+            # one TOML table may not be opened twice: the calibration's values and the extension's in one set
+            return (f"# fitted by fishfmu diagnose on the runs {', '.join(cal.fit_runs)}: the calibrated model and "
+                    f"{self.description}\n" + plant_tables(calibrated | mine) + cal.drive_fragment())
         # a run-level effect comes with its own constant levels (fitted with it), around the model the levels were
         # simulated about
         p = cal.level_base.model_copy(deep=True)

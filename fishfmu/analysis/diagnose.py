@@ -318,11 +318,12 @@ def setpoints_mps(dataset: Dataset) -> dict[str, float]:
 
 def _terms(fit: CandidateFit | None, cal: Calibration, dataset: Dataset) -> dict[str, float]:
     """The named cause's fitted values in its own terms (run-level effects: about the model their levels were
-    simulated around)."""
+    simulated around; the others about the calibrated model they extend)."""
     cand = CANDIDATES.get(fit.name) if fit is not None else None
     if cand is None or cand.terms is None or not fit.values:
         return {}
-    return cand.terms(fit.values, Terms(cal.level_base or cal.params, setpoints_mps(dataset)))
+    around = (cal.level_base or cal.params) if cand.level_model else cal.params
+    return cand.terms(fit.values, Terms(around, setpoints_mps(dataset)))
 
 
 def _fragment(cal: Calibration, base: PlantParams, winner: CandidateFit | None) -> str:

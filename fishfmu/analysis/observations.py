@@ -41,33 +41,41 @@ def _fish_hours(run: Run) -> pd.Series:
 
 def drop_rows(dataset: Dataset) -> pd.DataFrame:
     """Per fish dropped alone onto the first belt: its slip [s], the time it lost to the belt beyond its free fall
-    (``drop lag`` - sqrt(2 z / g)), with its run, hours post mortem, heading (cos of its yaw at the drop: +1
-    head downstream) and the belt's speed. Sliding alone it would be ``v / (2 mu g)``; landing and settling
-    add a part that hardly depends on the speed, so the speed is a nuisance term of the tests, not a divisor."""
+    (:func:`drop_slip`), with its run, hours post mortem, heading (cos of its yaw at the drop: +1 head downstream)
+    and the belt's speed."""
     rows = []
     belt = dataset.line.conveyors[0]
     for run in dataset.runs:
         hours = _fish_hours(run)
-        logged = run.belts[run.belts["conveyor_id"] == belt.id]
-        tracks = run.tracks
         for f in run.fish.itertuples(index=False):
-            t0, t1 = f.drop_t_s + DROP_READ_S[0], f.drop_t_s + DROP_READ_S[1]
-            tr = tracks[(tracks["fish_id"] == f.fish_id) & (tracks["t_s"] >= t0) & (tracks["t_s"] <= t1)]
-            tr = tr[tr["x_m"] + 0.5 * f.length_m < belt.x_end_m - EDGE_M]
-            v = logged[(logged["t_s"] >= f.drop_t_s) & (logged["t_s"] <= t1)]["speed_mps"]
-            if len(tr) < 5 or v.empty or float(v.median()) < 0.05:
+            read = drop_slip(f, run.tracks, run.belts, belt)
+            if read is None or crowding(run.tracks, f.fish_id, f.drop_t_s, f.drop_t_s + DROP_READ_S[1],
+                                        float(f.length_m)):
                 continue
-            if crowding(tracks, f.fish_id, f.drop_t_s, t1, float(f.length_m)):
-                continue
-            speed = float(v.median())
-            lag_s = float(np.mean(f.drop_x_m + speed * (tr["t_s"].to_numpy(float) - f.drop_t_s)
-                                  - tr["x_m"].to_numpy(float))) / speed
-            fall_s = float(np.sqrt(2.0 * max(float(f.drop_z_m), 0.0) / G_MPS2))
             rows.append({"run_id": run.id, "fish_id": f.fish_id, "hours_post_mortem": float(hours[f.fish_id]),
-                         "heading": float(np.cos(f.drop_yaw_rad)), "belt_speed_mps": speed,
-                         "slip_s": lag_s - fall_s})
+                         "heading": float(np.cos(f.drop_yaw_rad)), "belt_speed_mps": read[0], "slip_s": read[1]})
     return pd.DataFrame(rows, columns=["run_id", "fish_id", "hours_post_mortem", "heading", "belt_speed_mps",
                                        "slip_s"])
+
+
+def drop_slip(f, tracks: pd.DataFrame, belts: pd.DataFrame, belt) -> tuple[float, float] | None:
+    """(the belt's speed, the slip [s]) of fish ``f`` (a row of fish.csv) dropped onto ``belt``, from its tracks and
+    the belt's logged speed: ``drop lag`` - sqrt(2 z / g), the drop lag the time its mid-point stayed behind where
+    riding the belt from its drop would have put it, read while it lies wholly on the belt (:data:`DROP_READ_S`);
+    None where that cannot be read (too few samples, the belt stopped).  Sliding alone it would be ``v / (2 mu g)``;
+    landing and settling add a part that hardly depends on the speed, so the speed is a nuisance term of the tests,
+    not a divisor.  The same reader serves a drop re-simulated alone (:func:`fishfmu.analysis.resim.resimulate_drops`)."""
+    t0, t1 = f.drop_t_s + DROP_READ_S[0], f.drop_t_s + DROP_READ_S[1]
+    tr = tracks[(tracks["fish_id"] == f.fish_id) & (tracks["t_s"] >= t0) & (tracks["t_s"] <= t1)]
+    tr = tr[tr["x_m"] + 0.5 * f.length_m < belt.x_end_m - EDGE_M]
+    logged = belts[belts["conveyor_id"] == belt.id]
+    v = logged[(logged["t_s"] >= f.drop_t_s) & (logged["t_s"] <= t1)]["speed_mps"]
+    if len(tr) < 5 or v.empty or float(v.median()) < 0.05:
+        return None
+    speed = float(v.median())
+    lag_s = float(np.mean(f.drop_x_m + speed * (tr["t_s"].to_numpy(float) - f.drop_t_s)
+                          - tr["x_m"].to_numpy(float))) / speed
+    return speed, lag_s - float(np.sqrt(2.0 * max(float(f.drop_z_m), 0.0) / G_MPS2))
 
 
 def passage_rows(dataset: Dataset) -> pd.DataFrame:

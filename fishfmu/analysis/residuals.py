@@ -385,7 +385,8 @@ class RunResiduals:
 
         ``group``: ``head_first`` / ``tail_first`` rows only (no pairs), for direction friction;
         ``alone``: every fish alone, no pairs; ``transfers``: fish alone after a transfer (not on the first
-        belt, where the lag is that of the drop), no pairs; ``pairs``: the pairs only, for adhesion."""
+        belt, where the lag is that of the drop), no pairs; ``drops``: fish alone on the first belt (the drop's
+        lag); ``pairs``: the pairs only, for adhesion."""
         if group == "pairs":
             d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
             return float(np.sum(d**2)), len(d)
@@ -396,6 +397,8 @@ class RunResiduals:
             free = free[free["heading"] < -HEADING_SPLIT]
         elif group == "transfers":
             free = free[free["belt"] > 0]
+        elif group == "drops":
+            free = free[free["belt"] == 0]
         ss = float(np.sum(free["lag_m"].to_numpy(float) ** 2))
         n = len(free)
         if group is None and len(self.pairs):

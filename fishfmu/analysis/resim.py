@@ -17,6 +17,7 @@ Runs are independent: :func:`resimulate_many` spreads them over worker processes
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import multiprocessing
 import os
@@ -37,6 +38,7 @@ from plant.contract.measured import fish_from_frame
 from plant.contract.device_commands import command_schedule
 from plant.sim.simulate import SimulatedRun, simulate_plant
 
+from fishfmu.analysis.observations import DROP_READ_S, drop_slip
 from fishfmu.analysis.residuals import residuals_of
 from fishfmu.fmu.archive import open_fmu
 from fishfmu.fmu.build import builtin_fmu
@@ -260,6 +262,53 @@ def resimulate_many(line: Line, runs: list[Run], params_per_run: list[PlantParam
         exc.partial = done  # type: ignore[union-attr]  # what finished, None for the rest
         raise
     return done  # type: ignore[return-value]
+
+
+DROP_LEAD_S = 0.05
+"""A drop re-simulated alone starts this long before the fish is let go (the plant's first steps settle nothing)."""
+
+
+def resimulate_drops(line: Line, jobs: list[tuple[Run, list[str], PlantParams]], seed: int = 0,
+                     pool: ProcessPoolExecutor | None = None) -> list[dict[str, float]]:
+    """Each job's fish dropped again, one at a time and alone, onto the first belt at its logged speed: per job
+    (run, fish ids, parameters), each fish's slip as :func:`fishfmu.analysis.observations.drop_slip` reads it (NaN
+    where the simulation failed or the slip cannot be read).  What a drop alone shows depends on that fish, its drop
+    and the belt only (``drop_rows`` keeps the drops no other fish came near), so simulating it alone is that part
+    of the run at a few per cent of its cost; the side it lands on is drawn as :func:`resimulate` draws it."""
+    if pool is None:
+        return [_drops_task((line, run, ids, params, seed)) for run, ids, params in jobs]
+    futures = []
+    try:
+        with deferred_signals():
+            futures = [pool.submit(_drops_task, (line, run, ids, params, seed)) for run, ids, params in jobs]
+        return [f.result() for f in futures]
+    except STOPS:
+        for f in futures:
+            f.cancel()
+        raise
+
+
+def _drops_task(args: tuple) -> dict[str, float]:
+    line, run, fish_ids, params, seed = args
+    rng = np.random.default_rng(run_seed(run.id, seed))  # the same draw of sides as the run's re-simulation
+    specs = {f.fish_id: f for f in fish_from_frame(run.fish, run.hours_post_mortem if run.hours_post_mortem
+                                                   is not None else 24.0, rng)}
+    speed_fn = belt_speed_function(run.belts, [c.id for c in line.conveyors])
+    rows = run.fish.set_index("fish_id", drop=False)
+    out = {}
+    for fid in fish_ids:
+        shift = specs[fid].drop_t_s - DROP_LEAD_S  # the run's clock minus the drop's own
+        try:
+            sim = simulate_plant(line, [dataclasses.replace(specs[fid], drop_t_s=DROP_LEAD_S)],
+                                 lambda t, s=shift: speed_fn(t + s), DROP_LEAD_S + DROP_READ_S[1] + 0.05,
+                                 params=params, stop_when_clear=False)
+        except SimulationError:
+            out[fid] = float("nan")
+            continue
+        read = drop_slip(next(rows.loc[[fid]].itertuples(index=False)), sim.tracks.assign(t_s=sim.tracks["t_s"] + shift),
+                         run.belts, line.conveyors[0])
+        out[fid] = read[1] if read is not None else float("nan")
+    return out
 
 
 def drive_check(run: Run, loads: pd.DataFrame, conveyor_id: str, drive_parameters: dict | None = None) -> pd.DataFrame:
