@@ -164,33 +164,30 @@ def test_droop_in_the_data_s_terms_counts_the_loss_that_follows_the_force_as_wel
     assert fit.values["speed_lost_per_kg[c1]"] == pytest.approx(0.001 * slope, rel=1e-6)
 
 
-def test_mucus_is_fitted_on_drops_dropped_again_in_the_extended_plant_and_says_where_its_search_ended(monkeypatch):
-    """Mucus's extension is fitted on what its test reads (issue 40): each drop alone dropped again in the extended
-    plant, its slip against the measured one.  Stand-in drops that slide v / (2 mu g)-like, 20 ms over the friction
-    factor: measured with fresh fish at x0.55 of the calibrated friction drying back to it with tau 6 h; simulated
-    with the model's own creep along the heading (30 ms per unit of cos yaw), which the fit must take as nuisance.  The search must walk to that shape, say the drying time is the fastest searched, and carry
-    over to held-out runs."""
+def test_mucus_is_fitted_on_drops_dropped_again_in_the_plant_and_says_where_its_search_ended(monkeypatch):
+    """Mucus's extension is fitted on what its test reads (issue 40): each drop alone dropped again in the plant at
+    a few frictions, its slip against the measured one.  Stand-in drops that slide 20 ms over the friction factor
+    (v / (2 mu g)-like): measured with fresh fish at x0.574 of the calibrated friction drying back to it with tau 3 h;
+    simulated with the model's own creep along the heading (30 ms per unit of cos yaw), which the fit must take as
+    nuisance.  The fit must find that shape, say the drying time is the fastest searched, carry over to held-out
+    runs and show them side by side."""
     from fishfmu.analysis.causes import mucus
 
-    hours = {f"r{i}": h for i, h in enumerate((1.0, 3.0, 6.0, 12.0, 24.0, 36.0, 48.0, 72.0), start=1)}
+    hours = {f"r{i}": h for i, h in enumerate((1.0, 1.0, 3.0, 6.0, 12.0, 24.0, 36.0, 48.0, 72.0), start=1)}
     heading = {f"f{k}": (-1.0) ** k for k in range(6)}
-
-    def factor(h: float, level: float, gain: float, tau: float) -> float:
-        return level * (1.0 + gain * (1.0 - np.exp(-h / tau)))
-
-    truth = mucus.shape_values(0.55, 1.0, 6.0)
+    fresh = mucus.FRESH_X[6]
+    truth = mucus.shape_values(fresh, 1.0, 3.0)
     drops = pd.DataFrame([{"run_id": r, "fish_id": f, "hours_post_mortem": h, "heading": heading[f],
-                           "belt_speed_mps": 0.3, "slip_s": 0.02 / factor(h, truth[2], truth[0], truth[1])}
+                           "belt_speed_mps": 0.3, "slip_s": 0.02 / float(mucus.friction_x(truth, h))}
                           for r, h in hours.items() for f in heading])
-    simulated: list[tuple[float, float, float]] = []
+    simulated: list[tuple[float, float]] = []
 
     def resimulate_drops(line, jobs, pool=None):
         out = []
         for run, ids, p in jobs:
-            level, m = p.friction.fish_belt / PlantParams().friction.fish_belt, p.extensions.mucus_friction
-            simulated.append((level, m.gain, m.time_constant_h))
-            f = factor(hours[run.id], level, m.gain, m.time_constant_h)
-            out.append({fid: 0.02 / f + 0.03 * heading[fid] for fid in ids})
+            x = p.friction.fish_belt / PlantParams().friction.fish_belt
+            simulated.append((x, p.extensions.mucus_friction.gain))
+            out.append({fid: 0.02 / x + 0.03 * heading[fid] for fid in ids})
         return out
 
     monkeypatch.setattr(mucus, "resimulate_drops", resimulate_drops)
@@ -200,8 +197,13 @@ def test_mucus_is_fitted_on_drops_dropped_again_in_the_extended_plant_and_says_w
     ctx = SimpleNamespace(dataset=dataset, cal=cal, pool=None, rng=np.random.default_rng(0), say=lambda s: None)
     fit = mucus.CANDIDATE.fit(mucus.CANDIDATE, ctx)
     assert (fit.values["gain"], fit.values["time_constant_h"], fit.values["friction_level"]) == pytest.approx(truth)
-    assert (1.0, 0.0, 24.0) in simulated  # the calibrated model's drops, the reference of the gain
-    assert fit.at_grid_end == {"time_constant_h": "lowest value searched (6 h)"}
+    # every drop at each friction level, the calibrated one among them, and nothing else changed
+    assert sorted({x for x, _ in simulated}) == pytest.approx(mucus.LEVELS_X) and {g for _, g in simulated} == {0.0}
+    assert fit.at_grid_end == {"time_constant_h": "lowest value searched (drying time 3 h)"}
     assert fit.heldout_gain > 0.5 and fit.heldout_gain_ci95[0] > 0.0 and fit.confirmed
     terms = mucus.CANDIDATE.terms(fit.values, SimpleNamespace(base=PlantParams()))
-    assert terms["friction_1h"] == pytest.approx(0.55 * 0.45) and terms["friction_48h"] == pytest.approx(0.45, rel=1e-3)
+    assert terms["friction_1h"] == pytest.approx(fresh * 0.45) and terms["friction_48h"] == pytest.approx(0.45, rel=1e-3)
+    # side by side: the fresh runs' measured slip, the base's (the calibrated friction: 20 ms) and the extension's
+    side = fit.side_by_side.set_index("run_id")
+    assert side.loc["r1", "measured"] == pytest.approx(0.02 / fresh)
+    assert side.loc["r1", "base"] == pytest.approx(0.02) and side.loc["r1", "extended"] == pytest.approx(0.02 / fresh)

@@ -147,7 +147,9 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "extension": {"status": d.extension, "applied": d.extension == "confirmed", "text": extension_text(d)},
         "heldout": ({"rms_before": f.heldout_rms_before, "rms_after": f.heldout_rms_after, "unit": f.error_unit,
                      "gain": f.heldout_gain, "gain_ci95": list(f.heldout_gain_ci95), "gain_by_run": f.gain_by_run,
-                     "base_by_run": f.base_by_run}
+                     "base_by_run": f.base_by_run,
+                     **({"side_by_side": {**f.side_by_side.attrs, "runs": f.side_by_side.to_dict("records")}}
+                        if f.side_by_side is not None else {})}
                     if f else {"gain": 0.0}),
         "track_rms_m": {"before": float(np.mean(base_rms)) if base_rms else None,
                         "after": float(np.mean(after_rms)) if after_rms else None,
@@ -229,7 +231,25 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
     for f in d.fits:
         if f.base_by_run:
             figs[f"heldout_{f.name}.png"] = heldout_figure(f, d.extension, out / f"heldout_{f.name}.png")
+        if f.side_by_side is not None and len(f.side_by_side):
+            figs[f"side_by_side_{f.name}.png"] = side_by_side_figure(f, out / f"side_by_side_{f.name}.png")
     return figs
+
+
+def side_by_side_figure(f: CandidateFit, path: Path) -> str:
+    """The held-out runs in the quantity the candidate's test reads, against its covariate: measured, the base
+    model and the extended one (each run predicted with what was chosen on the others)."""
+    t = f.side_by_side
+    fig, ax = plt.subplots(figsize=(5.5, 3.6), layout="constrained")
+    ax.plot(t["covariate"], t["measured"], "ko", label="measured")
+    ax.plot(t["covariate"], t["base"], "s", color="0.6", label="base (calibrated)")
+    ax.plot(t["covariate"], t["extended"], "^", color="tab:blue", label=f"extended with {f.name}")
+    ax.set(xlabel=t.attrs.get("covariate", "covariate"), ylabel=t.attrs.get("quantity", "quantity"))
+    if (t["covariate"] > 0).all() and t["covariate"].max() > 10 * t["covariate"].min():
+        ax.set_xscale("log")
+    ax.set_title(f"each run held out: {f.name}", fontsize=10)
+    fig.legend(loc="outside lower center", ncols=3, fontsize=8)
+    return _img(fig, path)
 
 
 def heldout_figure(f: CandidateFit, status: str, path: Path) -> str:

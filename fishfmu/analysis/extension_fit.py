@@ -54,6 +54,10 @@ class CandidateFit:
     """Held-out error each run's residuals lose with the candidate (in the squares of ``error_unit``)."""
     base_by_run: dict[str, float] = field(default_factory=dict)
     """Held-out error of each run with the base (calibrated) model, in the same units as ``gain_by_run``."""
+    side_by_side: pd.DataFrame | None = None
+    """The held-out runs as the candidate's test reads them, one row per run: ``run_id``, ``covariate`` (its value in
+    the run), ``measured``, ``base`` and ``extended`` (the run's mean of the quantity; extended: with what was
+    chosen on the other runs); its ``attrs`` name the covariate and the quantity.  None where not drawn."""
     at_grid_end: dict[str, str] = field(default_factory=dict)
     """Parameters fitted at an end of the values searched (``lowest`` or ``highest``): the data may want a value
     beyond what was tried, and the report says so rather than give the end as the answer."""

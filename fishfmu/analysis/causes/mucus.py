@@ -9,6 +9,8 @@ alone again in the extended plant (:func:`fit`).
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pandas as pd
 
@@ -56,14 +58,18 @@ def terms(values: dict[str, float], ctx: Terms) -> dict[str, float]:
     return {"friction_1h": float(at[1.0]), "friction_48h": float(at[48.0]), "rise_1h_to_48h": float(at[48.0] / at[1.0])}
 
 
-FRESH_X = (0.3, 0.4, 0.55, 0.75, 1.0)
-"""Fish-belt friction at 1 h over the calibrated model's, searched: from slime that halves it and more (0.14 on the
-model's 0.45) to none.  The calibrated friction is fitted on every age at once; where fresh fish slide more, it is
-too high for them."""
-DRY_X = (1.0, 1.5, 2.5, 4.0, 6.0)
-"""Fish-belt friction at 48 h over the calibrated model's, searched: a damp hall to slime washed off a fish that then
-dries."""
-TIME_CONSTANTS_H = (6.0, 24.0, 96.0)
+LEVELS_X = (0.25, 0.35, 0.5, 0.7, 1.0, 1.5, 2.5)
+"""Fish-belt friction over the calibrated model's at which every drop alone is dropped again.  For a drop alone the
+extension changes nothing but that fish's friction, so the extended plant's drop at any shape is the plant's drop at
+the friction the shape gives the fish's age: these levels span every shape searched."""
+FRESH_X = tuple(float(x) for x in np.round(np.geomspace(LEVELS_X[0], 1.0, 11), 3))
+"""Fish-belt friction at 1 h over the calibrated model's, searched: from slime that quarters it (0.11 on the model's
+0.45) to none.  The calibrated friction is fitted on every age at once; where fresh fish slide more, it is too high
+for them."""
+DRY_X = tuple(float(x) for x in np.round(np.geomspace(1.0, LEVELS_X[-1], 7), 3))
+"""Fish-belt friction at 48 h over the calibrated model's, searched up to the highest level simulated (a damp hall
+to slime washed off a fish that then dries)."""
+TIME_CONSTANTS_H = (3.0, 6.0, 12.0, 24.0, 48.0, 96.0)
 """How fast the mucus dries: within hours in a dry hall, over days on ice."""
 MOST_GAIN = 8.0
 """The largest gain searched: friction x9 once dry."""
@@ -82,31 +88,26 @@ def shape_values(fresh_x: float, dry_x: float, time_constant_h: float) -> tuple[
     return gain, time_constant_h, fresh_x / (1.0 + gain * a1)
 
 
-Shape = tuple[float, float, float]
-"""(friction at 1 h, at 48 h, both over the calibrated model's; drying time [h]): a point of the search."""
-
-
-def _neighbours(best: Shape) -> list[Shape]:
-    """The shapes one step from ``best`` along each axis of the search (the drying time only where friction
-    changes with age)."""
-    i, j, k = FRESH_X.index(best[0]), DRY_X.index(best[1]), TIME_CONSTANTS_H.index(best[2])
-    out = [(FRESH_X[a], best[1], best[2]) for a in (i - 1, i + 1) if 0 <= a < len(FRESH_X)]
-    out += [(best[0], DRY_X[b], best[2]) for b in (j - 1, j + 1) if 0 <= b < len(DRY_X)]
-    if best[:2] != (1.0, 1.0):
-        out += [(best[0], best[1], TIME_CONSTANTS_H[c]) for c in (k - 1, k + 1) if 0 <= c < len(TIME_CONSTANTS_H)]
-    return out
+def friction_x(values: tuple[float, float, float], hours: np.ndarray) -> np.ndarray:
+    """The extension's friction over the calibrated at ``hours`` post mortem, for (gain, time constant, level)."""
+    gain, tau, level = values
+    return level * (1.0 + gain * (1.0 - np.exp(-np.asarray(hours, dtype=float) / tau)))
 
 
 def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
-    """Fitted on what its test reads: every drop alone of the dataset dropped again, alone, in the extended plant
-    (:func:`fishfmu.analysis.resim.resimulate_drops`, a few per cent of a run's cost), its slip against the measured
-    one.  Our model's drops depend on the fish's heading where the measured ones do not (the creep of
+    """Fitted on what its test reads: every drop alone of the dataset dropped again, alone, in the plant
+    (:func:`fishfmu.analysis.resim.resimulate_drops`, a few per cent of a run's cost) at each friction of
+    :data:`LEVELS_X`, its slip against the measured one.  A drop of our model lands chaotically (its slip scatters
+    about 16 ms beyond what its heading explains, the measured ones 10 ms), with a new scatter at every friction; the
+    slip's answer to friction is therefore taken pooled over the drops (their mean change from the calibrated
+    friction, each scaled by its belt's speed, linear in 1 / friction between the levels and flat beyond them), and
+    each drop's extended slip is its own slip at the calibrated friction plus that answer at the friction the shape
+    gives its age.  Our model's drops depend on the fish's heading where the measured ones do not (the creep of
     ``docs/diagnosis.md``, *What our model gets wrong*): a nuisance term of the error, fitted with it.  No constant
     is: a slip goes as 1 / friction, so with a free constant only the difference of 1 / friction between ages is
-    decided, and a fresh friction below the calibrated one would fit as well as a dry one above it.  The search walks a lattice of friction at 1 h
-    (:data:`FRESH_X`), at 48 h (:data:`DRY_X`) and drying times (:data:`TIME_CONSTANTS_H`) from the calibrated model,
-    a batch of neighbours at a time, while the error falls.  Each held-out run is scored with the shape and nuisance
-    chosen on the other runs; a value at an end of the lattice is said to be there."""
+    decided.  Every shape of friction at 1 h (:data:`FRESH_X`), at 48 h (:data:`DRY_X`) and drying time
+    (:data:`TIME_CONSTANTS_H`) is scored; each held-out run with the shape and nuisance chosen on the other runs; a
+    value at an end of those searched is said to be there."""
     cal = ctx.cal
     ok = {b.run_id for b in cal.after if not b.error}
     drops = drop_rows(ctx.dataset)
@@ -116,82 +117,86 @@ def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
         return CandidateFit(cand.name, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="s")
     ids = sorted(runs)
     run_of = drops["run_id"].to_numpy()
-    nuisance = drops[["heading"]].to_numpy(float)
-    res: dict[Shape, np.ndarray] = {}
+    ctx.say(f"fit {cand.name}: {len(drops)} drops alone of {len(runs)} runs dropped again at friction "
+            f"x{', x'.join(f'{x:g}' for x in LEVELS_X)}")
+    jobs = [(runs[r], list(drops["fish_id"][run_of == r]), cand.params(cal.params, 0.0, None, x))
+            for x in LEVELS_X for r in ids]
+    out = resimulate_drops(ctx.dataset.line, jobs, pool=ctx.pool)
+    slips = np.full((len(LEVELS_X), len(drops)), np.nan)
+    for n in range(len(LEVELS_X)):
+        sim = {(r, f): v for r, d in zip(ids, out[n * len(ids):(n + 1) * len(ids)]) for f, v in d.items()}
+        slips[n] = [sim[(r, f)] for r, f in zip(run_of, drops["fish_id"])]
+    base = slips[LEVELS_X.index(1.0)]
+    failed = ~np.isfinite(base)  # drops the calibrated model cannot read are left out
+    speed = drops["belt_speed_mps"].to_numpy(float)
+    scale = speed / float(np.mean(speed))
+    answer = np.array([np.nanmean(((slips[n] - base) / scale)[~failed]) for n in range(len(LEVELS_X))])
+    answer = np.nan_to_num(answer)  # a level at which no drop could be read: as the calibrated friction
+    inverse = 1.0 / np.array(LEVELS_X)
+    order = np.argsort(inverse)
 
-    def simulate(shapes: list[Shape]) -> None:
-        shapes = [sh for sh in dict.fromkeys(shapes) if sh not in res and (sh[:2] == (1.0, 1.0)
-                                                                           or shape_values(*sh) is not None)]
-        if not shapes:
-            return
-        ctx.say(f"fit {cand.name}: friction x{', x'.join(f'{a:g} at 1 h, x{b:g} at 48 h (tau {t:g} h)' for a, b, t in shapes)} "
-                f"on {len(drops)} drops alone of {len(runs)} runs")
-        jobs = [(runs[r], list(drops["fish_id"][run_of == r]),
-                 cal.params if sh[:2] == (1.0, 1.0) else cand.params(cal.params, *shape_values(*sh)))
-                for sh in shapes for r in ids]
-        slips = resimulate_drops(ctx.dataset.line, jobs, pool=ctx.pool)
-        for n, sh in enumerate(shapes):
-            sim = {(r, f): v for r, d in zip(ids, slips[n * len(ids):(n + 1) * len(ids)]) for f, v in d.items()}
-            res[sh] = np.array([sim[(r, f)] for r, f in zip(run_of, drops["fish_id"])]) - drops["slip_s"].to_numpy()
+    shapes = [(1.0, 1.0, 24.0)] + [sh for sh in itertools.product(FRESH_X, DRY_X, TIME_CONSTANTS_H)
+                                   if sh[:2] != (1.0, 1.0) and shape_values(*sh) is not None]
+    hours = drops["hours_post_mortem"].to_numpy(float)
+    measured = drops["slip_s"].to_numpy(float)
+    # each shape's residual per drop: simulated (calibrated, plus the pooled answer at its friction) - measured
+    res = np.array([np.where(failed, 0.0, base - measured + scale * np.interp(
+        1.0 / (friction_x(_values_tuple(sh), hours)), inverse[order], answer[order])) for sh in shapes])
+    heading = drops["heading"].to_numpy(float)
+    by_run = np.array([(run_of == r) & ~failed for r in ids], dtype=float)
 
-    base: Shape = (1.0, 1.0, 24.0)
-    simulate([base] + [(f, 1.0, 24.0) for f in FRESH_X[:-1]] + [(1.0, d, 24.0) for d in DRY_X[1:3]])
-    failed = ~np.isfinite(res[base])  # drops the model as calibrated cannot read are left out of every error
-    for sh in res:  # a drop the extension could not simulate counts as no better than the base
-        res[sh] = np.where(np.isfinite(res[sh]), res[sh], res[base])
+    def errors(train: np.ndarray) -> np.ndarray:
+        """(shape, run): squared error of the run's drops once each shape's heading term fitted on ``train`` is
+        taken out."""
+        w = (train & ~failed).astype(float)
+        b = (res * heading * w).sum(axis=1) / max(float((heading**2 * w).sum()), 1e-12)
+        return ((res - b[:, None] * heading) ** 2) @ by_run.T
 
-    def errors(sh: Shape, train: np.ndarray) -> np.ndarray:
-        """Per run, the squared error of its drops once the nuisance fitted on the ``train`` drops is taken out."""
-        keep = train & ~failed
-        b, *_ = np.linalg.lstsq(nuisance[keep], res[sh][keep], rcond=None)
-        e = np.where(failed, 0.0, (res[sh] - nuisance @ b) ** 2)
-        return np.array([e[run_of == r].sum() for r in ids])
-
-    everyone = np.ones(len(drops), dtype=bool)
-
-    def best(weight: np.ndarray, train: np.ndarray = everyone) -> Shape:
-        """The shape of least weighted error (the base first: a tie keeps the base)."""
-        return min([base] + [sh for sh in res if sh != base], key=lambda sh: float(errors(sh, train) @ weight))
-
-    for _ in range(4):  # walk while the error falls
-        top = best(np.ones(len(ids)))
-        simulate(_neighbours(top))
-        if best(np.ones(len(ids))) == top:
-            break
     u, e0 = np.zeros(len(ids)), np.zeros(len(ids))
+    side = []
     for fold in folds(ids):
         test = np.array([r in fold for r in ids])
         train = ~np.isin(run_of, fold)
-        chosen = best((~test).astype(float), train)
-        e_base, e_chosen = errors(base, train), errors(chosen, train)
-        u[test], e0[test] = e_base[test] - e_chosen[test], e_base[test]
-    out = CandidateFit(cand.name, error_unit="s").score(heldout_score(ids, u, e0, int((~failed).sum()), ctx.rng))
-    out.values = _values(best(np.ones(len(ids))))
-    table = {sh: errors(sh, everyone) for sh in res}
-    boot = []
-    for _ in range(300):
-        w = np.bincount(ctx.rng.integers(0, len(ids), len(ids)), minlength=len(ids)).astype(float)
-        boot.append(_values(min([base] + [sh for sh in res if sh != base], key=lambda sh: float(table[sh] @ w))))
+        e = errors(train)
+        chosen = int(np.argmin(e[:, ~test].sum(axis=1)))  # the base first: a tie keeps it
+        u[test], e0[test] = e[0, test] - e[chosen, test], e[0, test]
+        w = (train & ~failed).astype(float)
+        for r in fold:  # the run's drops as measured, and as each model has them once its heading creep is out
+            m = (run_of == r) & ~failed
+            model = {k: measured + res[i] - (res[i] * heading * w).sum() / max(float((heading**2 * w).sum()), 1e-12)
+                     * heading for k, i in (("base", 0), ("extended", chosen))}
+            side.append({"run_id": r, "covariate": float(np.median(hours[m])), "measured": float(measured[m].mean()),
+                         "base": float(model["base"][m].mean()), "extended": float(model["extended"][m].mean())})
+    fit_out = CandidateFit(cand.name, error_unit="s").score(heldout_score(ids, u, e0, int((~failed).sum()), ctx.rng))
+    fit_out.side_by_side = pd.DataFrame(side).sort_values("covariate", kind="stable").reset_index(drop=True)
+    fit_out.side_by_side.attrs.update(covariate="hours post mortem", quantity="mean slip of the run's drops alone [s]")
+    table = errors(np.ones(len(drops), dtype=bool))
+    chosen = shapes[int(np.argmin(table.sum(axis=1)))]
+    fit_out.values = _values(chosen)
+    boot = [_values(shapes[int(np.argmin(table @ np.bincount(ctx.rng.integers(0, len(ids), len(ids)),
+                                                            minlength=len(ids))))]) for _ in range(300)]
     for name in cand.parameters:
-        out.ci95[name] = tuple(float(np.percentile([b[name] for b in boot], q)) for q in (2.5, 97.5))
-    chosen = best(np.ones(len(ids)))
-    out.at_grid_end = {name: f"{which} value searched ({x:g} x the calibrated friction at {h})"
-                       for name, x, grid, h in (("friction_level", chosen[0], FRESH_X, "1 h"),
-                                                ("gain", chosen[1], DRY_X, "48 h"))
-                       for which in (("lowest",) if x == grid[0] and x != 1.0 else ("highest",) if x == grid[-1]
-                                     else ())}
-    if chosen[:2] != (1.0, 1.0) and chosen[2] in (TIME_CONSTANTS_H[0], TIME_CONSTANTS_H[-1]):
-        out.at_grid_end["time_constant_h"] = (f"{'lowest' if chosen[2] == TIME_CONSTANTS_H[0] else 'highest'} "
-                                              f"value searched ({chosen[2]:g} h)")
-    return out
+        fit_out.ci95[name] = tuple(float(np.percentile([b[name] for b in boot], q)) for q in (2.5, 97.5))
+    ends = {"friction_level": (chosen[0], FRESH_X, "friction at 1 h"), "gain": (chosen[1], DRY_X, "friction at 48 h")}
+    if chosen[:2] != (1.0, 1.0):
+        ends["time_constant_h"] = (chosen[2], TIME_CONSTANTS_H, "drying time")
+    for name, (x, grid, what) in ends.items():
+        if x == grid[0] and x != 1.0 or x == grid[-1] and x != 1.0:
+            fit_out.at_grid_end[name] = (f"{'lowest' if x == grid[0] else 'highest'} value searched ({what} "
+                                         f"{x:g}{' h' if name == 'time_constant_h' else ' x the calibrated'})")
+    ctx.say(f"fit {cand.name}: the drops' mean slip change at friction x{', x'.join(f'{x:g}' for x in LEVELS_X)}: "
+            + ", ".join(f"{1e3 * a:+.1f} ms" for a in answer))
+    return fit_out
 
 
-def _values(sh: Shape) -> dict[str, float]:
-    """A shape as the extension's parameters (the base: no gain, no change of level)."""
-    if sh[:2] == (1.0, 1.0):
-        return {"gain": 0.0, "time_constant_h": sh[2], "friction_level": 1.0}
-    gain, tau, level = shape_values(*sh)
-    return {"gain": gain, "time_constant_h": tau, "friction_level": level}
+def _values_tuple(sh: tuple[float, float, float]) -> tuple[float, float, float]:
+    """A searched shape (friction at 1 h, at 48 h, drying time) as (gain, time constant, level)."""
+    return (0.0, sh[2], 1.0) if sh[:2] == (1.0, 1.0) else shape_values(*sh)
+
+
+def _values(sh: tuple[float, float, float]) -> dict[str, float]:
+    gain, tau, level = _values_tuple(sh)
+    return {"gain": float(gain), "time_constant_h": float(tau), "friction_level": float(level)}
 
 
 def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
