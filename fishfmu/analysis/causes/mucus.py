@@ -145,28 +145,29 @@ def fit(cand: Candidate, ctx: FitContext) -> CandidateFit:
     heading = drops["heading"].to_numpy(float)
     by_run = np.array([(run_of == r) & ~failed for r in ids], dtype=float)
 
-    def errors(train: np.ndarray) -> np.ndarray:
-        """(shape, run): squared error of the run's drops once each shape's heading term fitted on ``train`` is
-        taken out."""
+    def without_creep(train: np.ndarray) -> np.ndarray:
+        """(shape, drop): each shape's residuals less its heading term fitted on the ``train`` drops."""
         w = (train & ~failed).astype(float)
         b = (res * heading * w).sum(axis=1) / max(float((heading**2 * w).sum()), 1e-12)
-        return ((res - b[:, None] * heading) ** 2) @ by_run.T
+        return res - b[:, None] * heading
+
+    def errors(train: np.ndarray) -> np.ndarray:
+        """(shape, run): squared error of the run's drops once each shape's heading term is taken out."""
+        return without_creep(train) ** 2 @ by_run.T
 
     u, e0 = np.zeros(len(ids)), np.zeros(len(ids))
     side = []
     for fold in folds(ids):
         test = np.array([r in fold for r in ids])
-        train = ~np.isin(run_of, fold)
-        e = errors(train)
+        r_adj = without_creep(~np.isin(run_of, fold))
+        e = r_adj**2 @ by_run.T
         chosen = int(np.argmin(e[:, ~test].sum(axis=1)))  # the base first: a tie keeps it
         u[test], e0[test] = e[0, test] - e[chosen, test], e[0, test]
-        w = (train & ~failed).astype(float)
         for r in fold:  # the run's drops as measured, and as each model has them once its heading creep is out
             m = (run_of == r) & ~failed
-            model = {k: measured + res[i] - (res[i] * heading * w).sum() / max(float((heading**2 * w).sum()), 1e-12)
-                     * heading for k, i in (("base", 0), ("extended", chosen))}
             side.append({"run_id": r, "covariate": float(np.median(hours[m])), "measured": float(measured[m].mean()),
-                         "base": float(model["base"][m].mean()), "extended": float(model["extended"][m].mean())})
+                         "base": float((measured + r_adj[0])[m].mean()),
+                         "extended": float((measured + r_adj[chosen])[m].mean())})
     fit_out = CandidateFit(cand.name, error_unit="s").score(heldout_score(ids, u, e0, int((~failed).sum()), ctx.rng))
     fit_out.side_by_side = pd.DataFrame(side).sort_values("covariate", kind="stable").reset_index(drop=True)
     fit_out.side_by_side.attrs.update(covariate="hours post mortem", quantity="mean slip of the run's drops alone [s]")
