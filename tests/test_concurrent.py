@@ -27,7 +27,9 @@ from fishfmu.output import lock, ownership
 ROOT = Path(__file__).resolve().parents[1]
 RD = str(ROOT / "scenarios" / "reject_doubles.toml")
 SHORT = ["--set", "fish.count=5", "--no-report"]
-LONG = ["--set", "run.duration_s=3000", *SHORT]  # still running when the second command comes
+LONG = ["--set", "run.duration_s=3000", "--set", "run.stop_when_clear=false", *SHORT]
+"""still running when the second command comes, on a loaded machine too: without ``stop_when_clear=false`` the five
+fish leave the line after 27 s of simulated time (4.5 s of wall time), sooner than a second Python starts under load"""
 
 
 def start(args: list[str], log: Path) -> subprocess.Popen:
@@ -97,6 +99,7 @@ def test_a_second_identical_sweep_is_refused_and_the_folder_resumes(tmp_path):
     out = tmp_path / "sweep"
     log = tmp_path / "first.txt"
     sweep = ["sweep", RD, "--seeds", "1", "--param", "fish.count=2,3", "--set", "run.duration_s=3000",
+             "--set", "run.stop_when_clear=false",
              "--workers", "1", "--out", str(out)]
     first = start(sweep, log)
     try:
