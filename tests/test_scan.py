@@ -12,22 +12,28 @@ import pytest
 from plant.contract.measured import read_dataset
 
 from fishfmu.analysis.candidates import CANDIDATES
-from fishfmu.analysis.scan import scan, scan_tables
+from fishfmu.analysis.mismatch import take_up_law, take_up_text
+from fishfmu.analysis.scan import _place, scan, scan_tables
 from fishfmu.analysis.signatures import ALPHA, judge
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
 
 
 def _transfers(rng: np.random.Generator, slope_m_per_h: float = 0.0, at: str = "c3", size_m_per_kg: float = 0.0,
-               heading_m: float = 0.0, heading_at: tuple[str, ...] = ("c2", "c3", "c4")):
+               heading_m: float = 0.0, heading_at: tuple[str, ...] = ("c2", "c3", "c4"), take_up_s2pm: float = 0.0,
+               take_up_at: tuple[str, ...] = ("c2", "c3", "c4")):
     """Lags of fish alone across three transfers, ten runs of twelve fish, tracker-like noise (3 mm); a hidden
-    dependence on hours post mortem at one transfer, on the fish's weight everywhere, or on its heading (``heading_m``
-    per unit of it) at the transfers ``heading_at``."""
+    dependence on hours post mortem at one transfer, on the fish's weight everywhere, on its heading (``heading_m``
+    per unit of it) at the transfers ``heading_at``, or on the square of the speed step (``take_up_s2pm`` x step^2:
+    a take-up law) at the transfers ``take_up_at``.  Each run's belts run at their own speeds (0.25, 0.5, 0.95 and
+    1.45 m/s, each +-20 %), as the campaign datasets' do."""
     rows = []
-    headings = np.random.default_rng(7)  # a stream of its own: the other draws stay those the tests were written with
+    headings = np.random.default_rng(7)  # streams of their own: the other draws stay those the tests were written with
+    belts = np.random.default_rng(11)
     for r in range(10):
         hours = float(rng.uniform(1.0, 72.0))
         speed = float(rng.uniform(0.8, 1.2))
+        v = dict(zip(("c1", "c2", "c3", "c4"), np.array([0.25, 0.5, 0.95, 1.45]) * belts.uniform(0.8, 1.2, 4)))
         for f in range(12):
             w = float(rng.uniform(2.0, 5.0))
             fish_heading = float(headings.choice([-1.0, 1.0]))
@@ -39,9 +45,12 @@ def _transfers(rng: np.random.Generator, slope_m_per_h: float = 0.0, at: str = "
                 if heading_m:  # a fish keeps its heading at every transfer
                     heading = fish_heading
                     lag += heading_m * heading * (c in heading_at)
+                step = float(v[c] - v[f"c{int(c[1]) - 1}"])
+                lag += take_up_s2pm * step ** 2 * (c in take_up_at)
                 rows.append({"run_id": f"r{r:02d}", "fish_id": f"f{f:02d}", "conveyor_id": c, "lag_m": lag,
                              "hours_post_mortem": hours, "weight_kg": w, "length_m": 0.5 + 0.03 * w,
-                             "heading": heading, "t_in_run_s": 2.0 * f, "belt_speed_mps": speed})
+                             "heading": heading, "t_in_run_s": 2.0 * f, "belt_speed_mps": speed,
+                             "speed_step_mps": step, "speed_step_sq_m2ps2": step ** 2})
     return {"transfers": pd.DataFrame(rows)}
 
 
@@ -88,6 +97,41 @@ def test_a_heading_dependence_at_every_transfer_is_the_models_own_at_one_transfe
     local = scan(_transfers(np.random.default_rng(3), heading_m=0.01, heading_at=("c3",)), np.random.default_rng(0),
                  set(), ALPHA)
     assert [(f.covariate_key, f.location_id) for f in local.findings] == [("heading", "c3")]
+
+
+def test_one_take_up_law_at_every_transfer_is_the_models_own_a_transfer_off_it_a_finding():
+    # our fish are taken up faster than the independent simulator's at every transfer, the more the larger the speed
+    # step (issue 41's false alarm: 0.26 m per m/s of the last belt's speed on a dataset without an effect): the same
+    # law at every transfer is the model's; a transfer whose lag grows with the step beyond it (a slippery landing
+    # zone: 0.12 m per (m/s)^2 more, 3 cm at its median step) is a finding there
+    law = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)
+    everywhere = scan(law, np.random.default_rng(0), set(), ALPHA)
+    assert not everywhere.findings
+    local = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)["transfers"]
+    local = {"transfers": local.assign(lag_m=local["lag_m"] + 0.12 * local["speed_step_sq_m2ps2"]
+                                       * (local["conveyor_id"] == "c3"))}
+    found = scan(local, np.random.default_rng(0), set(), ALPHA)
+    assert {f.location_id for f in found.findings} == {"c3"}
+    assert {f.covariate_key for f in found.findings} <= {"speed_step_mps", "belt_speed_mps"}
+
+
+def test_the_take_up_law_is_reported_once_with_what_it_makes_at_each_transfer():
+    t = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)
+    law = take_up_law(t, np.random.default_rng(0))
+    assert law["b_s2_per_m"] == pytest.approx(0.3, abs=0.03) and abs(law["a_m_per_mps"]) < 0.03
+    assert law["heldout_gain_ci95"][0] > 0.0
+    rows = t["transfers"]
+    for c, v in law["transfers"].items():  # the law's lag over the transfer's own steps, worked out by hand
+        lo, hi = rows.loc[rows["conveyor_id"] == c, "speed_step_mps"].agg(["min", "max"])
+        assert v["lag_range_m"] == pytest.approx(0.3 * (hi ** 2 - lo ** 2), rel=0.15, abs=0.003)
+        assert v["ci95_m"][0] <= v["lag_range_m"] <= v["ci95_m"][1]
+    assert "taken up faster than measured" in take_up_text(law)
+    assert take_up_text(take_up_law(_transfers(np.random.default_rng(4)), np.random.default_rng(0))) == ""
+
+
+def test_a_shape_that_says_at_is_no_location():
+    assert _place("bump peaking at 24 h (width x3.3)", pd.Series(["c2", "c3"])) == "all"
+    assert _place("bump peaking at 24 h (width x3.3) at c3", pd.Series(["c2", "c3"])) == "c3"
 
 
 @pytest.mark.slow

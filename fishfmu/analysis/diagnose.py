@@ -38,7 +38,8 @@ from fishfmu.analysis.levels import FRICTION, RIGOR, run_levels
 from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
                                         drop_lags, residuals_of)
 from fishfmu.analysis.resim import Resim, drive_check, pool_for, refuse_unreplayed, resimulate_many
-from fishfmu.analysis.scan import Scan, base_mismatch, fit_quality, scan, scan_tables, tracker_noise_m
+from fishfmu.analysis.mismatch import base_mismatch, fit_quality, take_up_law, tracker_noise_m
+from fishfmu.analysis.scan import Scan, scan, scan_tables
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
 DECISION_RULE = (f"a candidate is significant when its covariate test's p-value is at most {ALPHA:g} (its quantity "
@@ -97,9 +98,11 @@ class Diagnosis:
     """Significant candidates not named because the scan found a dependence that explains their quantity better
     at their location: candidate -> the finding."""
     mismatch: dict = field(default_factory=dict)
-    """The calibrated model's mismatch shared by every fish (:func:`fishfmu.analysis.scan.base_mismatch`)."""
+    """The calibrated model's mismatch shared by every fish (:func:`fishfmu.analysis.mismatch.base_mismatch`)."""
     quality: dict = field(default_factory=dict)
-    """How well the model fits, against the tracker's own noise (:func:`fishfmu.analysis.scan.fit_quality`)."""
+    """How well the model fits, against the tracker's own noise (:func:`fishfmu.analysis.mismatch.fit_quality`)."""
+    take_up: dict = field(default_factory=dict)
+    """The base model's take-up law at the transfers (:func:`fishfmu.analysis.mismatch.take_up_law`)."""
 
     @property
     def unexplained(self) -> list:
@@ -218,7 +221,7 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
                      timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset),
                      _terms(fit, cal, dataset), further, {f.name: _terms(f, cal, dataset) for f in further}, found,
                      rivals, base_mismatch(tables, np.random.default_rng((seed, 42))),
-                     fit_quality(tables, tracker_noise_m(dataset)))
+                     fit_quality(tables, tracker_noise_m(dataset)), take_up_law(tables, np.random.default_rng((seed, 43))))
 
 
 def _rivals(judgement: Judgement, found: Scan) -> dict[str, str]:

@@ -17,6 +17,7 @@ from fishfmu.analysis.calibrate_report import calibration_document  # noqa: E402
 from fishfmu.analysis.candidates import CANDIDATES  # noqa: E402
 from fishfmu.analysis.diagnose import DECISION_RULE, MIN_GAIN, NOT_CONFIRMED, CandidateFit, Diagnosis  # noqa: E402
 from fishfmu.analysis.scan import COVARIATES, QUANTITIES  # noqa: E402
+from fishfmu.analysis.mismatch import take_up_text  # noqa: E402
 from fishfmu.analysis.signatures import ALPHA, SUGGESTIVE, CovariateTest, significant  # noqa: E402
 from fishfmu.output.atomic import json_safe, write_figure_atomic, write_json_atomic, write_text_atomic  # noqa: E402
 
@@ -80,6 +81,8 @@ def decision_text(d: Diagnosis) -> str:
     if d.scan is not None and d.scan.mismatch_findings:
         parts.append("The base model's own mismatch (how it responds to what it is given of each fish, its size and "
                      "heading; not a cause): " + "; ".join(f.text for f in d.scan.mismatch_findings) + ".")
+    if take_up_text(d.take_up):
+        parts.append(take_up_text(d.take_up))
     if d.judgement.left_out:
         parts.append(f"Left out (--without): {', '.join(d.judgement.left_out)}.")
     return " ".join(parts)
@@ -133,7 +136,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "further": [{"name": f.name, "values": f.values, "ci95": {k: list(v) for k, v in f.ci95.items()},
                      "terms": d.further_terms.get(f.name, {}), "confirmed": f.confirmed, "heldout_gain": f.heldout_gain,
                      "heldout_gain_ci95": list(f.heldout_gain_ci95)} for f in d.further],
-        "base_mismatch": {"transfers": d.mismatch,
+        "base_mismatch": {"transfers": d.mismatch, "take_up": d.take_up,
                           "dependences": [x.as_dict() for x in (d.scan.mismatch_findings if d.scan is not None else [])]},
         "fit_quality": d.quality,
         "scan": ({"threshold": d.scan.threshold, "tests": len(d.scan.tests)} if d.scan is not None else None),

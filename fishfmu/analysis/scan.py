@@ -57,6 +57,10 @@ class Quantity:
     nuisance: tuple[str, ...] = ()
     against_model: bool = False
     """Read as the measured value minus the calibrated model's (the transfers' lags), not as measured alone."""
+    shared: tuple[str, ...] = ()
+    """The base model's own mismatch in this quantity, the same law at every location (its response to what it is
+    given: the fish's heading, the speed step at a transfer): columns fitted beside every other covariate's term, so
+    that a finding is a dependence beyond it (:func:`take_up_law` reports it)."""
 
 
 @dataclass(frozen=True)
@@ -95,18 +99,25 @@ COVARIATES: dict[str, Covariate] = {c.key: c for c in (
     Covariate("t_in_run_s", "when in the run the fish came (its drop time)", "t_in_run_s", _linear("time [s]"),
               "fish"),
     Covariate("belt_speed_mps", "the belt's speed in the run", "belt_speed_mps", _linear("belt speed [m/s]"), "runs"),
+    Covariate("speed_step_mps", "the speed step at the transfer (the belt's speed less the one before it)",
+              "speed_step_mps", _linear("speed step [m/s]"), "runs"),
     Covariate("load_kg", "the mass on the belt", "load_kg", _linear("load [kg]"), "time"),
     Covariate("touching", "contact (between the fish of a pair; with a guide)", "touching",
               _linear("touching (1) or not (0)"), "fish"),
 )}
+
+TAKE_UP = ("speed_step_mps", "speed_step_sq_m2ps2")
+"""The take-up law's columns: the speed step at a transfer and its square."""
 
 QUANTITIES: tuple[Quantity, ...] = (
     # 5 ms of slip: a fifth of a sample of a 25 Hz tracker, averaged over a run's drops; what a friction change of a
     # tenth makes on a 0.25 m/s infeed (v / (2 mu g) = 28 ms at mu 0.45)
     Quantity("drops", "slip_s", "slip of fish dropped alone", "s", "drop", "conveyor_id", 0.005, ("belt_speed_mps",)),
     # 5 mm: about the tracker's noise, and a twentieth of a fish's body height
+    # the base model's own take-up law (its lag rising with the speed step, the more the larger the step: a fish
+    # slides Dv^2 / (2 mu g) before it rides) and its response to the heading, shared by every transfer
     Quantity("transfers", "lag_m", "lag of fish alone across the transfer (model minus measured)", "m", "transfer",
-             "conveyor_id", 0.005, against_model=True),
+             "conveyor_id", 0.005, against_model=True, shared=("heading", *TAKE_UP)),
     # 1 % of a passage: what rigor's test takes as the smallest flicker a photo-eye input can tell
     Quantity("passages", "blocked", "blocked share of photo-eye passages of fish alone", "share", "photoeye",
              "sensor_id", 0.01),
@@ -214,6 +225,13 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
         t = pd.concat(lags, ignore_index=True)
         t = t[t["belt"] > 0].drop(columns=["length_m"], errors="ignore")
         t = t.merge(fish, on=["run_id", "fish_id"], how="left").merge(speeds, on=["run_id", "conveyor_id"], how="left")
+        order = [c.id for c in dataset.line.conveyors]
+        before = speeds.assign(conveyor_id=speeds["conveyor_id"].map(
+            lambda c: order[order.index(c) + 1] if c in order and order.index(c) + 1 < len(order) else None))
+        before = before.dropna(subset=["conveyor_id"]).rename(columns={"belt_speed_mps": "before_mps"})
+        t = t.merge(before, on=["run_id", "conveyor_id"], how="left")
+        t["speed_step_mps"] = t["belt_speed_mps"] - t.pop("before_mps")
+        t["speed_step_sq_m2ps2"] = t["speed_step_mps"] ** 2
         out["transfers"] = t
     return out
 
@@ -242,7 +260,11 @@ def is_base_mismatch(q: Quantity, covariate_key: str, location_id: str) -> bool:
 
 
 def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple[Design, str] | None:
-    cols = [q.column, cov.column, *q.nuisance]
+    # the base model's shared law beside the term: a covariate in its take-up part is tested at each location beyond
+    # it; the heading is tested without it (everywhere alike it is the mismatch itself, reported as such)
+    in_law = cov.column in q.shared and cov.column in TAKE_UP
+    shared = [c for c in q.shared if c in t.columns and (in_law or c != cov.column)]  # without belt logs: no law
+    cols = [q.column, cov.column, *q.nuisance, *shared]
     if any(c not in t.columns for c in cols):
         return None
     t = t.dropna(subset=cols)
@@ -268,9 +290,12 @@ def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple
     loc = t[q.location_column].astype(str).to_numpy()
     places = np.unique(loc)
     if pooled and len(places) > 1:  # the term everywhere, or at one location only: the test takes the best
-        shapes = np.column_stack([shapes] + [shapes * (loc == v)[:, None] for v in places])
-        names = names + [f"{n} at {v}" for v in places for n in names]
-    nuisance = [t[list(q.nuisance)].to_numpy(float)] if q.nuisance else []
+        everywhere = ([], []) if in_law else ([shapes], names)  # in the law, everywhere is the law itself
+        shapes = np.column_stack(everywhere[0] + [shapes * (loc == v)[:, None] for v in places])
+        names = everywhere[1] + [f"{n} at {v}" for v in places for n in names]
+    elif in_law:
+        return None
+    nuisance = [t[list(q.nuisance) + shared].to_numpy(float)] if q.nuisance or shared else []
     if pooled and not within:  # each location its own level
         nuisance += [(loc == v).astype(float)[:, None] for v in places[1:]]
     nu = np.column_stack(nuisance) if nuisance else np.zeros((len(t), 0))
@@ -287,6 +312,12 @@ def _test(name: str, q: Quantity, cov: Covariate, d: Design, shuffle: str, rng: 
     if deciding and t.judged and t.p_value <= 2.0 / (1 + FIRST_PERMUTATIONS) and t.effect >= t.min_effect:
         t = covariate_test(name, q.text, cov.text, d, shuffle, rng, permutations=FINAL_PERMUTATIONS)
     return t
+
+
+def _place(shape: str, locations: pd.Series) -> str:
+    """The location a term's shape name is at (``... at c4``), or ``all``: only a location the rows carry counts
+    (a shape's own name may say "at": "bump at 24 h")."""
+    return next((v for v in map(str, locations.unique()) if shape.endswith(f" at {v}")), "all")
 
 
 def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: set[tuple[str, str]],
@@ -314,63 +345,9 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         tests.append((q, "all", cov.key, test))
         if not (test.judged and test.p_value <= threshold and test.heldout_gain > 0.0 and test.effect >= test.min_effect):
             continue
-        place = test.shape.rsplit(" at ", 1)[1] if " at " in test.shape else "all"
+        place = _place(test.shape, t[q.location_column])
         shown = sorted(((g, r) for r, g in test.gain_by_run.items() if g > 0), reverse=True)[:3]
         f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table)
         (mismatch if is_base_mismatch(q, cov.key, place) else findings).append(f)
     findings.sort(key=lambda f: (f.test.p_value, -f.test.heldout_gain))
     return Scan(findings, tests, threshold, mismatch, tables)
-
-
-# ------------------------------------------------------------------------------------------------- how well it fits
-
-def tracker_noise_m(dataset: Dataset) -> float:
-    """The tracker's own noise along the line [m], from the measured tracks alone: the second differences of a fish's
-    position at evenly spaced samples (a steadily moving fish's are noise, sqrt(6) sigma), robust to the
-    accelerations at drops and transfers (median absolute deviation)."""
-    d2 = []
-    for run in dataset.runs:
-        for _, tr in run.tracks.groupby("fish_id", sort=False):
-            t, x = tr["t_s"].to_numpy(float), tr["x_m"].to_numpy(float)
-            if len(t) < 5:
-                continue
-            dt = np.diff(t)
-            even = np.abs(dt[1:] - dt[:-1]) <= 0.1 * dt[:-1]
-            d2.append((x[2:] - 2 * x[1:-1] + x[:-2])[even])
-    if not d2:
-        return float("nan")
-    a = np.concatenate(d2)
-    return float(1.4826 * np.median(np.abs(a - np.median(a))) / np.sqrt(6.0))
-
-
-def base_mismatch(tables: dict[str, pd.DataFrame], rng: np.random.Generator, n_boot: int = 1000) -> dict:
-    """What the calibrated model gets wrong the same way for every fish: each transfer's mean lag (model minus
-    measured, fish alone) with a 95 % interval from resampling runs."""
-    t = tables.get("transfers")
-    out: dict[str, dict] = {}
-    if t is None or not len(t):
-        return out
-    for loc, rows in t.groupby("conveyor_id", sort=True):
-        per_run = rows.groupby("run_id")["lag_m"].agg(["sum", "count"])
-        s, n = per_run["sum"].to_numpy(float), per_run["count"].to_numpy(float)
-        idx = rng.integers(0, len(s), size=(n_boot, len(s)))
-        boot = s[idx].sum(axis=1) / np.maximum(n[idx].sum(axis=1), 1)
-        out[str(loc)] = {"mean_lag_m": float(s.sum() / n.sum()), "ci95_m": [float(np.percentile(boot, 2.5)),
-                                                                            float(np.percentile(boot, 97.5))],
-                         "fish": int(n.sum()), "runs": int(len(s))}
-    return out
-
-
-def fit_quality(tables: dict[str, pd.DataFrame], noise_m: float) -> dict:
-    """How well the model fits the lags of fish alone across transfers, beyond each transfer's constant: their RMS
-    against what the tracker's noise alone makes of a lag (a difference of two medians of ``n_samples`` samples
-    each: 1.25 sigma / sqrt(n) apiece)."""
-    t = tables.get("transfers")
-    if t is None or not len(t) or not np.isfinite(noise_m):
-        return {}
-    centred = t["lag_m"] - t.groupby("conveyor_id")["lag_m"].transform("mean")
-    n = t["n_samples"].clip(lower=1).to_numpy(float) if "n_samples" in t.columns else np.full(len(t), 10.0)
-    expected = float(np.sqrt(np.mean(2.0 * (1.2533 * noise_m) ** 2 / n)))
-    rms = float(np.sqrt(np.mean(centred.to_numpy(float) ** 2)))
-    return {"lag_rms_m": rms, "tracker_noise_m": noise_m, "noise_lag_rms_m": expected,
-            "ratio": rms / expected if expected > 0 else float("nan"), "fish_transfers": int(len(t))}
