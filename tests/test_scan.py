@@ -107,6 +107,13 @@ def test_one_take_up_law_at_every_transfer_is_the_models_own_a_transfer_off_it_a
     law = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)
     everywhere = scan(law, np.random.default_rng(0), set(), ALPHA)
     assert not everywhere.findings
+    # a lag growing with the belt's own speed at every transfer alike (the model is given the logged speeds): the
+    # model's own, reported as its mismatch, never as unexplained
+    rows = law["transfers"]
+    by_speed = {"transfers": rows.assign(lag_m=rows["lag_m"] + 0.05 * rows["belt_speed_mps"])}
+    found = scan(by_speed, np.random.default_rng(0), set(), ALPHA)
+    assert not found.findings
+    assert ("belt_speed_mps", "all") in {(f.covariate_key, f.location_id) for f in found.mismatch_findings}
     local = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)["transfers"]
     local = {"transfers": local.assign(lag_m=local["lag_m"] + 0.12 * local["speed_step_sq_m2ps2"]
                                        * (local["conveyor_id"] == "c3"))}

@@ -179,7 +179,7 @@ def _explained(d: Design, shapes: np.ndarray) -> float:
 
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
     """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
-    among the rows of a stratum."""
+    among the rows of a stratum, a run's values at each stratum (a transfer) between runs."""
     groups = np.unique(d.group)
     if shuffle == "between":
         perm = rng.permutation(len(groups))
@@ -189,8 +189,19 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         for g, h in zip(groups, groups[perm]):
             out[d.group == g] = d.shapes[first[h]]
         return out
-    if shuffle == "strata" and d.strata is None:
-        raise ValueError("the strata shuffle needs the design's strata")
+    if shuffle in ("strata", "runs") and d.strata is None:
+        raise ValueError(f"the {shuffle} shuffle needs the design's strata")
+    if shuffle == "runs":  # each run takes another run's values, stratum by stratum (a run's value at a transfer)
+        perm = dict(zip(groups, groups[rng.permutation(len(groups))]))
+        first = {}
+        for i, (g, s) in enumerate(zip(d.group, d.strata)):
+            first.setdefault((g, s), i)
+        out = np.zeros_like(d.shapes)
+        for i, (g, s) in enumerate(zip(d.group, d.strata)):
+            j = first.get((perm[g], s))
+            if j is not None:  # a run without rows at that stratum lends nothing there
+                out[i] = d.shapes[j]
+        return out
     if shuffle in ("rows", "strata"):  # each row takes another row's covariate (of its stratum): no run-level effect
         if d.strata is None:
             return d.shapes[rng.permutation(len(d.shapes))]

@@ -241,6 +241,8 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
 SIZE_COVARIATES = ("weight_kg", "length_m")
 GIVEN_COVARIATES = (*SIZE_COVARIATES, "heading")
 """What the model takes of every fish from the data: its weight, its length and the heading it was dropped with."""
+GIVEN_TO_RUNS = ("belt_speed_mps", "speed_step_mps")
+"""What the model takes of every run from the data: the belts' logged speeds (replayed)."""
 
 
 def is_base_mismatch(q: Quantity, covariate_key: str, location_id: str) -> bool:
@@ -250,13 +252,14 @@ def is_base_mismatch(q: Quantity, covariate_key: str, location_id: str) -> bool:
     - on the fish's size, anywhere: the model is given each fish's size, so a quantity following it is the model's
       response to size being wrong (the drops and passages are read as measured; what the model predicts of size
       is the part this stands in for);
-    - on anything else the model is given of each fish (its heading), in a quantity read against the model, at every
-      location alike: the model responds to it differently everywhere, as a property of the model. An effect that
-      acts at one place (a slippery zone, a worn guide) shows at that location, and is judged there; one that acts
-      through the heading on the line's physics (friction by direction) shows in the drops, read as measured."""
+    - on anything else the model is given of each fish (its heading) or of each run (the belts' speeds), in a quantity
+      read against the model, at every location alike: the model responds to it differently everywhere, as a property
+      of the model. An effect that acts at one place (a slippery zone, a worn guide) shows at that location, and is
+      judged there; one that acts through the heading on the line's physics (friction by direction) shows in the
+      drops, read as measured."""
     if covariate_key in SIZE_COVARIATES:
         return True
-    return q.against_model and location_id == "all" and covariate_key in GIVEN_COVARIATES
+    return q.against_model and location_id == "all" and covariate_key in (*GIVEN_COVARIATES, *GIVEN_TO_RUNS)
 
 
 def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple[Design, str] | None:
@@ -279,7 +282,11 @@ def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple
     if cov.varies == "runs":  # hours of a batch, a belt's speed: shuffled between rows as the candidates do
         if len(np.unique(x)) < 3:
             return None
-        shuffle, group, within = "rows", runs, False
+        # the speed step, offered at each transfer alone, is judged within runs (each its own level: what a run
+        # shares at every transfer, its batch and its speeds, is not one transfer's take-up), its runs' steps
+        # shuffled between runs transfer by transfer (a step is one value for all the fish of a run at a transfer:
+        # shuffled among rows, chance alignments of a few runs would count as many fish's evidence)
+        shuffle, group, within = ("runs" if in_law else "rows"), runs, in_law
     else:  # within a run (and a location): each its own level
         shuffle = "shift" if cov.varies == "time" else "within"
         group = np.char.add(np.char.add(runs, "/"), t[q.location_column].astype(str).to_numpy()) if pooled else runs
@@ -296,13 +303,13 @@ def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple
     elif in_law:
         return None
     nuisance = [t[list(q.nuisance) + shared].to_numpy(float)] if q.nuisance or shared else []
-    if pooled and not within:  # each location its own level
+    if pooled and (not within or in_law):  # each location its own level
         nuisance += [(loc == v).astype(float)[:, None] for v in places[1:]]
     nu = np.column_stack(nuisance) if nuisance else np.zeros((len(t), 0))
     y = t[q.column].to_numpy(float).copy()
     for v in places:  # a tracker's glitch clipped at its own location: a dependence at one is no outlier of all
         y[loc == v] = robust(y[loc == v])
-    d = Design(y, group, shapes, names, nu, within=within, min_effect=q.min_effect)
+    d = Design(y, group, shapes, names, nu, within=within, min_effect=q.min_effect, strata=loc if in_law else None)
     return d, shuffle
 
 
