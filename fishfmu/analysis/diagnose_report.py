@@ -79,8 +79,8 @@ def decision_text(d: Diagnosis) -> str:
                      + quality_text(d))
         parts.extend(f"Cannot decide {u}." for u in j.undecided)
     if d.scan is not None and d.scan.mismatch_findings:
-        parts.append("The base model's own mismatch (how it responds to what it is given of each fish, its size and "
-                     "heading; not a cause): " + "; ".join(f.text for f in d.scan.mismatch_findings) + ".")
+        parts.append("The base model's own mismatch (how it responds to what it is given of each fish and run, its "
+                     "size, heading and the belts' speeds; not a cause): " + "; ".join(f.text for f in d.scan.mismatch_findings) + ".")
     if take_up_text(d.take_up):
         parts.append(take_up_text(d.take_up))
     if d.judgement.left_out:

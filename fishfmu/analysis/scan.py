@@ -113,9 +113,9 @@ QUANTITIES: tuple[Quantity, ...] = (
     # 5 ms of slip: a fifth of a sample of a 25 Hz tracker, averaged over a run's drops; what a friction change of a
     # tenth makes on a 0.25 m/s infeed (v / (2 mu g) = 28 ms at mu 0.45)
     Quantity("drops", "slip_s", "slip of fish dropped alone", "s", "drop", "conveyor_id", 0.005, ("belt_speed_mps",)),
-    # 5 mm: about the tracker's noise, and a twentieth of a fish's body height
-    # the base model's own take-up law (its lag rising with the speed step, the more the larger the step: a fish
-    # slides Dv^2 / (2 mu g) before it rides) and its response to the heading, shared by every transfer
+    # 5 mm: about the tracker's noise, and a twentieth of a fish's body height. Shared: the base model's own take-up
+    # law (its lag rising with the speed step, the more the larger the step: a fish slides Dv^2 / (2 mu g) before it
+    # rides) and its response to the heading, the same at every transfer
     Quantity("transfers", "lag_m", "lag of fish alone across the transfer (model minus measured)", "m", "transfer",
              "conveyor_id", 0.005, against_model=True, shared=("heading", *TAKE_UP)),
     # 1 % of a passage: what rigor's test takes as the smallest flicker a photo-eye input can tell
@@ -226,11 +226,10 @@ def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[Run
         t = t[t["belt"] > 0].drop(columns=["length_m"], errors="ignore")
         t = t.merge(fish, on=["run_id", "fish_id"], how="left").merge(speeds, on=["run_id", "conveyor_id"], how="left")
         order = [c.id for c in dataset.line.conveyors]
-        before = speeds.assign(conveyor_id=speeds["conveyor_id"].map(
-            lambda c: order[order.index(c) + 1] if c in order and order.index(c) + 1 < len(order) else None))
-        before = before.dropna(subset=["conveyor_id"]).rename(columns={"belt_speed_mps": "before_mps"})
-        t = t.merge(before, on=["run_id", "conveyor_id"], how="left")
-        t["speed_step_mps"] = t["belt_speed_mps"] - t.pop("before_mps")
+        upstream = speeds.rename(columns={"conveyor_id": "upstream", "belt_speed_mps": "upstream_mps"})
+        t = t.assign(upstream=t["conveyor_id"].map(dict(zip(order[1:], order[:-1])))).merge(
+            upstream, on=["run_id", "upstream"], how="left").drop(columns="upstream")
+        t["speed_step_mps"] = t["belt_speed_mps"] - t.pop("upstream_mps")
         t["speed_step_sq_m2ps2"] = t["speed_step_mps"] ** 2
         out["transfers"] = t
     return out
