@@ -14,6 +14,7 @@ import pytest
 
 from plant.sim.params import PlantParams
 
+from fishfmu.analysis.candidates import CANDIDATES
 from fishfmu.analysis.covariates import CovariateTest
 from fishfmu.analysis.diagnose import NOT_CONFIRMED, CandidateFit, Diagnosis, _fragment
 from fishfmu.analysis.diagnose_report import decision_text, diagnosis_document, extension_text
@@ -207,3 +208,13 @@ def test_mucus_is_fitted_on_drops_dropped_again_in_the_plant_and_says_where_its_
     side = fit.side_by_side.set_index("run_id")
     assert side.loc["r1", "measured"] == pytest.approx(0.02 / fresh)
     assert side.loc["r1", "base"] == pytest.approx(0.02) and side.loc["r1", "extended"] == pytest.approx(0.02 / fresh)
+
+
+def test_a_sensor_cause_fragment_is_the_photo_eyes_table_not_the_plants():
+    """A named photo-eye latency hands over its latency for each eye's table (commented, as the sensor fragment is),
+    after the calibration; read as a plant path it raised AttributeError on round 2's `photoeye_latency_4`."""
+    fit = CandidateFit("photoeye_latency", {"latency_s": 0.04}, {"latency_s": (0.03, 0.05)}, heldout_gain=0.4,
+                       heldout_gain_ci95=(0.2, 0.5))
+    text = CANDIDATES["photoeye_latency"].extended_fragment(_calibration(), PlantParams(), fit)
+    assert text.startswith("# calibrated: nothing\n") and "latency_s = 0.04" in text
+    assert tomllib.loads(text) == {}  # nothing set in the plant: the eyes' keys are commented for [[line.photoeyes]]

@@ -175,6 +175,8 @@ class Candidate:
                 + (f"# and {per_kg[c] * 1e3:.3g} mm/s lost per kg of fish on the belt (the drive FMU has no input for "
                    "the mass carried: this part is reported, not modelled)\n" if per_kg.get(c, 0.0) > 0.0 else "")
                 for c, v in slip.items())
+        if self.acts_on == "sensor":  # a photo-eye's table of [line]: never one the calibration writes
+            return cal.fragment(base) + self.fragment(fit.values, cal.params)
         if self.level_model is None:
             p = self.params(cal.params, *[fit.values[k] for k in self.parameters])
             mine = {path: plant_value(p, path) for path in self.writes}
