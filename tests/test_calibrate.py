@@ -17,6 +17,7 @@ from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs
 from fishfmu.analysis.calibrate_report import write_calibration
+from fishfmu.analysis.resim import measured_data_plant
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, typed_frame
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_SPEEDS, make_dataset
 
@@ -52,7 +53,7 @@ def test_calibration_recovers_the_friction_of_a_line_that_differs_from_the_model
     """A synthetic line whose fish grip the belts a third more than the model's (fish-belt 0.6, fish-guide 0.33;
     everything else the model's): calibration finds the friction level within its interval and the error of the
     held-out runs falls."""
-    truth = PlantParams()
+    truth = measured_data_plant()  # the fish calibrate replays measured runs with
     truth.friction.fish_belt *= 4.0 / 3.0
     truth.friction.fish_guide *= 4.0 / 3.0
     runs = [(h, "sparse", 3) for h in (2.0, 10.0, 20.0, 30.0, 40.0, 60.0)]

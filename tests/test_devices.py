@@ -55,7 +55,8 @@ def test_an_open_gate_drops_the_fish_through_its_gap_and_a_closed_one_lets_it_pa
     opened, log = run_plant(line, [fish(x_m=1.0, length_m=length_m)], 1.25, lambda t: {"gate": True}, 3.0)
     assert opened.state.status[0] == FishStatus.REJECTED and opened.state.rejected_by[0] == 0
     last = [p[0] for _, p, _ in log if np.isfinite(p[0, 0])][-1]  # the last place it was seen: going down at the gate
-    assert 2.0 - 0.1 <= last[0] <= 2.0 + 0.43 + 0.6 and last[2] < shape.hinge_z_m - GATE_DROP_M
+    # seen last in the step before it was taken, falling: within 2 cm of the depth at which it is taken
+    assert 2.0 - 0.1 <= last[0] <= 2.0 + 0.43 + 0.6 and last[2] < shape.hinge_z_m - GATE_DROP_M + 0.02
     assert opened.state.outputs.device_rejected == {"gate": 1}
     closed, log = run_plant(line, [fish(x_m=1.0, length_m=length_m)], 1.25, lambda t: {"gate": False}, 3.0)
     assert closed.state.status[0] == FishStatus.LEFT  # over the closed gate (a flap running at c1's speed) and c2

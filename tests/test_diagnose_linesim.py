@@ -22,10 +22,9 @@ import numpy as np
 import pytest
 
 from plant.contract.measured import read_dataset
-from plant.sim.params import PlantParams
 
 from fishfmu.analysis.diagnose import simulated_dataset
-from fishfmu.analysis.resim import resimulate_many
+from fishfmu.analysis.resim import measured_data_plant, resimulate_many
 from fishfmu.analysis.observations import pair_rows
 from fishfmu.analysis.signatures import judge, significant
 
@@ -87,7 +86,7 @@ def test_a_cut_down_independent_dataset_is_named_right(cause: str) -> None:
     # against; the other tests read the measured data alone)
     pairs = pair_rows(dataset)
     with_pairs = dataset.subset([r for r in dataset.runs if (pairs[pairs["run_id"] == r.id]["touching"] == 1).any()])
-    sims = resimulate_many(with_pairs.line, with_pairs.runs, [PlantParams()] * len(with_pairs.runs), workers=1)
+    sims = resimulate_many(with_pairs.line, with_pairs.runs, [measured_data_plant()] * len(with_pairs.runs), workers=1)
     j = judge(dataset, np.random.default_rng(0), simulated_dataset(with_pairs, sims))
     tests = {t.candidate: t for t in j.tests}
     assert j.cause == cause, "\n".join(f"{t.candidate}: p {t.p_value:.3f}, gain {t.heldout_gain:.3f}, effect "

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from plant.fish.fish_body import FISH_MODELS
 from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
 from plant.fish.population import PopulationSpec, sample_fish
@@ -115,7 +116,7 @@ def test_twenty_fish_dropped_in_bulk_stay_on_the_line():
 
     def watch(plant: Plant) -> None:
         pos, _ = plant.state.body_poses()
-        on = np.repeat(plant.status == FishStatus.ON_LINE, 5)
+        on = np.repeat(plant.status == FishStatus.ON_LINE, FISH_MODELS[params.fish_model])
         if np.any(on):
             p = pos[on]
             inside = p[:, 0] < line.x_end_m

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from plant.errors import SimulationError
+from plant.fish.fish_body import FISH_MODELS
 from plant.sim.health import EnergyWatch
 from plant.sim.params import PlantParams
 from plant.sim.plant import Plant
@@ -42,7 +43,7 @@ def test_the_snapshot_arrays_cannot_be_written():
     for _ in range(20):
         plant.step({"c1": BELT_MPS})
     s = plant.state
-    assert len(s.pos) == 5
+    assert len(s.pos) == FISH_MODELS[PlantParams().fish_model]  # one fish's bodies
     for name in ARRAYS:
         arr = getattr(s, name)
         assert not arr.flags.writeable, name
@@ -84,7 +85,7 @@ def test_a_fish_dropped_on_a_running_belt_is_on_the_line_and_rides_at_belt_speed
         speeds.append(float(np.mean(s.vel[:, 0])) if s.status[0] == FishStatus.ON_LINE else np.nan)
     s = plant.state
     assert FishStatus(int(s.status[0])) is FishStatus.ON_LINE
-    assert s.member.tolist() == [0] and s.fish_of_body.tolist() == [0] * 5
+    assert s.member.tolist() == [0] and s.fish_of_body.tolist() == [0] * FISH_MODELS[PlantParams().fish_model]
     # every body moves with the belt along x, hardly across or up and down
     np.testing.assert_allclose(s.vel[:, 0], BELT_MPS, rtol=0.05)
     assert np.all(np.abs(s.vel[:, 1:]) < 0.05 * BELT_MPS)

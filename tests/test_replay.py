@@ -192,8 +192,10 @@ def test_fish_are_drawn_where_the_recorded_poses_put_them(page, poses):
     assert np.mean(at_bodies) >= 0.9
     ys, xs = np.nonzero(changed)
     px_per_m = np.linalg.norm(np.diff(projected(np.array([[3.0, 0, 0], [4.0, 0, 0]]), vp, size), axis=0))
-    far = np.min(np.hypot(xs[:, None] - expected[:, 0], ys[:, None] - expected[:, 1]), axis=1) > 0.2 * px_per_m
-    assert far.mean() < 0.01                # nothing drawn more than 20 cm from a body centre (bodies are < 17 cm)
+    far = np.min(np.hypot(xs[:, None] - expected[:, 0], ys[:, None] - expected[:, 1]), axis=1) > 0.25 * px_per_m
+    # nothing drawn more than 25 cm from a body centre (the longest body, the joined fish's tail with its fin, is
+    # under 32 cm with its centre of mass towards its thick end; the others under 17 cm)
+    assert far.mean() < 0.01
 
     # between two frames the page interpolates
     t_mid = float(0.5 * (poses["t_s"][k - 1] + poses["t_s"][k]))

@@ -47,7 +47,7 @@ from fishfmu.analysis.fitting import gain_with_ci
 from fishfmu.analysis.levels import FRICTION, MODELS, RIGOR, Level, Responses, fit_model, responses, run_levels
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, alone,
                                         belt_residuals, residuals_of, track_errors, typed_frame)
-from fishfmu.analysis.resim import refuse_unreplayed, pool_for, resimulate_many
+from fishfmu.analysis.resim import measured_data_plant, refuse_unreplayed, pool_for, resimulate_many
 
 
 @dataclass(frozen=True)
@@ -225,7 +225,7 @@ def calibrate(dataset: Dataset, base: PlantParams | None = None, workers: int | 
     """Calibrate the base model on ``dataset`` (see the module docstring)."""
     refuse_unreplayed(dataset, "calibrate")  # devices it cannot fire: not a fit of the line
     with pool_for(workers) as pool:  # one pool for every re-simulation: a new process pays for importing Exudyn
-        return calibrate_with_pool(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None))
+        return calibrate_with_pool(dataset, base or measured_data_plant(), pool, seed, progress or (lambda text: None))
 
 
 def _constant_fits(resp: Responses, base: PlantParams, rng: np.random.Generator) -> list[KnobFit]:

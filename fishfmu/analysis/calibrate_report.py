@@ -8,6 +8,7 @@ import numpy as np
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, Calibration, findings
+from fishfmu.analysis.resim import fish_model_lines
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic
 
 
@@ -36,7 +37,7 @@ def write_calibration(c: Calibration, base: PlantParams, out) -> dict:
     """``calibrated.toml`` (the fragment) and ``calibration.json`` in the folder ``out``."""
     out = Path(out)
     paths = {"fragment": out / "calibrated.toml", "json": out / "calibration.json"}
-    write_text_atomic(paths["fragment"], c.fragment(base))
+    write_text_atomic(paths["fragment"], fish_model_lines(base) + c.fragment(base))
     write_json_atomic(paths["json"], json_safe(calibration_document(c, base)))
     return paths
 

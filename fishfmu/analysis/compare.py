@@ -34,7 +34,8 @@ from plant.contract.measured import Dataset, Run, write_dataset
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.residuals import concat_typed, drive_residuals, track_errors, typed_frame
-from fishfmu.analysis.resim import Resim, drive_check, not_resimulated, resimulate_many, unreplayed_devices
+from fishfmu.analysis.resim import (Resim, drive_check, measured_data_plant, not_resimulated, resimulate_many,
+                                    unreplayed_devices)
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic
 from fishfmu.output.replay import write_compare_replay
 from fishfmu.session import Interrupted
@@ -103,7 +104,7 @@ def device_dependent(line: Line, kpi: KpiSettings) -> DeviceDependent:
 
 def compare_dataset(dataset: Dataset, params: PlantParams | None = None, workers: int | None = None,
                     drive_parameters: dict | None = None) -> Comparison:
-    params = params or PlantParams()
+    params = params or measured_data_plant()
     try:
         resims = resimulate_many(dataset.line, dataset.runs, [params] * len(dataset.runs), workers, record_poses=True)
     except Interrupted as exc:  # SIGINT/SIGTERM under the command: compare the runs that were re-simulated

@@ -37,7 +37,8 @@ from fishfmu.analysis.extension_fit import MIN_GAIN, NOT_CONFIRMED, CandidateFit
 from fishfmu.analysis.levels import FRICTION, RIGOR, run_levels
 from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
                                         drop_lags, residuals_of)
-from fishfmu.analysis.resim import Resim, drive_check, pool_for, refuse_unreplayed, resimulate_many
+from fishfmu.analysis.resim import (Resim, drive_check, fish_model_lines, measured_data_plant, pool_for,
+                                    refuse_unreplayed, resimulate_many)
 from fishfmu.analysis.mismatch import base_mismatch, fit_quality, take_up_law, tracker_noise_m
 from fishfmu.analysis.scan import Scan, scan, scan_tables
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
@@ -153,7 +154,7 @@ def diagnose(dataset: Dataset, base: PlantParams | None = None, workers: int | N
     if unknown:
         raise ValueError(f"--without: no candidate cause named {', '.join(unknown)} (known: {', '.join(CANDIDATES)})")
     with pool_for(workers) as pool:  # kept for every re-simulation below: a new process pays for importing Exudyn
-        return _diagnose(dataset, base or PlantParams(), pool, seed, progress or (lambda text: None), calibrate,
+        return _diagnose(dataset, base or measured_data_plant(), pool, seed, progress or (lambda text: None), calibrate,
                          tuple(without))
 
 
@@ -215,7 +216,7 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
         found = scan(tables, np.random.default_rng((seed, 41)), explained, ALPHA)
         timing["scan"] += time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
-    fragment = _fragment(cal, base, fit) + "".join(_further_fragment(f, cal) for f in further)
+    fragment = fish_model_lines(base) + _fragment(cal, base, fit) + "".join(_further_fragment(f, cal) for f in further)
     return Diagnosis(causes, judgement, fit, fragment,
                      {b.run_id: b.track_rms_m for b in cal.baseline}, {b.run_id: b.track_rms_m for b in cal.after},
                      timing, cal.after, drive, cal, run_levels(cal.responses), drop_lag_table(dataset),

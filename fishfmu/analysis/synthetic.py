@@ -26,6 +26,7 @@ from plant.sim.params import PlantParams
 from plant.fish.population import FishSpec, fish_size
 
 from fishfmu.analysis.candidates import CANDIDATES
+from fishfmu.analysis.resim import measured_data_plant
 from fishfmu.cosim.runner import run_scenario
 from fishfmu.scenario.schema import Scenario
 
@@ -61,7 +62,7 @@ def synthetic_base() -> PlantParams:
     friction makes them (``docs/diagnosis.md``, *What our model gets wrong*).  On this base the difference is
     0.8 ms, within what the independent simulator's fish show (+-2 ms); with contacts at half of critical a fish
     fell through a belt in a pile."""
-    p = PlantParams()
+    p = measured_data_plant()
     p.numerics.contact_damping_ratio = 0.3
     p.joints.stiffening = 1.0
     return p
@@ -84,7 +85,7 @@ def hidden_effect(effect: str, strength: float = 1.0,
     top of ``base``: the line's own physics (default: the model's)."""
     if effect not in EFFECTS:
         raise ValueError(f"unknown effect '{effect}' (known: {', '.join(EFFECTS)})")
-    params = base.model_copy(deep=True) if base is not None else PlantParams()
+    params = base.model_copy(deep=True) if base is not None else measured_data_plant()
     drive: dict[str, float] = {}
     if effect != "none":
         CANDIDATES[effect].synthetic(params, drive, strength)

@@ -52,7 +52,7 @@ from plant.contract.kpis import KPI_KEYS
 from plant.contract.log_values import detections_bytes_bound
 from plant.contract.line import KpiSettings, Line
 from plant.sim.params import PlantParams
-from plant.contract.devices import device_shapes
+from plant.contract.devices import device_shapes, device_step_limit_mps, step_for_devices
 from plant.fish.fish_body import MIN_SPHERE_RADIUS_M
 from plant.fish.population import PopulationSpec, lane_across, tallest_fish_m
 from plant.validation import MAX_CSV_BYTES, Strict, ValueAtKey, read_toml, suggest, validate
@@ -285,7 +285,6 @@ class RecordSpec(Strict):
             "each must match some variable; an FMU's variables are read after each of its steps"))
 
 
-DEVICE_STEP_FRACTION = 0.25
 """How much of a fish's smallest contact sphere a device may move in one integration step: with the 1.25 ms step and
 12 mm spheres, 2.4 m/s.  A pusher's paddle hitting a fish at 4.8 and 8.3 m/s (4 and 7 mm a step) gave it energy
 from nowhere (the contact's explicit step), at 12.5 and 25 m/s it passed through it; at 2.0 .. 2.4 m/s (three places
@@ -338,6 +337,10 @@ class Scenario(Strict):
             raise ValueAtKey("fmu", f"FMU names must be unique; repeated: {', '.join(dup)}")
         if "plant" in names:
             raise ValueAtKey(f"fmu[{names.index('plant')}].name", "'plant' is reserved for the plant's ports; rename the FMU")
+        numerics = self.plant.numerics
+        if "step_s" not in numerics.model_fields_set:  # the fish model's own step, shorter where a device needs it
+            numerics.step_s = step_for_devices(self.line, self.run.comm_step_s, numerics.step_s)
+            numerics.model_fields_set.discard("step_s")
         n_base = self.run.comm_step_s / self.plant.numerics.step_s
         if abs(n_base - round(n_base)) > 1e-6:
             raise ValueAtKey("run.comm_step_s", f"{self.run.comm_step_s} s must be a whole multiple of "
@@ -371,7 +374,7 @@ class Scenario(Strict):
         """A device whose fastest point moves more than a quarter of a fish's smallest contact sphere in one
         integration step hits fish too hard for the step, or passes through them: refused, naming it."""
         step_s = self.plant.numerics.step_s
-        limit_mps = DEVICE_STEP_FRACTION * MIN_SPHERE_RADIUS_M / step_s
+        limit_mps = device_step_limit_mps(step_s)
         for i, shape in enumerate(device_shapes(self.line)):
             if shape.fastest_mps > limit_mps:
                 d = shape.device
@@ -439,7 +442,8 @@ class ScenarioLoader:
         data = copy.deepcopy(self.data)
         for key, value in (overrides or {}).items():
             set_dotted(data, key, value, file=path)
-        for i, f in enumerate(data.get("fmu", []) or []):
+        fmus = data.get("fmu")
+        for i, f in enumerate(fmus if isinstance(fmus, list) else []):  # any other value: refused by the schema
             for key in ("path", "parameter_file"):
                 if isinstance(f, dict) and isinstance(f.get(key), str) and not Path(f[key]).is_absolute():
                     data["fmu"][i] = f = dict(f, **{key: _absolute(path, f[key], f"fmu[{i}].{key}")})

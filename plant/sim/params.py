@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from plant.fish.extensions import Extensions
 from plant.validation import Strict
@@ -62,13 +62,19 @@ class JointParams(Strict):
         "the paper's at any age; fitted by fishfmu diagnose's calibration"))
 
 
+FISH_NUMERICS = {"joined4": {"step_s": 0.002, "sphere_spacing": 3.0},
+                 "paper5": {"step_s": 0.00125, "sphere_spacing": 2.0}}
+"""The explicit step and the spheres' spacing each fish model (``plant.fish_model``) was checked at (50 seeded dumps,
+no body through a belt); used where a scenario does not set them."""
+
+
 class NumericsParams(Strict):
     """Integration and penalty settings; they decide speed and stability, not the physics."""
 
-    step_s: float = Field(0.00125, gt=1e-5, le=0.01, description=(
-        "explicit integration step (VelocityVerlet, one force evaluation per step); with the frequencies "
-        "below, 2 ms is stable but lets the tail fin of a fish under a falling one be pushed below the belt "
-        "in some bulk drops; 1.25 ms keeps every body above it"))
+    step_s: float = Field(0.002, gt=1e-5, le=0.01, description=(
+        "explicit integration step (VelocityVerlet, one force evaluation per step); when not given, the fish "
+        "model's own: 2 ms for 'joined4' (0 of 50 seeded dumps put a body through a belt), 1.25 ms for 'paper5' "
+        "(its tail fin under a pile dips through the belt at 1.67 ms and above)"))
     contact_omega_rad_s: float = Field(300.0, gt=10.0, le=2000.0, description=(
         "contact stiffness of every sphere of a fish = fish mass / number of its spheres x omega^2: a "
         "resting fish sinks about 0.2 mm into the belt; a fish falling onto another stops within a "
@@ -86,8 +92,9 @@ class NumericsParams(Strict):
     friction_regularization_mps: float = Field(0.03, gt=1e-4, le=0.5, description=(
         "slip speed below which Coulomb friction is proportional to slip (GeneralContact's proportional "
         "zone); it must exceed ~10 x mu g step_s for the explicit step to stay stable under piles"))
-    sphere_spacing: float = Field(2.0, ge=1.0, le=4.0, description=(
-        "distance between contact spheres along the fish, in sphere radii (2 = touching)"))
+    sphere_spacing: float = Field(3.0, ge=1.0, le=4.0, description=(
+        "distance between contact spheres along the fish, in sphere radii (2 = touching); when not given, the "
+        "fish model's own: 3 for 'joined4', 2 for 'paper5'"))
     min_body_mass_fraction: float = Field(0.06, ge=0.0, le=0.2, description=(
         "mass scaling, as explicit crash codes do: the paper's tail fin (2.2 %, Table II) is raised to this "
         "share of the fish, taken from the tail body, so that contact springs stiff enough to stop the fin "
@@ -105,14 +112,14 @@ class NumericsParams(Strict):
 class PlantParams(Strict):
     """Everything the plant needs beyond the line and the fish."""
 
-    fish_model: Literal["paper5", "joined4"] = Field("paper5", description=(
-        "the fish's rigid bodies: 'paper5' the paper's five (head, upper body, lower body, tail, tail fin; the fin "
-        "raised to numerics.min_body_mass_fraction of the mass, the step held at 1.25 ms by it); 'joined4' four, "
-        "the tail fin joined rigidly to the tail (the fin bends little against the tail at the scale of a "
-        "belt and its gaps; tail and fin carry the paper's 22.8 % together, no mass floor; joints 1-3 of Table III "
-        "unchanged, the tail-fin joint gone) and thin bodies' inertia raised to the full value their spheres "
-        "imply; meant for numerics.step_s = 0.002 with numerics.sphere_spacing = 3 (docs/model.md, 'The joined "
-        "fish')"))
+    fish_model: Literal["joined4", "paper5"] = Field("joined4", description=(
+        "the fish's rigid bodies: 'joined4' (the default) four, the paper's cuts with the tail fin joined rigidly "
+        "to the tail (the fin bends little against the tail at the scale of a belt and its gaps; tail and fin "
+        "carry the paper's 22.8 % together, no mass floor; joints 1-3 of Table III unchanged, the tail-fin joint "
+        "gone), thin bodies' inertia raised to the full value their spheres imply, integrated at 2 ms with "
+        "spheres three radii apart; 'paper5' the paper's five (head, upper body, lower body, tail, tail fin; the "
+        "fin raised to numerics.min_body_mass_fraction of the mass), integrated at 1.25 ms with touching spheres "
+        "(docs/model.md, 'The joined fish')"))
     friction: FrictionParams = Field(default_factory=FrictionParams)
     joints: JointParams = Field(default_factory=JointParams)
     numerics: NumericsParams = Field(default_factory=NumericsParams)
@@ -126,3 +133,13 @@ class PlantParams(Strict):
     retire_after_m: float = Field(0.3, ge=0.0, le=5.0, description=(
         "a fish whose every body is this far beyond the end of the last conveyor has left the line and is "
         "taken out of the simulation"))
+
+    @model_validator(mode="after")
+    def _numerics_of_the_fish(self) -> "PlantParams":
+        # The step and the spheres' spacing a fish model was checked at are part of that model: choosing the
+        # paper's fish alone gives the paper's fish as it was measured, not its bodies at the joined one's step.
+        for key, value in FISH_NUMERICS[self.fish_model].items():
+            if key not in self.numerics.model_fields_set:
+                setattr(self.numerics, key, value)
+                self.numerics.model_fields_set.discard(key)
+        return self

@@ -36,6 +36,7 @@ import time
 
 import numpy as np
 
+from plant.contract.devices import step_for_devices
 from plant.contract.line import Line
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
@@ -77,6 +78,11 @@ class Plant:
                  seed: int = 0) -> None:
         self._line = line
         self._params = params or PlantParams()
+        if "step_s" not in self._params.numerics.model_fields_set:  # as a scenario does: shorter where a device needs it
+            step_s = step_for_devices(line, comm_step_s, self._params.numerics.step_s)
+            if step_s != self._params.numerics.step_s:
+                self._params = self._params.model_copy(deep=True)
+                self._params.numerics.step_s = step_s
         self._fish_specs = list(fish)
         self._fish_ids = tuple(f.fish_id for f in self._fish_specs)
         self._roster = FishRoster.of(self._fish_specs)  # which fish waits, is in the system, on the line, gone
