@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from plant.contract.devices import GATE_DROP_M, device_shapes
+from plant.contract.devices import GATE_DROP_M, device_shapes, step_for_devices
 from plant.contract.kpis import compute_kpis
 from plant.contract.line import KpiSettings, Line
 from plant.contract.measured import PHOTOEYES, Run, empty_table, read_run, write_run
@@ -229,6 +229,24 @@ def test_a_paddle_faster_than_the_step_allows_passes_through_the_fish_and_such_a
         load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.02})
     assert err.value.where == "line.devices[0].stroke_s"
     assert load_scenario("scenarios/reject_doubles.toml", {"line.devices[0].stroke_s": 0.188}).line.devices[0].stroke_s
+
+
+def test_the_default_step_is_shortened_for_a_fast_device_never_below_the_paper_fishs_and_a_given_one_is_kept():
+    """A 0.43 m flap through 60 deg in 0.2 s: its tip at 0.43 x 1.047 / 0.2 = 2.25 m/s, more than the 1.5 m/s (a
+    quarter of a 12 mm sphere per step) allowed at the joined fish's 2 ms, less than the 2.4 m/s at 1.25 ms."""
+    from fishfmu.scenario.schema import load_scenario
+
+    gate = two_belts([GATE])
+    assert device_shapes(gate)[0].fastest_mps == pytest.approx(0.43 * np.radians(60.0) / 0.2)
+    assert step_for_devices(gate, 0.01, 0.002) == 0.00125
+    assert step_for_devices(two_belts([]), 0.01, 0.002) == 0.002      # no device: the fish's own step
+    assert step_for_devices(gate, 0.01, 0.001) == 0.001                # already short enough: kept
+    fast = two_belts([dict(GATE, stroke_s=0.02)])                      # 22.5 m/s: would need 0.13 ms
+    assert step_for_devices(fast, 0.01, 0.002) == 0.00125              # not below: the scenario refuses it instead
+    joined = {"plant.fish_model": "joined4"}
+    assert load_scenario("scenarios/reject_doubles.toml", joined).plant.numerics.step_s == 0.00125
+    with pytest.raises(InputError, match=r"gate 'gate' moves at 2\.3 m/s.*faster than 1\.5 m/s"):
+        load_scenario("scenarios/reject_doubles.toml", {**joined, "plant.numerics.step_s": 0.002})  # given: kept
 
 
 # ------------------------------------------------------------------------------------------ parking

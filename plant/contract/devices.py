@@ -294,12 +294,18 @@ def device_step_limit_mps(step_s: float) -> float:
     return DEVICE_STEP_FRACTION * MIN_SPHERE_RADIUS_M / step_s
 
 
+SHORTEST_DEVICE_STEP_S = 0.00125
+"""The shortest step a device makes the default one (the paper's fish's): a device faster than that allows is refused
+naming its ``stroke_s``, not given a step many times shorter without a word."""
+
+
 def step_for_devices(line: Line, comm_step_s: float, step_s: float) -> float:
     """The integration step for ``line``'s devices: ``step_s``, or where a device moves too fast for it the largest
     whole fraction of ``comm_step_s`` its fastest point allows (the joined fish's 2 ms with a reject gate swinging its
-    0.43 m flap in 0.2 s: 1.25 ms)."""
+    0.43 m flap in 0.2 s: 1.25 ms), never below :data:`SHORTEST_DEVICE_STEP_S`."""
     fastest = max((shape.fastest_mps for shape in device_shapes(line)), default=0.0)
     if fastest <= device_step_limit_mps(step_s):
         return step_s
     n = int(np.ceil(comm_step_s * fastest / (DEVICE_STEP_FRACTION * MIN_SPHERE_RADIUS_M) - 1e-9))
-    return comm_step_s / n
+    n_shortest = int(np.floor(comm_step_s / SHORTEST_DEVICE_STEP_S + 1e-9))
+    return min(step_s, comm_step_s / max(1, min(n, n_shortest)))
