@@ -310,7 +310,8 @@ def replay(run_dir: str | Path, out: str | Path | None = None) -> Path:
 
 def _dataset_and_params(dataset: Path, scenario_file: Path | None):
     """The dataset, and the plant (and drive) parameters of ``scenario_file``: a whole scenario, or a fragment
-    of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``)."""
+    of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``); either laid over the plant measured
+    data are replayed with (the paper's fish unless it names another)."""
     from fishfmu.analysis.resim import MEASURED_DATA_FISH  # here: `fishfmu run` never loads the analysis
     ds = read_dataset(dataset)
     if scenario_file is None:
@@ -320,7 +321,9 @@ def _dataset_and_params(dataset: Path, scenario_file: Path | None):
         plant = data.get("plant", {})
         plant = {"fish_model": MEASURED_DATA_FISH, **plant} if isinstance(plant, dict) else plant
         return ds, validate(PlantParams, plant, file=scenario_file, prefix="plant."), None
-    sc = schema.load_scenario(scenario_file)
+    plant = data.get("plant")
+    named = isinstance(plant, dict) and "fish_model" in plant
+    sc = schema.load_scenario(scenario_file, None if named else {"plant.fish_model": MEASURED_DATA_FISH})
     drives = [f.parameters for f in sc.fmu if f.builtin == "conveyor_drive"]
     return ds, sc.plant, (drives[0] if drives else None)
 

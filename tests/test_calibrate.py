@@ -17,7 +17,8 @@ from plant.sim.params import PlantParams
 
 from fishfmu.analysis.calibrate import KNOBS, calibrate, choose_fit_runs
 from fishfmu.analysis.calibrate_report import write_calibration
-from fishfmu.analysis.resim import measured_data_plant
+from fishfmu import commands
+from fishfmu.analysis.resim import fish_model_lines, measured_data_plant
 from fishfmu.analysis.residuals import BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, RunResiduals, typed_frame
 from fishfmu.analysis.synthetic import SMALL_KPI, SMALL_LINE, SMALL_SPEEDS, make_dataset
 
@@ -118,3 +119,27 @@ def test_a_fragment_with_a_wrong_key_is_refused_naming_it_before_anything_runs(t
     assert done.returncode == 2, done.stderr
     assert "fish_belts" in done.stderr and "calibrated.toml" in done.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_measured_runs_are_replayed_with_the_paper_fish_unless_the_scenario_names_another(tmp_path: Path) -> None:
+    """The analyses' plant: the paper's five-body fish (what their benchmark was measured with), a fragment or a whole
+    scenario laid over it; a scenario that names a fish keeps it; the fragments written name a fish not the default."""
+    from fishfmu import commands
+
+    data = make_dataset(tmp_path / "data", "none", SMALL_LINE, SMALL_KPI, [(10.0, "sparse", 1)], SMALL_SPEEDS,
+                        duration_s=2.0, workers=1)
+    assert PlantParams().fish_model == "joined4"  # a scenario's default ...
+    _, alone, _ = commands._dataset_and_params(data, None)
+    assert (alone.fish_model, alone.numerics.step_s, alone.numerics.sphere_spacing) == ("paper5", 0.00125, 2.0)
+    frag = tmp_path / "calibrated.toml"
+    frag.write_text("[plant.friction]\nfish_belt = 0.4\n")
+    _, fragment, _ = commands._dataset_and_params(data, frag)
+    assert fragment.fish_model == "paper5" and fragment.friction.fish_belt == 0.4
+    _, whole, drive = commands._dataset_and_params(data, ROOT / "scenarios" / "paper_test.toml")
+    assert whole.fish_model == "paper5" and drive is not None
+    named = tmp_path / "joined.toml"
+    named.write_text((ROOT / "scenarios" / "paper_test.toml").read_text().replace("[run]", '[plant]\nfish_model = '
+                                                                                  '"joined4"\n\n[run]', 1))
+    _, kept, _ = commands._dataset_and_params(data, named)
+    assert kept.fish_model == "joined4" and kept.numerics.step_s == 0.002
+    assert fish_model_lines(alone).startswith('[plant]\nfish_model = "paper5"') and fish_model_lines(kept) == ""
