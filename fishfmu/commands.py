@@ -312,10 +312,10 @@ def _dataset_and_params(dataset: Path, scenario_file: Path | None):
     """The dataset, and the plant (and drive) parameters of ``scenario_file``: a whole scenario, or a fragment
     of ``[plant]`` tables only (``calibrated.toml`` of ``fishfmu calibrate``); either laid over the plant measured
     data are replayed with (the paper's fish unless it names another)."""
-    from fishfmu.analysis.resim import MEASURED_DATA_FISH  # here: `fishfmu run` never loads the analysis
+    from fishfmu.analysis.resim import MEASURED_DATA_FISH, measured_data_plant  # here: `run` never loads the analysis
     ds = read_dataset(dataset)
     if scenario_file is None:
-        return ds, validate(PlantParams, {"fish_model": MEASURED_DATA_FISH}), None
+        return ds, measured_data_plant(), None
     data = read_toml(scenario_file)
     if set(data) <= {"plant"}:  # laid over the plant measured data are replayed with
         plant = data.get("plant", {})

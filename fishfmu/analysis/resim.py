@@ -54,10 +54,10 @@ drop statistics change), and the benchmark has not been re-measured: so the anal
 measured with, and what they hand over (``calibrated.toml``, ``fragment.toml``) names it."""
 
 
-def measured_data_plant(plant: dict | None = None) -> PlantParams:
-    """The plant measured runs are replayed with: the paper's fish (:data:`MEASURED_DATA_FISH`), with ``plant`` (a
-    scenario's ``[plant]`` tables, e.g. a ``calibrated.toml``) laid over it."""
-    return PlantParams.model_validate({"fish_model": MEASURED_DATA_FISH, **(plant or {})})
+def measured_data_plant() -> PlantParams:
+    """The plant measured runs are replayed with when no scenario is given: the paper's fish
+    (:data:`MEASURED_DATA_FISH`); a scenario or a ``calibrated.toml`` is laid over it (``fishfmu.commands``)."""
+    return PlantParams(fish_model=MEASURED_DATA_FISH)
 
 
 def fish_model_lines(params: PlantParams) -> str:

@@ -78,10 +78,17 @@ async def plc(url: str, speeds: list[float] | None, startup_delay_s: float = 1.0
     except (ua.UaError, OSError, asyncio.TimeoutError):
         pass  # the server stopped between two reads: the run is over
     finally:
+        # the server may be gone already (its run ended, or a Ctrl-C reached it first): asyncua then logs the failed
+        # close_session with a traceback before going on, which is no failure of the benchmark
+        quiet = logging.getLogger("asyncua")
+        level = quiet.level
+        quiet.setLevel(logging.CRITICAL)
         try:
             await client.disconnect()
-        except Exception:  # noqa: BLE001 - the server may be gone already
+        except Exception:  # noqa: BLE001 - the same, raised instead of logged
             pass
+        finally:
+            quiet.setLevel(level)
     return scans
 
 
