@@ -119,7 +119,25 @@ def test_one_take_up_law_at_every_transfer_is_the_models_own_a_transfer_off_it_a
                                        * (local["conveyor_id"] == "c3"))}
     found = scan(local, np.random.default_rng(0), set(), ALPHA)
     assert {f.location_id for f in found.findings} == {"c3"}
-    assert {f.covariate_key for f in found.findings} <= {"speed_step_mps", "belt_speed_mps"}
+    assert {f.covariate_key for f in found.findings} <= {"speed_step_mps", "belt_speed_mps", "transfer"}
+
+
+def test_a_level_of_its_own_at_one_transfer_beyond_the_shared_take_up_law_is_a_finding_there():
+    # a slippery zone where fish land on c3: every fish there lags 2 cm more than the law every transfer shares
+    # (the independent simulator's line with a patch at a quarter of the belt's friction: 9 cm at c3 against 6 cm
+    # at c4, whose step is larger; docs/diagnosis.md). Each transfer's own level beside the law would take it up
+    rows = _transfers(np.random.default_rng(4), take_up_s2pm=0.3)["transfers"]
+    zone = {"transfers": rows.assign(lag_m=rows["lag_m"] + 0.02 * (rows["conveyor_id"] == "c3"))}
+    found = scan(zone, np.random.default_rng(0), set(), ALPHA)
+    assert [(f.covariate_key, f.location_id) for f in found.findings] == [("transfer", "c3")]
+    f = found.findings[0]
+    assert f.test.slope == pytest.approx(0.02, abs=0.004)  # c3's level less the others'
+    # a named cause that acts on the transfers stands for their levels (its own term): no level test beside it
+    assert not scan(zone, np.random.default_rng(0), {("transfers", "hours_post_mortem")}, ALPHA).findings
+    assert "beyond the take-up law every transfer shares" in f.text
+    # the law alone at every transfer, or a level shared by all of them: nothing
+    shared = {"transfers": rows.assign(lag_m=rows["lag_m"] + 0.02)}
+    assert not scan(shared, np.random.default_rng(0), set(), ALPHA).findings
 
 
 def test_the_take_up_law_is_reported_once_with_what_it_makes_at_each_transfer():

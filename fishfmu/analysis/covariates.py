@@ -177,6 +177,17 @@ def _explained(d: Design, shapes: np.ndarray) -> float:
     return best
 
 
+def each_shape_alone(d: Design) -> list[tuple[float, float]]:
+    """Per shape, fitted alone beside the nuisance on all rows: (share of the constant model's error it removes, its
+    coefficient); where several shapes stand for places, how well each place would do in the chosen one's stead."""
+    y = _centre(d.y, d.group) if d.within else d.y.astype(float)
+    s = _centre(d.shapes, d.group) if d.within else d.shapes
+    nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
+    ones = np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1))
+    return [(_explained(d, d.shapes[:, [k]]),
+             float(_lstsq(np.column_stack([ones, nu, s[:, k]]), y)[-1])) for k in range(d.shapes.shape[1])]
+
+
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
     """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
     among the rows of a stratum, a run's values at each stratum (a transfer) between runs."""

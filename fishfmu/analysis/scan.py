@@ -32,7 +32,8 @@ import pandas as pd
 
 from plant.contract.measured import Dataset
 
-from fishfmu.analysis.covariates import CovariateTest, Design, bump_shapes, covariate_test, log_hours_shapes, robust
+from fishfmu.analysis.covariates import (CovariateTest, Design, bump_shapes, covariate_test, each_shape_alone,
+                                         log_hours_shapes, robust)
 from fishfmu.analysis.residuals import RunResiduals, alone
 
 FIRST_PERMUTATIONS = 199
@@ -72,7 +73,8 @@ class Covariate:
     varies: str
     """``runs``: one value per run (hours of a batch, a belt's speed): shuffled between runs, one level for all;
     ``fish``: varies among the rows of a run: shuffled within runs, each run its own level; ``time``: a time series
-    within a run (a belt's load): shifted in time."""
+    within a run (a belt's load): shifted in time; ``location``: where the quantity is read (a transfer's own level,
+    :func:`_level_design`)."""
 
 
 def _linear(name: str) -> Callable[[np.ndarray], tuple[np.ndarray, list[str]]]:
@@ -104,6 +106,9 @@ COVARIATES: dict[str, Covariate] = {c.key: c for c in (
     Covariate("load_kg", "the mass on the belt", "load_kg", _linear("load [kg]"), "time"),
     Covariate("touching", "contact (between the fish of a pair; with a guide)", "touching",
               _linear("touching (1) or not (0)"), "fish"),
+    # not a property of a fish or a run: where it is read (shapes made in _level_design)
+    Covariate("transfer", "the transfer itself, beyond the take-up law every transfer shares", "conveyor_id",
+              _linear("transfer"), "location"),
 )}
 
 TAKE_UP = ("speed_step_mps", "speed_step_sq_m2ps2")
@@ -154,19 +159,29 @@ class Finding:
     runs: list[str]
     """The runs that show it most (the largest held-out gain of the term)."""
     table: str = ""
+    or_at: dict[str, float] = field(default_factory=dict)
+    """A transfer's own level: the other transfers whose own level explains the lags about as well (their level),
+    where the shared law cannot tell which one departs from it (:func:`_rival_levels`)."""
 
     def as_dict(self) -> dict:
         t = self.test
         return {"quantity": self.quantity, "location": {"kind": self.location_kind, "id": self.location_id},
                 "covariate": self.covariate, "covariate_key": self.covariate_key, "shape": t.shape,
                 "slope": t.slope, "effect": t.effect, "unit": self.unit, "p_value": t.p_value,
-                "heldout_gain": t.heldout_gain, "heldout_gain_ci95": list(t.heldout_gain_ci95), "runs": self.runs}
+                "heldout_gain": t.heldout_gain, "heldout_gain_ci95": list(t.heldout_gain_ci95), "runs": self.runs,
+                "or_at": self.or_at}
 
     @property
     def text(self) -> str:
         t = self.test
         unit = f" {self.unit}" if self.unit else ""
         where = "every " + self.location_kind if self.location_id == "all" else f"{self.location_kind} {self.location_id}"
+        if self.covariate_key == "transfer":
+            rivals = ", ".join(f"{at} {level:+.3g}{unit}" for at, level in self.or_at.items())
+            rivals = f" (or {rivals}: the shared law cannot tell which departs from it)" if rivals else ""
+            return (f"{self.quantity} at {where}: {t.slope:+.3g}{unit} beyond the take-up law every transfer shares"
+                    f"{rivals}, p = {t.p_value:.4f}, held-out gain {t.heldout_gain:.1%}; shown most by "
+                    f"{', '.join(self.runs) or 'no single run'}")
         return (f"{self.quantity} at {where} follows {self.covariate} ({t.shape}): "
                 f"{t.effect:.3g}{unit} over the data's range (slope {t.slope:+.3g}), p = {t.p_value:.4f}, held-out "
                 f"gain {t.heldout_gain:.1%}; shown most by {', '.join(self.runs) or 'no single run'}")
@@ -261,7 +276,52 @@ def is_base_mismatch(q: Quantity, covariate_key: str, location_id: str) -> bool:
     return q.against_model and location_id == "all" and covariate_key in (*GIVEN_COVARIATES, *GIVEN_TO_RUNS)
 
 
+def _level_design(q: Quantity, t: pd.DataFrame) -> tuple[Design, str] | None:
+    """A level of its own at one transfer, beyond the take-up law every transfer shares (a slippery zone where fish
+    land on a belt: each fish slides longer there, by about ``dv^2 / (2 g)`` times the change in ``1 / mu``).
+
+    The other tests give every location its own level, so that what the model gets wrong alike at every transfer
+    is no finding; a level at one transfer would then never be one. Here the law (the speed step, its square and the
+    heading; each run its own level) is one for all transfers, and each transfer's own level is offered beside it:
+    its transfer labels are shuffled among a run's rows. The steps differ from run to run (each run's setpoints), so
+    a level that the law's shape would take up at the transfers' mean steps is told from it by the runs' steps.
+    With fewer than three transfers the law is not pinned by the others: no test."""
+    law = [c for c in q.shared if c in t.columns]
+    if not set(TAKE_UP) <= set(law):
+        return None
+    t = t.dropna(subset=[q.column, *law])
+    loc = t[q.location_column].astype(str).to_numpy()
+    places = np.unique(loc)
+    if len(places) < 3 or len(t) < 8 or t["run_id"].nunique() < 3:
+        return None
+    y = t[q.column].to_numpy(float).copy()
+    for v in places:
+        y[loc == v] = robust(y[loc == v])
+    shapes = np.column_stack([(loc == v).astype(float) for v in places])
+    # one-sided: fish held back at one transfer (lag = model minus measured, above the law). What wears at a landing
+    # (a polished or slimed belt, a sagging transfer) holds fish back; nothing on a line makes one transfer grip
+    # better with use. And the base model's own mismatch has the first transfer's fish ahead of the law (below)
+    d = Design(y, t["run_id"].astype(str).to_numpy(), shapes, [f"a level of its own at {v}" for v in places],
+               t[law].to_numpy(float), within=True, sign=+1, min_effect=q.min_effect)
+    return d, "within"
+
+
+RIVAL_SHARE = 0.8
+"""Another transfer's own level that explains at least this share of what the chosen one does is named beside it."""
+
+
+def _rival_levels(d: Design, chosen: str) -> dict[str, float]:
+    """The transfers other than ``chosen`` whose own level explains the lags nearly as well (each alone beside the
+    law, fitted on all runs), with that level: with three transfers a law of two terms bent by one transfer's level
+    fits one of its neighbours' levels of the other sign almost as well (a slippery landing on c3 reads as c2 low)."""
+    fits = {name.rsplit(" at ", 1)[-1]: fit for name, fit in zip(d.shape_names, each_shape_alone(d))}
+    best = fits[chosen][0]
+    return {at: level for at, (share, level) in fits.items() if at != chosen and share >= RIVAL_SHARE * best}
+
+
 def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple[Design, str] | None:
+    if cov.varies == "location":
+        return _level_design(q, t) if pooled else None
     # the base model's shared law beside the term: a covariate in its take-up part is tested at each location beyond
     # it; the heading is tested without it (everywhere alike it is the mismatch itself, reported as such)
     in_law = cov.column in q.shared and cov.column in TAKE_UP
@@ -341,9 +401,13 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         for cov in COVARIATES.values():
             if (q.table, cov.key) in explained or cov.column not in t.columns or cov.column in q.nuisance:
                 continue
+            if cov.varies == "location" and any(table == q.table for table, _ in explained):
+                continue  # a named cause acting on this quantity moves its levels too: its own term stands for them
             made = _design(q, cov, t, pooled=True)
             if made is not None:
                 plans.append((q, cov, t, *made))
+    # the transfers' own levels last: every other test draws the shuffles it drew before that test was added
+    plans.sort(key=lambda plan: plan[1].varies == "location")
     threshold = alpha / max(len(plans), 1)
     tests, findings, mismatch = [], [], []
     for q, cov, t, d, shuffle in plans:
@@ -353,7 +417,12 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
             continue
         place = _place(test.shape, t[q.location_column])
         shown = sorted(((g, r) for r, g in test.gain_by_run.items() if g > 0), reverse=True)[:3]
-        f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table)
+        f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table,
+                    _rival_levels(d, place) if cov.varies == "location" else {})
         (mismatch if is_base_mismatch(q, cov.key, place) else findings).append(f)
+    # a transfer's own level where the quantity also follows a covariate there: that dependence's mean, said once
+    # by the dependence, which says more
+    followed = {(f.table, f.location_id) for f in findings if f.covariate_key != "transfer"}
+    findings = [f for f in findings if f.covariate_key != "transfer" or (f.table, f.location_id) not in followed]
     findings.sort(key=lambda f: (f.test.p_value, -f.test.heldout_gain))
     return Scan(findings, tests, threshold, mismatch, tables)
