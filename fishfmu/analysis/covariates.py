@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import stats
 
 from fishfmu.analysis.fitting import heldout_score
 
@@ -190,7 +191,8 @@ def each_shape_alone(d: Design) -> list[tuple[float, float]]:
 
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
     """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
-    among the rows of a stratum, a run's values at each stratum (a transfer) between runs."""
+    among the rows of a stratum, a run's values at each stratum (a transfer) between runs, the strata (transfers) of a
+    run among themselves."""
     groups = np.unique(d.group)
     if shuffle == "between":
         perm = rng.permutation(len(groups))
@@ -200,7 +202,7 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         for g, h in zip(groups, groups[perm]):
             out[d.group == g] = d.shapes[first[h]]
         return out
-    if shuffle in ("strata", "runs") and d.strata is None:
+    if shuffle in ("strata", "runs", "places") and d.strata is None:
         raise ValueError(f"the {shuffle} shuffle needs the design's strata")
     if shuffle == "runs":  # each run takes another run's values, stratum by stratum (a run's value at a transfer)
         perm = dict(zip(groups, groups[rng.permutation(len(groups))]))
@@ -212,6 +214,13 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
             j = first.get((perm[g], s))
             if j is not None:  # a run without rows at that stratum lends nothing there
                 out[i] = d.shapes[j]
+        return out
+    if shuffle == "places":  # within each run its strata (places) take each other's values: a place's own level
+        out = np.zeros_like(d.shapes)
+        for g in groups:
+            rows = np.flatnonzero(d.group == g)
+            own, first, which = np.unique(d.strata[rows], return_index=True, return_inverse=True)
+            out[rows] = d.shapes[rows[first[rng.permutation(len(own))]]][which]
         return out
     if shuffle in ("rows", "strata"):  # each row takes another row's covariate (of its stratum): no run-level effect
         if d.strata is None:
@@ -257,6 +266,42 @@ def covariate_test(candidate: str, quantity: str, covariate: str, d: Design, shu
     out.min_effect = d.min_effect
     return out
 
+
+
+def run_clustered_test(candidate: str, quantity: str, covariate: str, d: Design, rng: np.random.Generator
+                       ) -> CovariateTest:
+    """The term's coefficient against its spread between runs (each run left out in turn: the jackknife's standard
+    error), its p-value from Student's t with one fewer degrees of freedom than runs, times the number of shapes
+    offered (the best one is taken). For a term a shuffle cannot judge at a scan's threshold: one level at one of
+    three places, each run's places swapped among themselves, has at least ``3 x 3^-runs`` of its shuffles give the
+    observed split again (5e-4 with eight runs). The held-out gain is :func:`covariate_test`'s."""
+    out = covariate_test(candidate, quantity, covariate, d, "places" if d.strata is not None else "within", rng,
+                         permutations=0)
+    if not out.judged:
+        return out
+    groups = np.unique(d.group)
+    y = _centre(d.y, d.group) if d.within else d.y.astype(float)
+    s = _centre(d.shapes, d.group) if d.within else d.shapes
+    nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
+    ones = np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1))
+    best = (-np.inf, 0, 0.0)
+    for k in range(s.shape[1]):
+        x = np.column_stack([ones, nu, s[:, k]])
+        b = float(_lstsq(x, y)[-1])
+        left = np.array([_lstsq(x[d.group != g], y[d.group != g])[-1] for g in groups])
+        se = float(np.sqrt((len(groups) - 1) / len(groups) * np.sum((left - left.mean()) ** 2)))
+        t = b / se if se > 0 else (np.inf if b else 0.0)
+        t = t if d.sign == 0 else d.sign * t
+        t = abs(t) if d.sign == 0 else t
+        if t > best[0]:
+            best = (t, k, b)
+    t, k, b = best
+    one_sided = stats.t.sf(t, len(groups) - 1)
+    out.p_value = float(min(1.0, s.shape[1] * (one_sided if d.sign else 2.0 * one_sided)))
+    out.shape, out.slope = d.shape_names[k], b
+    out.effect = abs(b) * float(np.ptp(d.shapes[:, k]))
+    out.explained = each_shape_alone(d)[k][0]
+    return out
 
 
 # ------------------------------------------------------------------------------------------------- shapes and responses

@@ -33,7 +33,7 @@ import pandas as pd
 from plant.contract.measured import Dataset
 
 from fishfmu.analysis.covariates import (CovariateTest, Design, bump_shapes, covariate_test, each_shape_alone,
-                                         log_hours_shapes, robust)
+                                         log_hours_shapes, robust, run_clustered_test)
 from fishfmu.analysis.residuals import RunResiduals, alone
 
 FIRST_PERMUTATIONS = 199
@@ -282,10 +282,13 @@ def _level_design(q: Quantity, t: pd.DataFrame) -> tuple[Design, str] | None:
 
     The other tests give every location its own level, so that what the model gets wrong alike at every transfer
     is no finding; a level at one transfer would then never be one. Here the law (the speed step, its square and the
-    heading; each run its own level) is one for all transfers, and each transfer's own level is offered beside it:
-    its transfer labels are shuffled among a run's rows. The steps differ from run to run (each run's setpoints), so
-    a level that the law's shape would take up at the transfers' mean steps is told from it by the runs' steps.
-    With fewer than three transfers the law is not pinned by the others: no test."""
+    heading; each run its own level) is one for all transfers, and each transfer's own level is offered beside it.
+    Under the null no transfer is special: within each run its transfers take each other's labels (all the fish of
+    a run at a transfer share its step and whatever the law misses there, so shuffling fish among transfers would
+    count them as independent evidence: on a dataset with a latency and nothing at the transfers it gave c4 at
+    p 0.0002, the transfers' shuffle p 0.15). The steps differ from run to run (each run's setpoints), so a level
+    that the law's shape would take up at the transfers' mean steps is told from it by the runs' steps. With fewer
+    than three transfers the law is not pinned by the others: no test."""
     law = [c for c in q.shared if c in t.columns]
     if not set(TAKE_UP) <= set(law):
         return None
@@ -302,8 +305,8 @@ def _level_design(q: Quantity, t: pd.DataFrame) -> tuple[Design, str] | None:
     # (a polished or slimed belt, a sagging transfer) holds fish back; nothing on a line makes one transfer grip
     # better with use. And the base model's own mismatch has the first transfer's fish ahead of the law (below)
     d = Design(y, t["run_id"].astype(str).to_numpy(), shapes, [f"a level of its own at {v}" for v in places],
-               t[law].to_numpy(float), within=True, sign=+1, min_effect=q.min_effect)
-    return d, "within"
+               t[law].to_numpy(float), within=True, sign=+1, min_effect=q.min_effect, strata=loc)
+    return d, "places"
 
 
 RIVAL_SHARE = 0.8
@@ -411,7 +414,8 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
     threshold = alpha / max(len(plans), 1)
     tests, findings, mismatch = [], [], []
     for q, cov, t, d, shuffle in plans:
-        test = _test(f"scan:{q.table}~{cov.key}", q, cov, d, shuffle, rng, deciding=True)
+        test = (run_clustered_test(f"scan:{q.table}~{cov.key}", q.text, cov.text, d, rng) if cov.varies == "location"
+                else _test(f"scan:{q.table}~{cov.key}", q, cov, d, shuffle, rng, deciding=True))
         tests.append((q, "all", cov.key, test))
         if not (test.judged and test.p_value <= threshold and test.heldout_gain > 0.0 and test.effect >= test.min_effect):
             continue
