@@ -191,8 +191,7 @@ def each_shape_alone(d: Design) -> list[tuple[float, float]]:
 
 def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
     """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
-    among the rows of a stratum, a run's values at each stratum (a transfer) between runs, the strata (transfers) of a
-    run among themselves."""
+    among the rows of a stratum, a run's values at each stratum (a transfer) between runs."""
     groups = np.unique(d.group)
     if shuffle == "between":
         perm = rng.permutation(len(groups))
@@ -202,7 +201,7 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
         for g, h in zip(groups, groups[perm]):
             out[d.group == g] = d.shapes[first[h]]
         return out
-    if shuffle in ("strata", "runs", "places") and d.strata is None:
+    if shuffle in ("strata", "runs") and d.strata is None:
         raise ValueError(f"the {shuffle} shuffle needs the design's strata")
     if shuffle == "runs":  # each run takes another run's values, stratum by stratum (a run's value at a transfer)
         perm = dict(zip(groups, groups[rng.permutation(len(groups))]))
@@ -214,13 +213,6 @@ def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
             j = first.get((perm[g], s))
             if j is not None:  # a run without rows at that stratum lends nothing there
                 out[i] = d.shapes[j]
-        return out
-    if shuffle == "places":  # within each run its strata (places) take each other's values: a place's own level
-        out = np.zeros_like(d.shapes)
-        for g in groups:
-            rows = np.flatnonzero(d.group == g)
-            own, first, which = np.unique(d.strata[rows], return_index=True, return_inverse=True)
-            out[rows] = d.shapes[rows[first[rng.permutation(len(own))]]][which]
         return out
     if shuffle in ("rows", "strata"):  # each row takes another row's covariate (of its stratum): no run-level effect
         if d.strata is None:
@@ -275,8 +267,7 @@ def run_clustered_test(candidate: str, quantity: str, covariate: str, d: Design,
     offered (the best one is taken). For a term a shuffle cannot judge at a scan's threshold: one level at one of
     three places, each run's places swapped among themselves, has at least ``3 x 3^-runs`` of its shuffles give the
     observed split again (5e-4 with eight runs). The held-out gain is :func:`covariate_test`'s."""
-    out = covariate_test(candidate, quantity, covariate, d, "places" if d.strata is not None else "within", rng,
-                         permutations=0)
+    out = covariate_test(candidate, quantity, covariate, d, "within", rng, permutations=0)  # its held-out gain
     if not out.judged:
         return out
     groups = np.unique(d.group)

@@ -283,10 +283,10 @@ def _level_design(q: Quantity, t: pd.DataFrame) -> tuple[Design, str] | None:
     The other tests give every location its own level, so that what the model gets wrong alike at every transfer
     is no finding; a level at one transfer would then never be one. Here the law (the speed step, its square and the
     heading; each run its own level) is one for all transfers, and each transfer's own level is offered beside it.
-    Under the null no transfer is special: within each run its transfers take each other's labels (all the fish of
-    a run at a transfer share its step and whatever the law misses there, so shuffling fish among transfers would
-    count them as independent evidence: on a dataset with a latency and nothing at the transfers it gave c4 at
-    p 0.0002, the transfers' shuffle p 0.15). The steps differ from run to run (each run's setpoints), so a level
+    It is judged by the level's spread between runs (:func:`~fishfmu.analysis.covariates.run_clustered_test`): all
+    the fish of a run at a transfer share its step and whatever the law misses there, so shuffling fish among
+    transfers would count them as independent evidence (on a dataset with a latency and nothing at the transfers it
+    gave c4 at p 0.0002). The steps differ from run to run (each run's setpoints), so a level
     that the law's shape would take up at the transfers' mean steps is told from it by the runs' steps. With fewer
     than three transfers the law is not pinned by the others: no test."""
     law = [c for c in q.shared if c in t.columns]
@@ -305,8 +305,8 @@ def _level_design(q: Quantity, t: pd.DataFrame) -> tuple[Design, str] | None:
     # (a polished or slimed belt, a sagging transfer) holds fish back; nothing on a line makes one transfer grip
     # better with use. And the base model's own mismatch has the first transfer's fish ahead of the law (below)
     d = Design(y, t["run_id"].astype(str).to_numpy(), shapes, [f"a level of its own at {v}" for v in places],
-               t[law].to_numpy(float), within=True, sign=+1, min_effect=q.min_effect, strata=loc)
-    return d, "places"
+               t[law].to_numpy(float), within=True, sign=+1, min_effect=q.min_effect)
+    return d, "within"  # judged by run_clustered_test, not by a shuffle
 
 
 RIVAL_SHARE = 0.8
