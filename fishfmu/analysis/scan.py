@@ -316,7 +316,7 @@ RIVAL_SHARE = 0.8
 def _rival_levels(d: Design, chosen: str) -> dict[str, float]:
     """The transfers other than ``chosen`` whose own level explains the lags nearly as well (each alone beside the
     law, fitted on all runs), with that level: with three transfers a law of two terms bent by one transfer's level
-    fits one of its neighbours' levels of the other sign almost as well (a slippery landing on c3 reads as c2 low)."""
+    can fit a neighbour's level almost as well (two-sided, a slippery landing on c3 read as c2 ahead)."""
     fits = {name.rsplit(" at ", 1)[-1]: fit for name, fit in zip(d.shape_names, each_shape_alone(d))}
     best = fits[chosen][0]
     return {at: level for at, (share, level) in fits.items() if at != chosen and share >= RIVAL_SHARE * best}
