@@ -6,9 +6,12 @@ level off and at a friction level of 1.4; the expected numbers are worked out in
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
+from fishfmu.analysis.candidates import CANDIDATES
 from fishfmu.analysis.levels import DROP, LAG, MODELS, PASSAGE, fit_model, responses
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES, PASSAGE_RESIDUAL_DTYPES,
                                         RunResiduals, typed_frame)
@@ -120,3 +123,36 @@ def test_drop_rows_count_between_runs_only_and_weigh_by_their_scatter_within_a_r
     # r1 at 1.4 and r2 at 1: r1 (0.02, 0.04), r2 (0.01, 0.03), less their mean 0.025: the runs' means 0.01 m apart
     # instead of 0.03
     assert resp.residuals({"friction": np.array([1.4, 1.0])}) == pytest.approx([-0.005, 0.015, -0.015, 0.005])
+
+
+def beam(run_id: str, measured: float, simulated: float) -> RunResiduals:
+    """A run seen by one beam only: the mean blocked share of its passages of fish alone, measured and simulated;
+    one lag row that no level changes."""
+    r = residuals(run_id, [0.0], simulated - measured)
+    r.passages["blocked_measured"], r.passages["blocked_simulated"] = measured, simulated
+    return r
+
+
+def test_rigor_held_out_runs_are_shown_measured_base_and_extended_as_the_beam_sees_them():
+    # Four runs at 1, 24, 26 and 72 h. Measured: the beam blocked 0.9 of a passage by limp fish, 0.7 by the stiff
+    # ones of 24 and 26 h (they flicker it). Our limp fish block 0.8 at every age; joints x21 stiffer (level 20)
+    # block 0.6. A beam's offset (how it sees our outline) is its mean over the runs, so the base model, limp at
+    # every age, is 0.8 everywhere. Each run held out, the others choose rigor x21 at its peak at 24 h, 10 h wide:
+    # index at 1, 24, 26, 72 h = 0.00504, 1, 0.96079, 0; level 20 x index, interpolated in log(1 + level) between 0
+    # and 20: changes -0.2 x (0.09607, 3.04452, 3.00647, 0) / 3.04452 = (-0.00631, -0.2, -0.19750, 0). Residuals
+    # (-0.1, 0.1, 0.1, -0.1) plus these, less their mean (-0.10095): (-0.00536, 0.00095, 0.00345, 0.00095), and the
+    # extended model is the measured share plus them.
+    hours = {"a01": 1.0, "a24": 24.0, "a26": 26.0, "a72": 72.0}
+    measured = {"a01": 0.9, "a24": 0.7, "a26": 0.7, "a72": 0.9}
+    off = {r: beam(r, measured[r], 0.8) for r in hours}
+    stiff = {r: beam(r, measured[r], 0.6) for r in hours}
+    resp = responses(off, {("friction", 1.4): off, ("rigor", 20.0): stiff}, hours)  # friction changes nothing here
+    cand = CANDIDATES["rigor_mortis"]
+    cal = SimpleNamespace(responses=resp, baseline=list(off.values()))
+    fit = cand.fit(cand, SimpleNamespace(cal=cal, rng=np.random.default_rng(0)))
+    t = fit.side_by_side.set_index("run_id")
+    assert list(t.index) == ["a01", "a24", "a26", "a72"] and list(t["covariate"]) == [1.0, 24.0, 26.0, 72.0]
+    assert list(t["measured"]) == pytest.approx([0.9, 0.7, 0.7, 0.9])
+    assert list(t["base"]) == pytest.approx([0.8] * 4)
+    assert list(t["extended"]) == pytest.approx([0.89464, 0.70095, 0.70345, 0.90095], abs=1e-5)
+    assert fit.heldout_gain > 0.99  # what is left: the tail of the bump at 1 h and the interpolation at 26 h

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import html
+import textwrap
 from pathlib import Path
 
 import matplotlib
@@ -247,7 +248,7 @@ def side_by_side_figure(f: CandidateFit, path: Path) -> str:
     ax.plot(t["covariate"], t["measured"], "ko", label="measured")
     ax.plot(t["covariate"], t["base"], "s", color="0.6", label="base (calibrated)")
     ax.plot(t["covariate"], t["extended"], "^", color="tab:blue", label=f"extended with {f.name}")
-    ax.set(xlabel=t.attrs.get("covariate", "covariate"), ylabel=t.attrs.get("quantity", "quantity"))
+    ax.set(xlabel=t.attrs.get("covariate", "covariate"), ylabel=textwrap.fill(t.attrs.get("quantity", "quantity"), 36))
     if (t["covariate"] > 0).all() and t["covariate"].max() > 10 * t["covariate"].min():
         ax.set_xscale("log")
     ax.set_title(f"each run held out: {f.name}", fontsize=10)

@@ -24,7 +24,7 @@ from plant.contract.measured import Dataset
 
 from fishfmu.analysis.calibrate import Calibration
 from fishfmu.analysis.fitting import HeldOut, folds, heldout_score, vertex
-from fishfmu.analysis.levels import MODELS, fit_model
+from fishfmu.analysis.levels import MODELS, PASSAGE, Responses, fit_model
 from fishfmu.analysis.residuals import RunResiduals, pair_residuals, residuals_of
 from fishfmu.analysis.resim import resimulate_many
 
@@ -125,8 +125,39 @@ def fit_levels(cand, ctx: FitContext) -> CandidateFit:
                                   "over its noise)",
                        at_grid_end=grid_ends(model.values, dict(zip(MODELS[cand.level_model].parameters,
                                                                     MODELS[cand.level_model].grids(on)))))
+    fit.side_by_side = _passages_side_by_side(MODELS[cand.level_model], model, reference, on, ctx.cal)
     return fit.score(heldout_score(on.runs, reference.cv_ss - model.cv_ss, reference.cv_ss,
                                    int(np.count_nonzero(on.row_weight)), ctx.rng))
+
+
+def _passages_side_by_side(level_model, model, reference, on: Responses, cal: Calibration) -> pd.DataFrame | None:
+    """Each run held out, as a beam sees it: the mean blocked share of its passages of fish alone, measured, with
+    the base (the constant levels) and with the extended model, each chosen on the other runs.  A beam sees our
+    fish's outline with an offset of its own, taken out as the fit takes it out (the model's values are measured
+    plus the model's residual less its beam's mean over the runs).  None where no passage rows are judged."""
+    rows = (on.row_kind == PASSAGE) & (on.row_weight > 0)
+    if not rows.any():
+        return None
+    measured = {r.run_id: float(r.passages["blocked_measured"][np.isfinite(r.passages["dblocked"])].mean())
+                for r in cal.baseline if len(r.passages)}
+    ref_model = MODELS["constant"]
+    side = []
+    for j, run in enumerate(on.runs):
+        mine = rows & (on.row_run == j)
+        if not mine.any() or run not in measured:
+            continue
+        error = {}
+        for label, lm, fitted in (("base", ref_model, reference), ("extended", level_model, model)):
+            values = fitted.cv_values[j]
+            error[label] = float(on.residuals(lm.levels(on.hours, *(values[p] for p in lm.parameters)))[mine].mean())
+        side.append({"run_id": run, "covariate": float(on.hours[j]), "measured": measured[run],
+                     "base": measured[run] + error["base"], "extended": measured[run] + error["extended"]})
+    if not side:
+        return None
+    out = pd.DataFrame(side).sort_values("covariate", kind="stable").reset_index(drop=True)
+    out.attrs.update(covariate="hours post mortem",
+                     quantity="blocked share of photo-eye passages of fish alone (mean over the run's beams)")
+    return out
 
 
 # ------------------------------------------------------------------------------------- a grid of simulations

@@ -111,10 +111,14 @@ class Level:
 
 FRICTION = Level("friction", 1.0, (0.4, 1.4), (0.2, 3.0), np.log, _friction_level)
 """Multiplier of fish-belt and fish-guide friction (what mucus changes)."""
-RIGOR = Level("rigor", 0.0, (5.0, 20.0), (0.0, 50.0), np.log1p, _rigor_level)
-"""Extra joint stiffness, x the soft one, with the range lost that goes with it (what rigor changes).  Two values
-above off, although its effect on lags and beams has mostly happened by x3: with one (x9) a strong rigor (x16,
-70 % of the range lost) was no longer found in the synthetic test, its runs' responses cut off at x9."""
+RIGOR = Level("rigor", 0.0, (1.0, 2.5, 20.0), (0.0, 50.0), np.log1p, _rigor_level)
+"""Extra joint stiffness, x the soft one, with the range lost that goes with it (what rigor changes).  Our fish's
+response bends early: a beam's blocked share and the lags move by x2 and have moved all they will by x3.5 (most
+joints then stiff at their limit stiffness, which the explicit step sets; only the range lost still changes).  So
+the values simulated sample the bend (x2, x3.5) and the far end (x21): with 5 and 20 alone a run at x2 was
+interpolated at a third of its change, and rigor's fits straddled zero on held-out runs.  With one value at x9 a
+strong rigor (x16, 70 % of the range lost) was no longer found in the synthetic test, its runs' responses cut off
+at x9."""
 LEVELS = {lv.name: lv for lv in (FRICTION, RIGOR)}
 
 
@@ -367,6 +371,8 @@ class ModelFit:
     """Per run: sum of squares with the values fitted on all runs."""
     cv_ss: np.ndarray
     """Per run: sum of squares with the values fitted on the other runs."""
+    cv_values: list[dict[str, float]] = field(default_factory=list)
+    """Per run: the values fitted on the other runs (what the run is predicted with when held out)."""
 
 
 def _table(model: LevelModel, resp: Responses, fixed: dict[str, float] | None = None
@@ -385,15 +391,18 @@ def fit_model(model: LevelModel, resp: Responses, rng: np.random.Generator, n_bo
     combos, ss = _table(model, resp, fixed)
     n = len(resp.runs)
     best = int(np.argmin(ss.sum(axis=1)))
-    cv = np.zeros(n)
+    cv, chosen = np.zeros(n), np.full(n, best)
     for j in range(n):  # leave one run out
         others = np.arange(n) != j
-        cv[j] = ss[int(np.argmin(ss[:, others].sum(axis=1))), j] if others.any() else ss[best, j]
+        if others.any():
+            chosen[j] = int(np.argmin(ss[:, others].sum(axis=1)))
+        cv[j] = ss[chosen[j], j]
     boot = np.array([combos[int(np.argmin(ss[:, rng.integers(0, n, n)].sum(axis=1)))] for _ in range(n_boot)])
     values = dict(zip(model.parameters, map(float, combos[best])))
     ci = {p: (float(np.percentile(boot[:, k], 2.5)), float(np.percentile(boot[:, k], 97.5)))
           for k, p in enumerate(model.parameters)}
-    return ModelFit(model.name, values, ci, ss[best], cv)
+    return ModelFit(model.name, values, ci, ss[best], cv,
+                    [dict(zip(model.parameters, map(float, combos[c]))) for c in chosen])
 
 
 def gain_over(reference: ModelFit, fit: ModelFit, rng: np.random.Generator) -> tuple[float, tuple[float, float]]:
