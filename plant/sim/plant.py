@@ -263,18 +263,22 @@ class Plant:
         on = np.repeat(self.status[self._member] == ON_LINE, joints_per_fish := self.model.bodies_per_fish - 1)
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
                                                self._omega_local[b], on, self._comm_step_s, self._k_now, self._offset_now)
+        moved = np.flatnonzero(changed)
+        if not len(moved):  # no spring to rewrite
+            return
         mbs = self.model.mbs
-        new_k, new_offset = (k_new != self._k_now).any(axis=1), (off_new != self._offset_now).any(axis=1)
-        for j in np.flatnonzero(changed):
+        new_k = (k_new[moved] != self._k_now[moved]).any(axis=1)
+        new_offset = (off_new[moved] != self._offset_now[moved]).any(axis=1)
+        for i, j in enumerate(moved):
             conn = self.model.fish[j // joints_per_fish].connectors[j % joints_per_fish]
-            if new_k[j]:  # only what moved is written; the 6x6 matrix read once, only its rotations' block moves
+            if new_k[i]:  # only what moved is written; the 6x6 matrix read once, only its rotations' block moves
                 if (stiffness := self._joint_stiffness.get(conn)) is None:
                     stiffness = self._joint_stiffness[conn] = np.array(mbs.GetObjectParameter(conn, "stiffness"))
                 stiffness[3:, 3:] = np.diag(k_new[j])
                 mbs.SetObjectParameter(conn, "stiffness", stiffness)
-            if new_offset[j]:
+            if new_offset[i]:
                 mbs.SetObjectParameter(conn, "offset", [0.0, 0.0, 0.0, *off_new[j]])
-        self._k_now[changed], self._offset_now[changed] = k_new[changed], off_new[changed]
+        self._k_now[moved], self._offset_now[moved] = k_new[moved], off_new[moved]
 
     def _update_friction(self, speeds: np.ndarray) -> None:
         """Direction-dependent friction: each fish's friction material from the way it slips now."""
