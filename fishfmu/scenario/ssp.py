@@ -204,9 +204,7 @@ class _Source:
 
 
 def _parse(data: bytes, schema: str, path: Path, what: str) -> Any:
-    # fmpy's SSP module only where an SSP is read: its import costs 0.07 s of every fishfmu process
-    from fmpy.ssp.ssd import validate_tree
-
+    from fmpy.ssp.ssd import validate_tree  # only where an SSP is read: 15 ms of every fishfmu process otherwise
     parser = etree.XMLParser(resolve_entities=False, no_network=True)
     try:
         root = etree.fromstring(data, parser)
