@@ -113,38 +113,23 @@ def relinearized(laws: JointLaws, rot_a: np.ndarray, rot_b: np.ndarray, omega_a:
     ``omega_a``/``omega_b`` (J, 3)); ``active`` (J,) False for the joints of fish not on the line (parked).
     A joint well inside its limits (most of them) keeps the soft spring: the law is evaluated only for those
     near a limit now or by the end of the step; a spring is changed when its stiffness moves by more than
-    2 % or its offset by more than 0.005 rad.
-
-    Most joints are far inside their soft zone, and a bound tells them apart without their rotation vectors: no
-    component of a relative rotation exceeds its angle (from the trace of ``rot_a^T rot_b``), and a step turns it
-    by at most (|omega_a| + |omega_b|) ``dt_s``.  The law is worked out only for joints the bound does not clear
-    and for those whose spring is not the soft one now; the others keep (or are given back) the soft spring, as
-    the law itself gives them."""
-    soft_until = laws.limit_rad * (1.0 - laws.transition)
-    reach = soft_until.min(axis=1) - dt_s * (np.sqrt(np.einsum("ni,ni->n", omega_a, omega_a))
-                                             + np.sqrt(np.einsum("ni,ni->n", omega_b, omega_b))) - 1e-9
-    cos_angle = 0.5 * (np.einsum("nij,nij->n", rot_a, rot_b) - 1.0)  # the trace of rot_a^T rot_b
-    cleared = (reach > 0.0) & (cos_angle > np.cos(np.maximum(reach, 0.0)))
-    not_soft = ((np.abs(laws.k_soft - k_now) > 0.02 * k_now).any(axis=1) | (np.abs(offset_now) > 0.005).any(axis=1))
-    todo = np.flatnonzero((~cleared & active) | not_soft)
-    k_new = laws.k_soft.copy()
-    off_new = np.zeros_like(offset_now)
-    changed = np.zeros(len(k_now), dtype=bool)
-    if not len(todo):
-        return changed, k_new, off_new
-    rel = np.einsum("nji,njk->nik", rot_a[todo], rot_b[todo])
+    2 % or its offset by more than 0.005 rad."""
+    rel = np.einsum("nji,njk->nik", rot_a, rot_b)
     theta = matrix_to_rotvec(rel)
     # relative angular velocity in the frame of body a (node velocities are body-frame)
-    w_b_in_a = np.einsum("nij,nj->ni", rel, omega_b[todo])
-    theta_next = theta + (w_b_in_a - omega_a[todo]) * dt_s
-    near = ((np.abs(theta) > soft_until[todo]) | (np.abs(theta_next) > soft_until[todo])).any(axis=1)
-    near &= active[todo]
+    w_b_in_a = np.einsum("nij,nj->ni", rel, omega_b)
+    theta_next = theta + (w_b_in_a - omega_a) * dt_s
+    soft_until = laws.limit_rad * (1.0 - laws.transition)
+    near = ((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until)).any(axis=1)
+    near &= active
+    k_new = laws.k_soft.copy()
+    off_new = np.zeros_like(offset_now)
     if near.any():  # the array's own methods: np.any's dispatch costs more than the test on 4 joints a fish
-        j = todo[near]
-        sub = JointLaws(laws.limit_rad[j], laws.k_soft[j], laws.k_limit[j], laws.transition, laws.damping[j])
-        k_new[j], off_new[j] = linearize(sub, theta[near], theta_next[near])
-    changed[todo] = ((np.abs(k_new[todo] - k_now[todo]) > 0.02 * k_now[todo]).any(axis=1)
-                     | (np.abs(off_new[todo] - offset_now[todo]) > 0.005).any(axis=1))
+        sub = JointLaws(laws.limit_rad[near], laws.k_soft[near], laws.k_limit[near], laws.transition,
+                        laws.damping[near])
+        k_new[near], off_new[near] = linearize(sub, theta[near], theta_next[near])
+    changed = ((np.abs(k_new - k_now) > 0.02 * k_now).any(axis=1)
+               | (np.abs(off_new - offset_now) > 0.005).any(axis=1))
     return changed, k_new, off_new
 
 
