@@ -113,9 +113,9 @@ FRICTION = Level("friction", 1.0, (0.4, 1.4), (0.2, 3.0), np.log, _friction_leve
 """Multiplier of fish-belt and fish-guide friction (what mucus changes)."""
 RIGOR = Level("rigor", 0.0, (1.0, 2.5, 20.0), (0.0, 50.0), np.log1p, _rigor_level)
 """Extra joint stiffness, x the soft one, with the range lost that goes with it (what rigor changes).  Our fish's
-response bends early: measured with values up to x41 (the independent simulator's rigor_2 and rigor_4, distance of
-the rows, over their noise, from their value at x41), a beam's blocked share and the lags have made a third of
-their change by x2, 60-80 % by x3.5, 90 % by x6 and nearly all by x11 (a joint is no stiffer than its limit
+response bends early: measured with values up to x41 (eight datasets of the independent simulator, distance of the
+rows, over their noise, from their value at x41), a beam's blocked share and the lags have made a fifth to a third
+of their change by x2, 58-81 % by x3.5, 72-91 % by x6 and 93-98 % by x11 (a joint is no stiffer than its limit
 stiffness, which the explicit step sets: the paper's fish's joints reach it between x3 and x35).  So the values simulated sample the
 bend (x2, x3.5) and the far end (x21): with x6 and x21 alone a run at x2 was interpolated at a third of its change.
 With one value at x9 a strong rigor (x16, 70 % of the range lost) was no longer found in the synthetic test, its
