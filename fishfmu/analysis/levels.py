@@ -116,8 +116,9 @@ RIGOR = Level("rigor", 0.0, (1.0, 2.5, 20.0), (0.0, 50.0), np.log1p, _rigor_leve
 response bends early: measured with values up to x41 (eight datasets of the independent simulator, distance of the
 rows, over their noise, from their value at x41), a beam's blocked share and the lags have made a fifth to a third
 of their change by x2, 58-81 % by x3.5, 72-91 % by x6 and 93-98 % by x11 (a joint is no stiffer than its limit
-stiffness, which the explicit step sets: the paper's fish's joints reach it between x3 and x35).  So the values simulated sample the
-bend (x2, x3.5) and the far end (x21): with x6 and x21 alone a run at x2 was interpolated at a third of its change.
+stiffness, which the explicit step sets: the paper's fish's joints reach it between x3 and x35).  So the values
+simulated sample the bend (x2, x3.5) and the far end (x21): with x6 and x21 alone a run at x2 was interpolated at a
+third of its change.
 With one value at x9 a strong rigor (x16, 70 % of the range lost) was no longer found in the synthetic test, its
 runs' responses cut off at x9."""
 LEVELS = {lv.name: lv for lv in (FRICTION, RIGOR)}
