@@ -132,8 +132,14 @@ def test_a_level_of_its_own_at_one_transfer_beyond_the_shared_take_up_law_is_a_f
     assert [(f.covariate_key, f.location_id) for f in found.findings] == [("transfer", "c3")]
     f = found.findings[0]
     assert f.test.slope == pytest.approx(0.02, abs=0.004)  # c3's level less the others'
-    # a named cause that acts on the transfers stands for their levels (its own term): no level test beside it
-    assert not scan(zone, np.random.default_rng(0), {("transfers", "hours_post_mortem")}, ALPHA).findings
+    # a named cause that acts on the transfers moves their levels: no level test beside it on the base model's lags
+    named = {("transfers", "hours_post_mortem")}
+    assert not scan(zone, np.random.default_rng(0), named, ALPHA).findings
+    # on the lags of the model extended with that cause, its own term is in the model: the level is judged there
+    beside = scan(zone, np.random.default_rng(0), named, ALPHA, levels_beside_named=True)
+    assert [(f.covariate_key, f.location_id) for f in beside.findings] == [("transfer", "c3")]
+    level, = [r for r in beside.results() if r["covariate_key"] == "transfer"]  # kept in diagnosis.json, found or not
+    assert level["shape"] == "a level of its own at c3" and level["slope"] == pytest.approx(0.02, abs=0.004)
     assert "beyond the take-up law every transfer shares" in f.text
     # the law alone at every transfer, or a level shared by all of them: nothing
     shared = {"transfers": rows.assign(lag_m=rows["lag_m"] + 0.02)}

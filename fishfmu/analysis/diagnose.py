@@ -213,7 +213,7 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
         ext = _extended_context(ctx, confirmed).cal.after
         tables = scan_tables(dataset, judgement.rows, ext)
         explained = {pair for c in causes for pair in CANDIDATES[c].explains}
-        found = scan(tables, np.random.default_rng((seed, 41)), explained, ALPHA)
+        found = scan(tables, np.random.default_rng((seed, 41)), explained, ALPHA, levels_beside_named=True)
         timing["scan"] += time.perf_counter() - t1
     timing["total"] = time.perf_counter() - t0
     fragment = fish_model_lines(base) + _fragment(cal, base, fit) + "".join(_further_fragment(f, cal) for f in further)

@@ -140,7 +140,8 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "base_mismatch": {"transfers": d.mismatch, "take_up": d.take_up,
                           "dependences": [x.as_dict() for x in (d.scan.mismatch_findings if d.scan is not None else [])]},
         "fit_quality": d.quality,
-        "scan": ({"threshold": d.scan.threshold, "tests": len(d.scan.tests)} if d.scan is not None else None),
+        "scan": ({"threshold": d.scan.threshold, "tests": len(d.scan.tests), "results": d.scan.results()}
+                 if d.scan is not None else None),
         "decision": decision_text(d),
         "undecided": d.judgement.undecided,
         "candidates": [test_entry(t) for t in ranked],

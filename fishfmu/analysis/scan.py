@@ -199,6 +199,13 @@ class Scan:
     tables: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
     """What it read (:func:`scan_tables`), for plots."""
 
+    def results(self) -> list[dict]:
+        """Every test judged, found or not (``diagnosis.json`` ``scan.results``): what fell short of the threshold,
+        and by how much, is what the runs could not decide."""
+        return [{"quantity": q.table, "covariate_key": key, "shape": t.shape, "p_value": t.p_value,
+                 "heldout_gain": t.heldout_gain, "slope": t.slope, "effect": t.effect}
+                for q, _, key, t in self.tests if t.judged]
+
 
 # ------------------------------------------------------------------------------------------------- the tables
 
@@ -390,7 +397,7 @@ def _place(shape: str, locations: pd.Series) -> str:
 
 
 def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: set[tuple[str, str]],
-         alpha: float) -> Scan:
+         alpha: float, levels_beside_named: bool = False) -> Scan:
     """Every quantity, its locations pooled (each its own level), against every covariate its rows carry but the
     pairs a named cause explains (``explained``: (table, covariate key)); a finding: p-value at most ``alpha`` over
     the number of these tests, a positive held-out gain and an effect worth reporting.  Where it is: each location's
@@ -404,7 +411,7 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         for cov in COVARIATES.values():
             if (q.table, cov.key) in explained or cov.column not in t.columns or cov.column in q.nuisance:
                 continue
-            if cov.varies == "location" and any(table == q.table for table, _ in explained):
+            if cov.varies == "location" and not levels_beside_named and any(table == q.table for table, _ in explained):
                 continue  # a named cause acting on this quantity moves its levels too: its own term stands for them
             made = _design(q, cov, t, pooled=True)
             if made is not None:
