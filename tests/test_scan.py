@@ -74,6 +74,24 @@ def test_nothing_is_found_where_there_is_nothing():
     assert false == 0
 
 
+def test_the_belts_speed_is_judged_between_runs_not_as_if_every_fish_were_a_run():
+    # what a run's fish share at c4 (a batch's mean heading, its take-up that day: 2 cm between runs) lines up with the
+    # run's belt speed by chance in some draws of ten runs; shuffled among rows, each fish counts as evidence (draw 10
+    # of these: "c4 follows the belt's speed" with the rows shuffle, nothing between runs)
+    for seed in range(8, 12):
+        t = _transfers(np.random.default_rng(200 + seed))["transfers"]
+        run_offset = dict(zip(sorted(t["run_id"].unique()), np.random.default_rng(300 + seed).normal(0.0, 0.02, 10)))
+        at_c4 = t["conveyor_id"] == "c4"
+        noisy = {"transfers": t.assign(lag_m=t["lag_m"] + at_c4 * t["run_id"].map(run_offset))}
+        found = scan(noisy, np.random.default_rng(seed), set(), ALPHA)
+        assert not [f for f in found.findings if f.covariate_key == "belt_speed_mps"]
+    # a lag at c4 that does follow the run's belt speed (10 cm per m/s, 4 cm over the runs' speeds) is found there
+    t = _transfers(np.random.default_rng(200))["transfers"]
+    follows = {"transfers": t.assign(lag_m=t["lag_m"] + at_c4 * 0.1 * t["belt_speed_mps"])}
+    found = scan(follows, np.random.default_rng(0), set(), ALPHA)
+    assert ("belt_speed_mps", "c4") in {(f.covariate_key, f.location_id) for f in found.findings}
+
+
 def test_a_pair_a_named_cause_explains_is_left_out():
     tables = _transfers(np.random.default_rng(1), 3e-4)
     found = scan(tables, np.random.default_rng(0), {("transfers", "hours_post_mortem")}, ALPHA)
