@@ -218,3 +218,40 @@ def test_a_sensor_cause_fragment_is_the_photo_eyes_table_not_the_plants():
     text = CANDIDATES["photoeye_latency"].extended_fragment(_calibration(), PlantParams(), fit)
     assert text.startswith("# calibrated: nothing\n") and "latency_s = 0.04" in text
     assert tomllib.loads(text) == {}  # nothing set in the plant: the eyes' keys are commented for [[line.photoeyes]]
+
+
+def _pairs_of(run: str, bias: float, rng: np.random.Generator, n: int = 30, scatter: float = 0.8) -> pd.DataFrame:
+    """A run's touching pairs at a transfer whose belts would part them by 0.6 m: each simulated pair parts
+    ``bias`` of that more than measured on the whole, plus a scatter of its own (a pile's chaos, drawn anew for every
+    simulation)."""
+    return pd.DataFrame({"run_id": run, "leader": [f"a{i}" for i in range(n)], "follower": [f"b{i}" for i in range(n)],
+                         "conveyor_id": "c2", "t_s": 1.0, "separation_m": 0.3,
+                         "dsep_m": 0.6 * (bias + scatter * rng.standard_normal(n)), "parting_m": 0.6})
+
+
+def test_adhesion_is_scored_on_how_far_each_runs_pairs_part_not_pair_by_pair():
+    # Six runs of 30 touching pairs; the base model parts them by +0.4 of their belts' parting more than measured,
+    # a force of 2 N as measured, 6 N by 0.4 less; each pair scatters by 0.8 of the parting (chaos). Pair by pair a
+    # model can remove at most 0.4^2 / (0.4^2 + 0.8^2) = 20 % of the squares; the runs' levels scatter by
+    # 0.8 / sqrt(30) = 0.15, so on them the right force removes about 0.16 / (0.16 + 0.021) = 88 %.
+    from fishfmu.analysis.extension_fit import grid_fit
+    from fishfmu.analysis.residuals import RunResiduals
+    rng = np.random.default_rng(7)
+    runs = [f"r{i}" for i in range(6)]
+    table = {v: {r: RunResiduals(r, rows=pd.DataFrame(), pairs=_pairs_of(r, bias, rng), track_rms_m=0.0) for r in runs}
+             for v, bias in ((0.0, 0.4), (2.0, 0.0), (6.0, -0.4))}
+    adhesion = CANDIDATES["adhesion"]
+    fit = grid_fit(adhesion, table[0.0], {2.0: table[2.0], 6.0: table[6.0]}, np.random.default_rng(0))
+    assert fit.heldout_gain > 0.6 and fit.confirmed
+    assert 1.0 < fit.values["force_n"] < 3.0
+    assert fit.error_unit == "share of parting"
+    # each held-out run side by side: the base parts its pairs by about 0.4 of the parting more than measured
+    side = fit.side_by_side
+    assert list(side["run_id"]) == runs and (side["covariate"] == 30).all()
+    assert side["measured"].to_numpy() == pytest.approx(0.5)  # 0.3 m apart of 0.6
+    assert np.mean(side["base"] - side["measured"]) == pytest.approx(0.4, abs=0.18)  # 3 x 0.15 / sqrt(6)
+    assert np.mean(np.abs(side["extended"] - side["measured"])) < 0.15
+    # the same simulations scored pair by pair: the chaos leaves the force a small, uncertain gain
+    per_pair = grid_fit(adhesion.__class__(**{**adhesion.__dict__, "groups": ("pairs",)}), table[0.0],
+                        {2.0: table[2.0], 6.0: table[6.0]}, np.random.default_rng(0))
+    assert per_pair.heldout_gain < 0.3

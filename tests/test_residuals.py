@@ -15,7 +15,7 @@ import pytest
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                PASSAGE_RESIDUAL_DTYPES, TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed,
                                drive_residuals, drive_residuals_averaged, pair_residuals, passage_residuals,
-                               photoeye_passages, track_errors, typed_frame, MIN_PASSAGE_SE)
+                               photoeye_passages, track_errors, typed_frame, MIN_PASSAGE_SE, RunResiduals)
 from plant.contract.line import Line
 from plant.contract.measured import Run
 
@@ -263,6 +263,40 @@ def test_pair_residuals_extra_separation():
     r1 = pair_residuals(run, sim, LINE, after_s=1.0)
     assert r1["separation_m"].iloc[0] == pytest.approx(0.80)
     assert r1["dsep_m"].iloc[0] == pytest.approx(0.20)
+
+
+def belt_log(speeds: dict[str, float]) -> pd.DataFrame:
+    t = np.arange(0.0, 3.01, 0.5)
+    return pd.concat([pd.DataFrame({"t_s": t, "conveyor_id": c, "speed_mps": v, "setpoint_mps": v})
+                      for c, v in speeds.items()], ignore_index=True)
+
+
+def test_pair_residuals_say_how_far_the_pair_would_part_on_its_own_belts():
+    # Belts a at 0.5 m/s, b at 1.0 m/s (logged): riding their own belts for 1.5 s the pair parts by 0.75 m.
+    run = make_run(fish_table({"fish_id": "f1"}, {"fish_id": "f2"}), pair_tracks(0.3, 0.0, 1.0))
+    run.belts = belt_log({"a": 0.5, "b": 1.0})
+    r = pair_residuals(run, pair_tracks(0.3, 0.0, 1.2, dt=0.05), LINE)
+    assert r["parting_m"].iloc[0] == pytest.approx(0.75)
+    # belts about as fast (0.03 m/s apart): no parting to share
+    run.belts = belt_log({"a": 0.5, "b": 0.53})
+    assert np.isnan(pair_residuals(run, pair_tracks(0.3, 0.0, 1.2, dt=0.05), LINE)["parting_m"].iloc[0])
+
+
+def test_a_runs_pairs_are_scored_as_one_level_of_how_far_they_part():
+    # Four pairs at a transfer where they would part by 0.5 m: extra separations +0.5, +0.5, -0.25, +0.25 m are
+    # shares +1, +1, -0.5, +0.5 of it, mean 0.5: the level's square 4 x 0.25 = 1.0 over 4 pairs (pair by pair the
+    # squares would sum to 0.5625 m^2). A fifth pair at belts too close in speed is left out.
+    pairs = pd.DataFrame({"run_id": "r01", "leader": list("abcde"), "follower": list("vwxyz"), "conveyor_id": "b",
+                          "t_s": 1.0, "separation_m": 0.4, "dsep_m": [0.5, 0.5, -0.25, 0.25, 9.0],
+                          "parting_m": [0.5, 0.5, 0.5, 0.5, np.nan]})
+    rr = RunResiduals("r01", rows=pd.DataFrame(), pairs=pairs, track_rms_m=0.0)
+    assert rr.squares("pair_levels") == (pytest.approx(1.0), 4)
+    assert rr.squares("pairs") == (pytest.approx(0.25 + 0.25 + 0.0625 + 0.0625 + 81.0), 5)
+    # pairs that part, on the whole, as measured score nothing however they scatter
+    pairs["dsep_m"] = [0.5, -0.5, 0.25, -0.25, 0.0]
+    assert rr.squares("pair_levels") == (pytest.approx(0.0), 4)
+    none_to_share = RunResiduals("r02", rows=pd.DataFrame(), pairs=pairs.iloc[4:], track_rms_m=0.0)
+    assert none_to_share.squares("pair_levels") == (0.0, 0)
 
 
 @pytest.mark.parametrize("gap, dy", [(0.5, 0.0),    # 0.5 m behind: dx = 0.5 > reach 0.45, not touching

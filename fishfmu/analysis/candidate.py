@@ -39,11 +39,14 @@ class Terms:
     setpoint_mps: dict[str, float]
 
 
-Group = Literal["alone", "transfers", "pairs", "drops"] | None
+Group = Literal["alone", "transfers", "pairs", "pair_levels", "drops"] | None
 """Which residuals a parameter is fitted on (see :meth:`fishfmu.analysis.residuals.RunResiduals.squares`):
 None all (lags of fish alone and pairs), ``alone`` lags of fish alone (the first belt's is the drop's), ``transfers``
-lags of fish alone after a transfer, ``pairs`` the extra separation of close pairs, ``drops`` the drops alone (their
-lags on the first belt; mucus fits their slips, each drop dropped again alone)."""
+lags of fish alone after a transfer, ``pairs`` the extra separation of close pairs, ``pair_levels`` the same as a share
+of how far the pairs part, one level per run, ``drops`` the drops alone (their lags on the first belt; mucus fits
+their slips, each drop dropped again alone)."""
+
+PAIR_GROUPS = ("pairs", "pair_levels")
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,7 @@ class Candidate:
     @property
     def needs_pairs(self) -> bool:
         """Fitted on close pairs only: simulating runs without touching fish tells nothing."""
-        return all(g == "pairs" for g in self.groups)
+        return all(g in PAIR_GROUPS for g in self.groups)
 
     def _values(self, values: Sequence[float]) -> tuple[float, ...]:
         """The values given, first parameters first (the ones left out keep the model's: a rigor strength alone

@@ -173,6 +173,7 @@ def grid_fit(cand, base: dict[str, RunResiduals], grid: dict[float, dict[str, Ru
     nn = {g: np.array([[table[v][r].squares(g)[1] for r in runs] for v in values]) for g in groups}
     u = np.zeros(len(runs))
     e0 = np.zeros(len(runs))
+    chosen: dict[str, float] = {}
     for fold in folds(runs):
         test = np.array([r in fold for r in runs])
         for g in groups:
@@ -182,8 +183,13 @@ def grid_fit(cand, base: dict[str, RunResiduals], grid: dict[float, dict[str, Ru
             best = int(np.argmin(np.abs(values - fitted)))
             u[test] += ss[g][0, test] - ss[g][best, test]
             e0[test] += ss[g][0, test]
+            chosen.update({r: float(values[best]) for r in fold})
     n_total = sum(nn[g][0].sum() for g in groups)
-    fit = CandidateFit(cand.name).score(heldout_score(runs, u, e0, n_total, rng))
+    pair_levels = groups == ("pair_levels",)
+    fit = CandidateFit(cand.name, error_unit="share of parting" if pair_levels else "m").score(
+        heldout_score(runs, u, e0, n_total, rng))
+    if pair_levels:
+        fit.side_by_side = _pairs_side_by_side(runs, table, cand.off, chosen)
     # fitted values on all runs, with a bootstrap over runs
     for g, pname in zip(groups, cand.parameters):
         err = ss[g].sum(axis=1) / np.maximum(nn[g].sum(axis=1), 1)
@@ -198,6 +204,28 @@ def grid_fit(cand, base: dict[str, RunResiduals], grid: dict[float, dict[str, Ru
                               "n": int(sum(nn[g][i, j] for g in groups))}
                              for i, v in enumerate(values) for j, r in enumerate(runs)])
     return fit
+
+
+def _pairs_side_by_side(runs: list[str], table: dict[float, dict[str, RunResiduals]], off: float,
+                        chosen: dict[str, float]) -> pd.DataFrame:
+    """Each held-out run's pairs: how far they parted 1.5 s after a transfer as a share of how far their belts
+    would part them, measured, with the base model and with the extended one (its strength chosen on the other
+    runs), against the number of pairs the run has."""
+    side = []
+    for r in runs:
+        p = table[off][r].pairs
+        ok = np.isfinite(p["parting_m"].to_numpy(float))
+        if not ok.any():
+            continue
+        parting, measured = p["parting_m"].to_numpy(float)[ok], p["separation_m"].to_numpy(float)[ok]
+        row = {"run_id": r, "covariate": float(ok.sum()), "measured": float(np.mean(measured / parting))}
+        for label, v in (("base", off), ("extended", chosen[r])):
+            row[label] = row["measured"] + table[v][r].pair_share()[0]
+        side.append(row)
+    out = pd.DataFrame(side, columns=["run_id", "covariate", "measured", "base", "extended"])
+    out.attrs.update(covariate="touching pairs at the transfers in the run",
+                     quantity="pairs' separation 1.5 s after a transfer, as a share of how far their belts part them")
+    return out
 
 
 def beyond_the_ends(cand, base: dict[str, RunResiduals],

@@ -50,7 +50,7 @@ BELT_RESIDUAL_DTYPES = {"run_id": object, "fish_id": object, "belt": "int64", "c
                         "t_start_s": float, "t_end_s": float, "offset_m": float, "lag_m": float, "heading": float,
                         "hours_post_mortem": float, "length_m": float, "crowded": bool, "n_samples": "int64"}
 PAIR_RESIDUAL_DTYPES = {"run_id": object, "leader": object, "follower": object, "conveyor_id": object,
-                        "t_s": float, "separation_m": float, "dsep_m": float}
+                        "t_s": float, "separation_m": float, "dsep_m": float, "parting_m": float}
 PASSAGE_RESIDUAL_DTYPES = {"run_id": object, "sensor_id": object, "n": "int64", "blocked_measured": float,
                            "blocked_simulated": float, "dblocked": float, "se": float}
 DRIVE_RESIDUAL_DTYPES = {"run_id": object, "conveyor_id": object, "t_s": float, "residual_mps": float,
@@ -202,10 +202,14 @@ def side_by_side_at(tracks: pd.DataFrame, fish: pd.DataFrame, x_m: float,
 
 def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float = 1.5) -> pd.DataFrame:
     """Pairs of fish touching (side by side within their heights and 2 cm, overlapping along the line) when the
-    leading one's mid-point crosses a transfer: separation along the line ``after_s`` later, simulated
-    minus measured."""
+    leading one crosses a transfer: separation along the line ``after_s`` later, simulated minus measured, and
+    ``parting_m``: the measured belts' speed difference there (median over the run) x ``after_s``, NaN below 0.05 m/s."""
     rows = []
-    for c in line.conveyors[1:]:
+    belts = run.belts
+    speed = {c.id: float(belts.loc[belts["conveyor_id"] == c.id, "speed_mps"].median()) for c in line.conveyors}
+    for k, c in enumerate(line.conveyors[1:], start=1):
+        dv = speed[c.id] - speed[line.conveyors[k - 1].id]
+        parting_m = dv * after_s if dv >= 0.05 else float("nan")  # as pair_rows: too close to part pairs
         for p in side_by_side_at(run.tracks, run.fish, c.x_start_m):
             if not p.dy_m < p.half_heights_m + 0.02:
                 continue
@@ -213,7 +217,7 @@ def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float
             sep_s = _separation(simulated, p.leader, p.follower, p.t_s + after_s)
             if sep_m is not None and sep_s is not None:
                 rows.append({"run_id": run.id, "leader": p.leader, "follower": p.follower, "conveyor_id": c.id,
-                             "t_s": p.t_s, "separation_m": sep_m, "dsep_m": sep_s - sep_m})
+                             "t_s": p.t_s, "separation_m": sep_m, "dsep_m": sep_s - sep_m, "parting_m": parting_m})
     return typed_frame(rows, PAIR_RESIDUAL_DTYPES)
 
 
@@ -386,7 +390,10 @@ class RunResiduals:
         ``group``: ``head_first`` / ``tail_first`` rows only (no pairs), for direction friction;
         ``alone``: every fish alone, no pairs; ``transfers``: fish alone after a transfer (not on the first
         belt, where the lag is that of the drop), no pairs; ``drops``: fish alone on the first belt (the drop's
-        lag); ``pairs``: the pairs only, for adhesion."""
+        lag); ``pairs``: the pairs only; ``pair_levels``: the run's pairs as one level, for adhesion (see
+        :meth:`pair_level`)."""
+        if group == "pair_levels":
+            return self.pair_level()
         if group == "pairs":
             d = self.pairs["dsep_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
             return float(np.sum(d**2)), len(d)
@@ -405,6 +412,21 @@ class RunResiduals:
             d = self.pairs["dsep_m"].to_numpy(float)
             ss, n = ss + float(np.sum(d**2)), n + len(d)
         return ss, n
+
+    def pair_share(self) -> tuple[float, int]:
+        """(mean, count) of the pairs' extra separation as a share of their ``parting_m`` (0: parted as measured;
+        +1: parted where the measured pair stayed together); (nan, 0) without a pair that has one."""
+        parting = self.pairs["parting_m"].to_numpy(float) if len(self.pairs) else np.zeros(0)
+        ok = np.isfinite(parting)
+        if not np.any(ok):
+            return float("nan"), 0
+        return float(np.mean(self.pairs["dsep_m"].to_numpy(float)[ok] / parting[ok])), int(ok.sum())
+
+    def pair_level(self) -> tuple[float, int]:
+        """(n x the squared :meth:`pair_share`, n): the run's pairs as one level. A force between fish changes how far
+        a run's pairs part on the whole; which pair of a pile parts is chaos that no parameter predicts."""
+        share, n = self.pair_share()
+        return (n * share**2, n) if n else (0.0, 0)
 
 
 def residuals_of(dataset: Dataset, resims: list) -> list[RunResiduals]:

@@ -4,7 +4,9 @@ Signature: touching pairs side by side when the leading one crosses a transfer: 
 difference their separation gained, against the touching pairs of the same runs re-simulated with the constant
 model (no force between fish beyond contact and friction); with adhesion the measured ones part less (sign -1).
 Extension: ``force_n`` per pair of touching contact spheres, fitted on a grid of simulated strengths on the runs
-with touching pairs.
+with touching pairs, and scored on how far each run's pairs part on the whole (the ``pair_levels`` group: the mean of
+their extra separation as a share of the belts' speed difference), not pair by pair: a pile's chaos decides which
+pair parts, the force how many.
 """
 
 from __future__ import annotations
@@ -65,5 +67,5 @@ CANDIDATE = Candidate(
     "adhesion", "attraction per pair of touching contact spheres", ("force_n",), "N", 0.0, (2.0, 6.0), (0.0, 50.0),
     "plant", apply, ("extensions.adhesion.force_n",), test=test,
     decides="more batches dumped onto the infeed, with fish side by side both touching and with a gap",
-    fit=fit_on_grid, groups=("pairs",), synthetic=hide, terms=terms, primary="bond_force_n",
+    fit=fit_on_grid, groups=("pair_levels",), synthetic=hide, terms=terms, primary="bond_force_n",
     explains=(("pairs", "touching"),), plot=plot)
