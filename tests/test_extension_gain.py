@@ -255,3 +255,18 @@ def test_adhesion_is_scored_on_how_far_each_runs_pairs_part_not_pair_by_pair():
     per_pair = grid_fit(adhesion.__class__(**{**adhesion.__dict__, "groups": ("pairs",)}), table[0.0],
                         {2.0: table[2.0], 6.0: table[6.0]}, np.random.default_rng(0))
     assert per_pair.heldout_gain < 0.3
+
+
+def test_directional_friction_is_never_searched_against_the_scales():
+    # The lags are lowest without the extension (a = 0, the lower end of the grid): the search does not go on below
+    # it, where head first would grip more than tail first (the opposite of the candidate's one-sided signature).
+    from fishfmu.analysis.extension_fit import beyond_the_ends
+    directional = CANDIDATES["directional_friction"]
+    runs = ["r1", "r2"]
+    err = {0.0: 1.0, 0.25: 1.2, 0.5: 1.5}
+    table = {v: {r: SimpleNamespace(squares=lambda g, e=e: (e, 1)) for r in runs} for v, e in err.items()}
+    assert beyond_the_ends(directional, table[0.0], {0.25: table[0.25], 0.5: table[0.5]}) == []
+    # lowest at the top of the grid: searched beyond it, within the physical bound
+    err = {0.0: 1.5, 0.25: 1.2, 0.5: 1.0}
+    table = {v: {r: SimpleNamespace(squares=lambda g, e=e: (e, 1)) for r in runs} for v, e in err.items()}
+    assert beyond_the_ends(directional, table[0.0], {0.25: table[0.25], 0.5: table[0.5]}) == [0.75]

@@ -55,7 +55,9 @@ def plot(ax, rows: dict[str, pd.DataFrame]) -> None:
 
 CANDIDATE = Candidate(
     "directional_friction", "fish-belt friction by slip direction: head first x(1 - a), tail first x(1 + a)",
-    ("asymmetry",), "", 0.0, (0.25, 0.5), (-0.75, 0.75), "plant", apply,
+    # a >= 0: the physics fixes the sign (against the scales grips more; the test is one-sided, sign -1): a fit
+    # searching below 0 found head-first grip fixing the base model's take-up at the transfers, not scales
+    ("asymmetry",), "", 0.0, (0.25, 0.5), (0.0, 0.75), "plant", apply,
     ("extensions.direction_friction.head", "extensions.direction_friction.tail"),
     test=test, decides="more fish dropped alone onto the infeed, both head downstream and head upstream",
     fit=fit_on_grid, groups=("transfers",), synthetic=hide, terms=terms,
