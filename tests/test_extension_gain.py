@@ -270,3 +270,46 @@ def test_directional_friction_is_never_searched_against_the_scales():
     err = {0.0: 1.5, 0.25: 1.2, 0.5: 1.0}
     table = {v: {r: SimpleNamespace(squares=lambda g, e=e: (e, 1)) for r in runs} for v, e in err.items()}
     assert beyond_the_ends(directional, table[0.0], {0.25: table[0.25], 0.5: table[0.5]}) == [0.75]
+
+
+def test_a_strength_that_fails_to_simulate_is_left_out_and_the_search_stops_short_of_it(monkeypatch):
+    # Six runs whose pairs part by 0.4 - 0.06 x force more than measured (the truth 6.7 N); at 12 N the model loses
+    # a fish over a guide on four runs. Scored as the base (what was done before), 12 N bent the vertex; left out,
+    # the search tries halfway back (9 N), which simulates, and the fit lands between 6 and 9 N.
+    from fishfmu.analysis import extension_fit
+    from fishfmu.analysis.residuals import RunResiduals
+    runs = [f"r{i}" for i in range(6)]
+    rng = np.random.default_rng(3)
+    asked: list[list[float]] = []
+
+    def resimulate_many(line, run_list, params_list, **kw):
+        forces = [p.extensions.adhesion.force_n for p in params_list]
+        asked.append(sorted(set(forces)))
+        return [(r.id, f) for r, f in zip(run_list, forces)]
+
+    def residuals_of(dataset, sims):
+        out = []
+        for rid, f in sims:
+            if f >= 12.0 and rid in runs[:4]:
+                out.append(RunResiduals(rid, pd.DataFrame(), pd.DataFrame(), np.nan,
+                                        "SimulationError at t = 5.480 s: fish 'f03' left the line sideways"))
+            else:
+                out.append(RunResiduals(rid, pd.DataFrame(), _pairs_of(rid, 0.4 - 0.06 * f, rng, scatter=0.05), 0.0))
+        return out
+
+    monkeypatch.setattr(extension_fit, "resimulate_many", resimulate_many)
+    monkeypatch.setattr(extension_fit, "residuals_of", residuals_of)
+    base = {r: RunResiduals(r, pd.DataFrame(), _pairs_of(r, 0.4, rng, scatter=0.05), 0.0) for r in runs}
+    dataset = SimpleNamespace(runs=[SimpleNamespace(id=r) for r in runs], line=None,
+                              subset=lambda rs: SimpleNamespace(runs=rs))
+    cal = SimpleNamespace(params=PlantParams(), after=list(base.values()), fit_runs=runs)
+    ctx = SimpleNamespace(dataset=dataset, cal=cal, pool=None, rng=np.random.default_rng(0), say=lambda s: None)
+    adhesion = CANDIDATES["adhesion"]
+    fit = extension_fit.fit_on_grid(adhesion, ctx, run_ids=set(runs))
+    assert asked == [[2.0, 6.0], [12.0], [9.0]]
+    assert list(fit.failed_values) == [12.0] and "failed on 4 of 6 runs" in fit.failed_values[12.0]
+    assert 12.0 not in set(fit.grid["value"]) and 9.0 in set(fit.grid["value"])
+    assert 6.0 < fit.values["force_n"] < 8.0 and fit.confirmed
+    d = _diagnosis(0.5, (0.2, 0.7))
+    d.fit = fit
+    assert diagnosis_document(d)["failed_values"]["12"].startswith("12 N failed on 4 of 6 runs (r0: SimulationError")

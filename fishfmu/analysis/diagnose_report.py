@@ -31,6 +31,7 @@ def fit_text(f: CandidateFit) -> str:
             f"{f.heldout_rms_after:.4g} {f.error_unit})")
     ends = "".join(f" {k} is the {v}: the data may want a value beyond it (at a physical bound: none of it)."
                    for k, v in f.at_grid_end.items())
+    ends += "".join(f" The extended model at {why}: left out of the fit." for why in f.failed_values.values())
     if f.confirmed:
         return f"Fitted on the calibrated model: {values or 'no parameter'}.{ends} {gain}."
     return (f"{NOT_CONFIRMED[0].upper()}{NOT_CONFIRMED[1:]}: {gain}, less than {MIN_GAIN:.0%} with its interval above "
@@ -148,6 +149,7 @@ def diagnosis_document(d: Diagnosis) -> dict:
         "ranking": [t.candidate for t in ranked],
         "parameters": ({k: {"value": v, "ci95": list(f.ci95.get(k, (None, None))), "at_grid_end": f.at_grid_end.get(k)}
                         for k, v in f.values.items()} if f else {}),
+        "failed_values": ({f"{v:g}": why for v, why in f.failed_values.items()} if f else {}),
         "terms": d.terms,
         "extension": {"status": d.extension, "applied": d.extension == "confirmed", "text": extension_text(d)},
         "heldout": ({"rms_before": f.heldout_rms_before, "rms_after": f.heldout_rms_after, "unit": f.error_unit,

@@ -61,6 +61,10 @@ class CandidateFit:
     at_grid_end: dict[str, str] = field(default_factory=dict)
     """Parameters fitted at an end of the values searched (``lowest`` or ``highest``): the data may want a value
     beyond what was tried, and the report says so rather than give the end as the answer."""
+    failed_values: dict[float, str] = field(default_factory=dict)
+    """Strengths at which the extended model could not carry every run (a fish lost from the line, a blow-up): how
+    many runs failed and the first error.  They are left out of the fit, not scored as the base: the measured runs
+    lost nothing there, so the data's strength lies short of them."""
 
     def score(self, s: HeldOut) -> "CandidateFit":
         """Takes the held-out score (gain, interval, per run, RMS before and after)."""
@@ -228,12 +232,14 @@ def _pairs_side_by_side(runs: list[str], table: dict[float, dict[str, RunResidua
     return out
 
 
-def beyond_the_ends(cand, base: dict[str, RunResiduals],
-                    grid: dict[float, dict[str, RunResiduals]]) -> list[float]:
+def beyond_the_ends(cand, base: dict[str, RunResiduals], grid: dict[float, dict[str, RunResiduals]],
+                    failed: dict[float, dict[str, str]] | None = None) -> list[float]:
     """Values to simulate beyond the grid where a group's error is lowest at its end (within the bounds):
-    a fit stuck at the edge of its grid would report the edge, not the strength."""
+    a fit stuck at the edge of its grid would report the edge, not the strength.  Where a value that far out
+    ``failed`` to simulate, the point halfway to it is tried instead."""
     table = {cand.off: base, **grid}
     values = sorted(table)
+    failed = failed or {}
     extra = []
     for g in cand.groups:
         err = []
@@ -242,16 +248,29 @@ def beyond_the_ends(cand, base: dict[str, RunResiduals],
             err.append(sum(a for a, _ in sq) / max(sum(n for _, n in sq), 1))
         i = int(np.argmin(err))
         if i == len(values) - 1 and values[-1] < cand.bounds[1]:
-            extra.append(min(values[-1] + 1.5 * (values[-1] - values[-2]), cand.bounds[1]))
+            end, out = values[-1], min(values[-1] + 1.5 * (values[-1] - values[-2]), cand.bounds[1])
+            wall = min((v for v in failed if v > end), default=None)
         elif i == 0 and values[0] > cand.bounds[0]:
-            extra.append(max(values[0] - 1.5 * (values[1] - values[0]), cand.bounds[0]))
-    return sorted({round(v, 6) for v in extra} - set(values))
+            end, out = values[0], max(values[0] - 1.5 * (values[1] - values[0]), cand.bounds[0])
+            wall = max((v for v in failed if v < end), default=None)
+        else:
+            continue
+        if wall is not None and abs(out - end) >= abs(wall - end):
+            out = 0.5 * (end + wall)
+        extra.append(out)
+    return sorted({round(v, 6) for v in extra} - set(values) - set(failed))
+
+
+def _failures_text(value: float, unit: str, errors: dict[str, str], n_runs: int) -> str:
+    run, error = sorted(errors.items())[0]
+    return f"{value:g} {unit} failed on {len(errors)} of {n_runs} runs ({run}: {error})"
 
 
 def fit_on_grid(cand, ctx: FitContext, run_ids: set[str] | None = None) -> CandidateFit:
     """The candidate at its grid of strengths on the runs that carry its signal (``run_ids`` where the candidate
     says which; those with touching pairs for a candidate fitted on pairs; else the calibration's fit runs), extended
-    once beyond an end where the error still falls, against the calibrated model."""
+    once beyond an end where the error still falls, against the calibrated model.  A strength at which a run fails
+    to simulate is left out (:attr:`CandidateFit.failed_values`)."""
     dataset, cal = ctx.dataset, ctx.cal
     cur_by_run = {b.run_id: b for b in cal.after if not b.error}
     if run_ids is not None:
@@ -265,18 +284,31 @@ def fit_on_grid(cand, ctx: FitContext, run_ids: set[str] | None = None) -> Candi
     sub = dataset.subset(fit_runs)
     base_by_run = {r.id: cur_by_run[r.id] for r in fit_runs}
     grid: dict[float, dict[str, RunResiduals]] = {}
-    values = list(cand.grid)
-    for _ in range(2):
+    failed: dict[float, dict[str, str]] = {}
+    values, passes = list(cand.grid), 0
+    while values:
         ctx.say(f"fit {cand.name}: {', '.join(f'{v:g}' for v in values)} {cand.unit} on {len(fit_runs)} runs")
         sims = resimulate_many(dataset.line, fit_runs * len(values),
                                [cand.params(cal.params, v) for v in values for _ in fit_runs], pool=ctx.pool,
                                workers=1, residuals=True)
         for k, v in enumerate(values):
-            res = residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
-            grid[v] = {r.run_id: r for r in res if r.run_id in base_by_run and not r.error}
-            for rid in set(base_by_run) - set(grid[v]):  # a failed simulation counts as no better than the base
-                grid[v][rid] = base_by_run[rid]
-        values = beyond_the_ends(cand, base_by_run, grid)
-        if not values:
+            res = {r.run_id: r for r in residuals_of(sub, sims[k * len(fit_runs):(k + 1) * len(fit_runs)])
+                   if r.run_id in base_by_run}
+            if errors := {rid: str(r.error) for rid, r in res.items() if r.error}:
+                # the model at this strength loses what the measured runs kept: left out (scored as the base, it
+                # bent the error curve's vertex towards it), and the search stays short of it
+                failed[v] = errors
+                ctx.say(f"fit {cand.name}: {_failures_text(v, cand.unit, errors, len(fit_runs))}")
+            else:
+                grid[v] = res
+        # the grid, then once beyond an end where the error still falls; once more halfway back if that failed
+        passes += 1
+        if not grid or passes > 2 or (passes == 2 and not set(values) & set(failed)):
             break
-    return grid_fit(cand, base_by_run, grid, ctx.rng)
+        values = beyond_the_ends(cand, base_by_run, grid, failed)
+    if not grid:  # no strength simulated on every run: nothing to fit, no gain
+        fit = CandidateFit(cand.name, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="m")
+    else:
+        fit = grid_fit(cand, base_by_run, grid, ctx.rng)
+    fit.failed_values = {v: _failures_text(v, cand.unit, e, len(fit_runs)) for v, e in sorted(failed.items())}
+    return fit
