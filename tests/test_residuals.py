@@ -14,8 +14,9 @@ import pytest
 
 from fishfmu.analysis.residuals import (BELT_RESIDUAL_DTYPES, DRIVE_RESIDUAL_DTYPES, PAIR_RESIDUAL_DTYPES,
                                PASSAGE_RESIDUAL_DTYPES, TRACK_ERROR_DTYPES, alone, belt_residuals, concat_typed,
-                               drive_residuals, drive_residuals_averaged, pair_residuals, passage_residuals,
+                               pair_residuals, passage_residuals,
                                photoeye_passages, track_errors, typed_frame, MIN_PASSAGE_SE, RunResiduals)
+from fishfmu.analysis.drive_response import drive_residuals, drive_residuals_averaged
 from plant.contract.line import Line
 from plant.contract.measured import Run
 

@@ -33,7 +33,8 @@ from plant.contract.line import KpiSettings, Line
 from plant.contract.measured import Dataset, Run, write_dataset
 from plant.sim.params import PlantParams
 
-from fishfmu.analysis.residuals import concat_typed, drive_residuals, track_errors, typed_frame
+from fishfmu.analysis.drive_response import drive_residuals
+from fishfmu.analysis.residuals import concat_typed, track_errors, typed_frame
 from fishfmu.analysis.resim import (Resim, drive_check, measured_data_plant, not_resimulated, resimulate_many,
                                     unreplayed_devices)
 from fishfmu.output.atomic import json_safe, write_json_atomic, write_text_atomic, write_tree_atomic

@@ -35,8 +35,8 @@ from fishfmu.analysis.candidate import Terms
 from fishfmu.analysis.candidates import CANDIDATES, fragment
 from fishfmu.analysis.extension_fit import MIN_GAIN, NOT_CONFIRMED, CandidateFit, FitContext  # noqa: F401 (MIN_GAIN: the report reads it here)
 from fishfmu.analysis.levels import FRICTION, RIGOR, run_levels
-from fishfmu.analysis.residuals import (DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drive_residuals_averaged,
-                                        drop_lags, residuals_of)
+from fishfmu.analysis.drive_response import drive_residuals_averaged
+from fishfmu.analysis.residuals import DRIVE_RESIDUAL_DTYPES, RunResiduals, concat_typed, drop_lags, residuals_of
 from fishfmu.analysis.resim import (Resim, drive_check, fish_model_lines, measured_data_plant, pool_for,
                                     refuse_unreplayed, resimulate_many)
 from fishfmu.analysis.mismatch import base_mismatch, fit_quality, take_up_law, tracker_noise_m

@@ -10,7 +10,9 @@ and the error of the held-out runs before and after.  A ramp is applied only if 
 zero.  A drive that does not ramp (one that follows a step as a first-order lag) gets the ramp that comes
 closest, and its remaining error says how close that is.
 
-What a drive does under load (droop) is left to ``diagnose``, on the rest of the log.
+What a drive does under load (droop) is left to ``diagnose``, on the rest of the log: the **drive residuals**
+(:func:`drive_residuals`), logged belt speed minus the drive model's away from setpoint changes, against the belt
+load.
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from plant.contract.measured import Dataset, Run
 
@@ -134,3 +137,43 @@ def fit_drive_responses(dataset: Dataset, fit_runs: list[str], rng: np.random.Ge
                            for g, ids in (("fit", fit_ids), ("heldout", held_ids))}
             out.append(fit)
     return out
+
+
+def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5, band: float = 0.05) -> pd.DataFrame:
+    """Logged belt speed minus the drive model's, away from setpoint changes (ramps are not droop): after each
+    change, and after the log's start (a drive starting from rest ramps like after a change), only once both
+    the logged and the model speed have come within ``band`` of the setpoint, and ``settle_s`` later."""
+    if check.empty:
+        return check.assign(residual_mps=[])
+    sp = check["setpoint_mps"].to_numpy()
+    t = check["t_s"].to_numpy()
+    near = ((np.abs(check["measured_mps"].to_numpy() - sp) <= band * np.abs(sp))
+            & (np.abs(check["model_mps"].to_numpy() - sp) <= band * np.abs(sp)))
+    starts = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(sp)) > 1e-6) + 1, [len(t)]])
+    steady = np.zeros(len(t), dtype=bool)
+    for a, b in zip(starts[:-1], starts[1:]):  # each stretch of one setpoint
+        hit = np.flatnonzero(near[a:b])
+        if len(hit):
+            steady[a:b] = t[a:b] >= t[a + hit[0]] + settle_s
+    steady &= np.abs(sp) > 0.05
+    out = check[steady].copy()
+    out["residual_mps"] = out["measured_mps"] - out["model_mps"]
+    return out
+
+
+def drive_residuals_averaged(check: pd.DataFrame, window_s: float = 0.5, settle_s: float = 0.5) -> pd.DataFrame:
+    """:func:`drive_residuals` averaged over windows of ``window_s`` (residual, load and time).
+
+    A drive log's sample-to-sample noise is no model error, but at 100 Hz it can be most of the
+    residual's variance and hide a droop of a few mm/s; droop follows the load, which changes over
+    tenths of a second, so averaging keeps it and removes most of the noise.  Windows with fewer
+    than half their samples (cut by a setpoint change) are left out."""
+    steady = drive_residuals(check, settle_s)
+    if steady.empty:
+        return steady
+    dt = float(np.median(np.diff(check["t_s"].to_numpy()))) if len(check) > 1 else window_s
+    need = max(1, int(0.5 * window_s / max(dt, 1e-9)))
+    binned = steady.assign(window=np.floor(steady["t_s"].to_numpy() / window_s).astype(int))
+    g = binned.groupby("window")
+    out = g[["t_s", "residual_mps", "load_force_n", "load_mass_kg", "setpoint_mps", "measured_mps", "model_mps"]].mean()
+    return out[g.size() >= need].reset_index(drop=True)

@@ -23,7 +23,8 @@ import pandas as pd
 from plant.contract.line import Line
 from plant.contract.measured import Dataset, Run
 
-from fishfmu.analysis.residuals import EDGE_M, crowding, fish_heights, photoeye_passages, side_by_side_at
+from fishfmu.analysis.residuals import (EDGE_M, MIN_PARTING_MPS, crowding, fish_heights, photoeye_passages,
+                                        side_by_side_at, transfer_speed_steps)
 
 G_MPS2 = 9.81
 DROP_READ_S = (0.8, 3.0)
@@ -254,15 +255,11 @@ def pair_rows(dataset: Dataset) -> pd.DataFrame:
     over :data:`PAIR_AFTER_S` (``growth``: 1 when each rode its own belt throughout), and whether they touched.
     Without a force between fish in contact, touching pairs part as pairs with a gap do; adhesion holds them."""
     rows = []
-    conveyors = dataset.line.conveyors
     for run in dataset.runs:
-        speed = {c.id: float(run.belts.loc[run.belts["conveyor_id"] == c.id, "speed_mps"].median())
-                 for c in conveyors}
         by_fish = {fid: (m["t_s"].to_numpy(float), m["x_m"].to_numpy(float))
                    for fid, m in run.tracks.groupby("fish_id")}
-        for k, c in enumerate(conveyors[1:], start=1):
-            dv = speed[c.id] - speed[conveyors[k - 1].id]
-            if not np.isfinite(dv) or dv < 0.05:
+        for c, dv in transfer_speed_steps(run, dataset.line):
+            if not dv >= MIN_PARTING_MPS:  # NaN too: a belt without a log
                 continue
             for p in side_by_side_at(run.tracks, run.fish, c.x_start_m, sort=True):
                 gap = p.dy_m - p.half_heights_m

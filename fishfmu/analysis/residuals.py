@@ -17,8 +17,8 @@ From a measured run and its re-simulation (same fish, drops, belt speeds):
   beam is blocked, per beam the simulated mean minus the measured one.  A fish that lies limp on
   the belt blocks a low beam throughout; one stiff in rigor does not settle into the belt and lets
   the beam through under an arched part, so the beam flickers.  Friction hardly changes it: the
-  signature that tells rigor from mucus;
-- **drive residuals**: logged belt speed minus the drive model's, against the belt load.
+  signature that tells rigor from mucus.
+(The drive residuals are :func:`fishfmu.analysis.drive_response.drive_residuals`.)
 
 And one measure of the data alone, no simulation: the **drop lag** of a fish dropped onto the
 infeed with no other fish near, the time it has lost to the belt once it moves with it (how far it
@@ -200,16 +200,25 @@ def side_by_side_at(tracks: pd.DataFrame, fish: pd.DataFrame, x_m: float,
     return out
 
 
+MIN_PARTING_MPS = 0.05
+"""Belts closer in speed than this at a transfer do not part the pairs crossing it enough to read."""
+
+
+def transfer_speed_steps(run: Run, line: Line) -> list[tuple]:
+    """(the downstream conveyor, how much faster it runs than the one before) at each transfer, from the run's
+    logged belt speeds (each belt's median over the run)."""
+    belts = run.belts
+    speed = [float(belts.loc[belts["conveyor_id"] == c.id, "speed_mps"].median()) for c in line.conveyors]
+    return [(c, speed[k] - speed[k - 1]) for k, c in enumerate(line.conveyors[1:], start=1)]
+
+
 def pair_residuals(run: Run, simulated: pd.DataFrame, line: Line, after_s: float = 1.5) -> pd.DataFrame:
     """Pairs of fish touching (side by side within their heights and 2 cm, overlapping along the line) when the
     leading one crosses a transfer: separation along the line ``after_s`` later, simulated minus measured, and
     ``parting_m``: the measured belts' speed difference there (median over the run) x ``after_s``, NaN below 0.05 m/s."""
     rows = []
-    belts = run.belts
-    speed = {c.id: float(belts.loc[belts["conveyor_id"] == c.id, "speed_mps"].median()) for c in line.conveyors}
-    for k, c in enumerate(line.conveyors[1:], start=1):
-        dv = speed[c.id] - speed[line.conveyors[k - 1].id]
-        parting_m = dv * after_s if dv >= 0.05 else float("nan")  # as pair_rows: too close to part pairs
+    for c, dv in transfer_speed_steps(run, line):
+        parting_m = dv * after_s if dv >= MIN_PARTING_MPS else float("nan")
         for p in side_by_side_at(run.tracks, run.fish, c.x_start_m):
             if not p.dy_m < p.half_heights_m + 0.02:
                 continue
@@ -326,46 +335,6 @@ def _separation(tracks: pd.DataFrame, a: str, b: str, t: float) -> float | None:
             return None
         xs.append(float(np.interp(t, m["t_s"], m["x_m"])))
     return xs[0] - xs[1]
-
-
-def drive_residuals(check: pd.DataFrame, settle_s: float = 0.5, band: float = 0.05) -> pd.DataFrame:
-    """Logged belt speed minus the drive model's, away from setpoint changes (ramps are not droop): after each
-    change, and after the log's start (a drive starting from rest ramps like after a change), only once both
-    the logged and the model speed have come within ``band`` of the setpoint, and ``settle_s`` later."""
-    if check.empty:
-        return check.assign(residual_mps=[])
-    sp = check["setpoint_mps"].to_numpy()
-    t = check["t_s"].to_numpy()
-    near = ((np.abs(check["measured_mps"].to_numpy() - sp) <= band * np.abs(sp))
-            & (np.abs(check["model_mps"].to_numpy() - sp) <= band * np.abs(sp)))
-    starts = np.concatenate([[0], np.flatnonzero(np.abs(np.diff(sp)) > 1e-6) + 1, [len(t)]])
-    steady = np.zeros(len(t), dtype=bool)
-    for a, b in zip(starts[:-1], starts[1:]):  # each stretch of one setpoint
-        hit = np.flatnonzero(near[a:b])
-        if len(hit):
-            steady[a:b] = t[a:b] >= t[a + hit[0]] + settle_s
-    steady &= np.abs(sp) > 0.05
-    out = check[steady].copy()
-    out["residual_mps"] = out["measured_mps"] - out["model_mps"]
-    return out
-
-
-def drive_residuals_averaged(check: pd.DataFrame, window_s: float = 0.5, settle_s: float = 0.5) -> pd.DataFrame:
-    """:func:`drive_residuals` averaged over windows of ``window_s`` (residual, load and time).
-
-    A drive log's sample-to-sample noise is no model error, but at 100 Hz it can be most of the
-    residual's variance and hide a droop of a few mm/s; droop follows the load, which changes over
-    tenths of a second, so averaging keeps it and removes most of the noise.  Windows with fewer
-    than half their samples (cut by a setpoint change) are left out."""
-    steady = drive_residuals(check, settle_s)
-    if steady.empty:
-        return steady
-    dt = float(np.median(np.diff(check["t_s"].to_numpy()))) if len(check) > 1 else window_s
-    need = max(1, int(0.5 * window_s / max(dt, 1e-9)))
-    binned = steady.assign(window=np.floor(steady["t_s"].to_numpy() / window_s).astype(int))
-    g = binned.groupby("window")
-    out = g[["t_s", "residual_mps", "load_force_n", "load_mass_kg", "setpoint_mps", "measured_mps", "model_mps"]].mean()
-    return out[g.size() >= need].reset_index(drop=True)
 
 
 HEADING_SPLIT = 0.3
