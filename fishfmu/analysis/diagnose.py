@@ -182,6 +182,7 @@ def _diagnose(dataset: Dataset, base: PlantParams, pool, seed: int, say: Callabl
                                   if t.judged else t.note))
     t1 = time.perf_counter()
     drive = drive_table(dataset, cal.sims_after)
+    timing["drives"] = time.perf_counter() - t1
     t1 = time.perf_counter()
     tables = scan_tables(dataset, judgement.rows, cal.after)
     scan_rng = np.random.default_rng((seed, 41))  # its own stream: the fits draw what they drew before the scan
