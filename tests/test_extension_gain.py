@@ -309,7 +309,15 @@ def test_a_strength_that_fails_to_simulate_is_left_out_and_the_search_stops_shor
     assert asked == [[2.0, 6.0], [12.0], [9.0]]
     assert list(fit.failed_values) == [12.0] and "failed on 4 of 6 runs" in fit.failed_values[12.0]
     assert 12.0 not in set(fit.grid["value"]) and 9.0 in set(fit.grid["value"])
-    assert 6.0 < fit.values["force_n"] < 8.0 and fit.confirmed
+    assert 6.0 < fit.values["force_n"] < 8.0 and fit.confirmed and fit.at_grid_end == {}
     d = _diagnosis(0.5, (0.2, 0.7))
     d.fit = fit
     assert diagnosis_document(d)["failed_values"]["12"].startswith("12 N failed on 4 of 6 runs (r0: SimulationError")
+    # where halfway fails too, the fit stops at the highest value that simulated, and says that it is an end
+    monkeypatch.setattr(extension_fit, "residuals_of", lambda dataset, sims: [
+        RunResiduals(rid, pd.DataFrame(), pd.DataFrame(), np.nan, "SimulationError: a fish left the line")
+        if f >= 9.0 and rid == "r5" else
+        RunResiduals(rid, pd.DataFrame(), _pairs_of(rid, 0.4 - 0.06 * f, rng, scatter=0.05), 0.0) for rid, f in sims])
+    fit = extension_fit.fit_on_grid(adhesion, ctx, run_ids=set(runs))
+    assert list(fit.failed_values) == [9.0, 12.0] and fit.values["force_n"] == 6.0
+    assert fit.at_grid_end == {"force_n": "highest value that simulated on every run (6)"}

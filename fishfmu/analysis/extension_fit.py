@@ -310,5 +310,9 @@ def fit_on_grid(cand, ctx: FitContext, run_ids: set[str] | None = None) -> Candi
         fit = CandidateFit(cand.name, heldout_gain=0.0, heldout_gain_ci95=(0.0, 0.0), error_unit="m")
     else:
         fit = grid_fit(cand, base_by_run, grid, ctx.rng)
+        for p, where in fit.at_grid_end.items():  # an end the failures set, not the search
+            end = max(grid) if where.startswith("highest") else min(grid)
+            if any((v > end) == where.startswith("highest") for v in failed):
+                fit.at_grid_end[p] = f"{where.split()[0]} value that simulated on every run ({end:.4g})"
     fit.failed_values = {v: _failures_text(v, cand.unit, e, len(fit_runs)) for v, e in sorted(failed.items())}
     return fit
