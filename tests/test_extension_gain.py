@@ -321,3 +321,16 @@ def test_a_strength_that_fails_to_simulate_is_left_out_and_the_search_stops_shor
     fit = extension_fit.fit_on_grid(adhesion, ctx, run_ids=set(runs))
     assert list(fit.failed_values) == [9.0, 12.0] and fit.values["force_n"] == 6.0
     assert fit.at_grid_end == {"force_n": "highest value that simulated on every run (6)"}
+    # its curve: in the unit it is scored in, the fitted value marked, the failed strengths where they lie
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from fishfmu.analysis.diagnose_report import draw_fit_curve
+    fig, ax = plt.subplots()
+    draw_fit_curve(ax, fit)
+    assert ax.get_ylabel() == "RMS residual [share of parting]"
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    assert list(lines["failed to simulate (left out)"].get_xdata()) == [9.0, 12.0]
+    assert list(lines["fitted: 6"].get_xdata()) == [6.0, 6.0]
+    assert list(lines["simulated on every run"].get_xdata()) == [0.0, 2.0, 6.0]
+    plt.close(fig)

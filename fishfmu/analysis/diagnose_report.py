@@ -229,11 +229,8 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
     for f in d.fits:
         if f.grid is None:
             continue
-        g = f.grid.groupby("value").agg(ss=("ss", "sum"), n=("n", "sum"))
         fig, ax = plt.subplots(figsize=(4.5, 3))
-        ax.plot(g.index, np.sqrt(g["ss"] / g["n"].clip(lower=1)), "o-")
-        ax.set_xlabel(f"{f.name} strength [{CANDIDATES[f.name].unit}]")
-        ax.set_ylabel("RMS residual [m]")
+        draw_fit_curve(ax, f)
         figs[f"fit_{f.name}.png"] = _img(fig, out / f"fit_{f.name}.png")
     for f in d.fits:
         if f.base_by_run:
@@ -241,6 +238,22 @@ def fit_figures(d: Diagnosis, out: Path) -> dict[str, str]:
         if f.side_by_side is not None and len(f.side_by_side):
             figs[f"side_by_side_{f.name}.png"] = side_by_side_figure(f, out / f"side_by_side_{f.name}.png")
     return figs
+
+
+def draw_fit_curve(ax, f: CandidateFit) -> None:
+    """A grid-fitted candidate's error against its strength, in the unit it is scored in, with the value fitted and
+    the strengths that failed to simulate (left out of the fit) marked where they lie."""
+    g = f.grid.groupby("value").agg(ss=("ss", "sum"), n=("n", "sum"))
+    rms = np.sqrt(g["ss"] / g["n"].clip(lower=1))
+    ax.plot(g.index, rms, "o-", label="simulated on every run")
+    for value in f.values.values():
+        ax.axvline(value, ls="--", c="0.5", label=f"fitted: {value:.3g}")
+    if f.failed_values:
+        ax.plot(list(f.failed_values), [float(rms.max())] * len(f.failed_values), "x", c="C3", ms=8,
+                label="failed to simulate (left out)")
+    ax.set_xlabel(f"{f.name} strength [{CANDIDATES[f.name].unit}]")
+    ax.set_ylabel(f"RMS residual [{f.error_unit}]")
+    ax.legend(fontsize=7)
 
 
 def side_by_side_figure(f: CandidateFit, path: Path) -> str:
