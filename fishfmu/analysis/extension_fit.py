@@ -311,7 +311,7 @@ def fit_on_grid(cand, ctx: FitContext, run_ids: set[str] | None = None) -> Candi
     else:
         fit = grid_fit(cand, base_by_run, grid, ctx.rng)
         for p, where in fit.at_grid_end.items():  # an end the failures set, not the search
-            end = max(grid) if where.startswith("highest") else min(grid)
+            end = max(cand.off, *grid) if where.startswith("highest") else min(cand.off, *grid)
             if any((v > end) == where.startswith("highest") for v in failed):
                 fit.at_grid_end[p] = f"{where.split()[0]} value that simulated on every run ({end:.4g})"
     fit.failed_values = {v: _failures_text(v, cand.unit, e, len(fit_runs)) for v, e in sorted(failed.items())}
