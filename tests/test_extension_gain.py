@@ -334,3 +334,39 @@ def test_a_strength_that_fails_to_simulate_is_left_out_and_the_search_stops_shor
     assert list(lines["fitted: 6"].get_xdata()) == [6.0, 6.0]
     assert list(lines["simulated on every run"].get_xdata()) == [0.0, 2.0, 6.0]
     plt.close(fig)
+
+
+def test_a_model_extended_alike_twice_is_simulated_once_and_another_model_again(monkeypatch):
+    # A further cause is fitted on the model extended with the first; when it is not confirmed, the scan afterwards
+    # reads that same model: its ten re-simulations (a minute or more on two cores) were made twice.
+    from dataclasses import dataclass
+
+    from fishfmu.analysis import diagnose
+    from fishfmu.analysis.extension_fit import FitContext
+    simulated: list[tuple[float, float]] = []
+
+    def resimulate_many(line, runs, params, **kw):
+        p = params[0]
+        simulated.append((p.extensions.adhesion.force_n, p.extensions.direction_friction.head))
+        return [f"{r.id} at {simulated[-1]}" for r in runs]
+
+    monkeypatch.setattr(diagnose, "resimulate_many", resimulate_many)
+    monkeypatch.setattr(diagnose, "residuals_of", lambda dataset, sims: list(sims))
+
+    @dataclass
+    class Cal:
+        params: PlantParams
+        after: list
+        sims_after: list
+
+    dataset = SimpleNamespace(runs=[SimpleNamespace(id="r1"), SimpleNamespace(id="r2")], line=None)
+    ctx = FitContext(dataset, Cal(PlantParams(), [], []), pd.DataFrame(), None, np.random.default_rng(0), lambda s: None)
+    adhesion = CandidateFit("adhesion", {"force_n": 4.0})
+    directional = CandidateFit("directional_friction", {"asymmetry": 0.3})
+    further = diagnose._extended_context(ctx, [adhesion])  # where the further cause is fitted
+    scanned = diagnose._extended_context(ctx, [adhesion])  # the scan, the further cause not confirmed
+    assert simulated == [(4.0, 1.0)]
+    assert scanned.cal.after == further.cal.after == ["r1 at (4.0, 1.0)", "r2 at (4.0, 1.0)"]
+    both = diagnose._extended_context(further, [adhesion, directional])  # confirmed: another model, simulated
+    assert simulated == [(4.0, 1.0), (4.0, 0.7)] and both.cal.after[0] == "r1 at (4.0, 0.7)"
+    assert diagnose._extended_context(ctx, []) is ctx  # nothing extended: nothing simulated

@@ -284,11 +284,22 @@ def _extended_context(ctx: FitContext, fits: list[CandidateFit]) -> FitContext:
     params = extended_params(ctx.cal, fits)
     if params == ctx.cal.params:  # nothing simulated changes (drive causes): the residuals stay
         return ctx
-    runs = ctx.dataset.runs
-    sims = resimulate_many(ctx.dataset.line, runs, [params] * len(runs), pool=ctx.pool, workers=1, residuals=True)
+    sims = _every_run_with(ctx, params)
     after = residuals_of(ctx.dataset, sims)
     cal = dataclasses.replace(ctx.cal, params=params, after=after, sims_after=sims)
     return dataclasses.replace(ctx, cal=cal)
+
+
+def _every_run_with(ctx: FitContext, params: PlantParams) -> list:
+    """Every run re-simulated with ``params``, once per model in a diagnosis: a further cause is fitted on the model
+    extended with the confirmed causes before it, and the scan afterwards reads that same model again when the
+    further cause is not confirmed (the same model and runs give the same re-simulations)."""
+    key = params.model_dump_json()
+    if key not in ctx.extended_sims:
+        runs = ctx.dataset.runs
+        ctx.extended_sims[key] = resimulate_many(ctx.dataset.line, runs, [params] * len(runs), pool=ctx.pool,
+                                                 workers=1, residuals=True)
+    return ctx.extended_sims[key]
 
 
 def _further_fragment(fit: CandidateFit, cal: Calibration) -> str:

@@ -100,6 +100,8 @@ class FitContext:
     pool: object
     rng: np.random.Generator
     say: Callable[[str], None]
+    extended_sims: dict[str, list] = field(default_factory=dict)
+    """Every run re-simulated with a model the calibrated one extended, by that model (its JSON): simulated once."""
 
 
 def grid_ends(values: dict[str, float], grids: dict[str, np.ndarray]) -> dict[str, str]:
