@@ -130,7 +130,8 @@ def test_measured_runs_are_replayed_with_the_paper_fish_unless_the_scenario_name
                         duration_s=2.0, workers=1)
     assert PlantParams().fish_model == "joined4"  # a scenario's default ...
     _, alone, _ = commands._dataset_and_params(data, None)
-    assert (alone.fish_model, alone.numerics.step_s, alone.numerics.sphere_spacing) == ("paper5", 0.00125, 2.0)
+    assert (alone.fish_model, alone.numerics.step_s, alone.numerics.sphere_spacing, alone.numerics.search_cell_m) \
+        == ("paper5", 0.00125, 2.0, 0.1)
     frag = tmp_path / "calibrated.toml"
     frag.write_text("[plant.friction]\nfish_belt = 0.4\n")
     _, fragment, _ = commands._dataset_and_params(data, frag)

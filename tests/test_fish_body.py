@@ -240,3 +240,21 @@ def test_joined_fish_poses_and_outlines_name_four_bodies_per_fish():
         tip = g.bodies[3].com_from_snout_m - p["section_x"][p["section_body"] == 4 * k + 3][-1]
         assert snout == pytest.approx(0.0, abs=1e-6)
         assert tip == pytest.approx(f.length_m, rel=1e-5)
+
+
+def test_the_contact_search_cells_decide_speed_not_which_contacts_act():
+    """Two fish dropped onto a belt, the second onto the first: with search cells of 0.1, 0.3 (the joined fish's own) and
+    1 m every body ends where it ended with the others, to rounding (the cells change only the order in which the
+    contact forces are summed), and each fish model brings its own cells."""
+    assert PlantParams.model_validate({"fish_model": "joined4"}).numerics.search_cell_m == 0.3
+    assert PlantParams.model_validate({"fish_model": "paper5"}).numerics.search_cell_m == 0.1
+    ends = []
+    for cell_m in (0.1, 0.3, 1.0):
+        params = PlantParams.model_validate({"fish_model": "joined4", "numerics": {"search_cell_m": cell_m}})
+        pair = [fish("f01", length_m=0.6, x_m=1.0), fish("f02", length_m=0.6, x_m=1.1, z_m=0.08, yaw_rad=0.3)]
+        plant = Plant(straight_line(("c1", 0.0, 3.0, 0.0)), pair, params=params)
+        for _ in range(100):
+            plant.step({"c1": 0.4})
+        ends.append(plant.state.pos.copy())
+    assert ends[0].shape == (8, 3) and np.all(ends[0][:, 2] > 0.0)
+    assert np.abs(ends[1] - ends[0]).max() < 1e-12 and np.abs(ends[2] - ends[0]).max() < 1e-12  # 1e-15 measured

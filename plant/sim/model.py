@@ -53,13 +53,6 @@ BELT_MASS_KG = 1.0e5
 TRIANGLE_STIFFNESS = 1.0e8
 """Stiffness of belt and guide triangles; in series with a sphere's much softer spring, so the sphere's rules."""
 PARK_SPACING_M = (0.8, 0.25, 0.2)
-SEARCH_CELL_M = (0.3, 0.3, 0.3)
-"""Cells of the contact search grid along x, y, z: each sphere looks for partners in the cells its box overlaps, and
-Exudyn empties and refills every cell of the box each integration step, so the box's many empty cells (it spans the
-line, the space above it and the parking grid) cost time with small cells.  0.3 m (about half a fish) against 0.1 m,
-side by side on 2026-11-30: Exudyn's time a step -6 % on the dumped batch (1.16 against 1.23 ms), -18 % on the
-continuous line (0.51 against 0.62 ms); 50 seeded dumps of either fish still pass.  Cells change the order in which
-contacts are summed, so runs changed in their last bits with them (the same seed still gives the same run)."""
 
 
 @dataclass(frozen=True)
@@ -263,7 +256,7 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
                    line.z_range_m[1] + 1.2])
     gc.SetSearchTreeBox(lo, hi)
-    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / c_))) for s_, c_ in zip(hi - lo, SEARCH_CELL_M)])
+    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / num.search_cell_m))) for s_ in hi - lo])
     mbs.Assemble()
 
     sd = mbs.systemData

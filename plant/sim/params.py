@@ -62,10 +62,14 @@ class JointParams(Strict):
         "the paper's at any age; fitted by fishfmu diagnose's calibration"))
 
 
-FISH_NUMERICS = {"joined4": {"step_s": 0.002, "sphere_spacing": 3.0},
-                 "paper5": {"step_s": 0.00125, "sphere_spacing": 2.0}}
-"""The explicit step and the spheres' spacing each fish model (``plant.fish_model``) was checked at (50 seeded dumps,
-no body through a belt); used where a scenario does not set them."""
+FISH_NUMERICS = {"joined4": {"step_s": 0.002, "sphere_spacing": 3.0, "search_cell_m": 0.3},
+                 "paper5": {"step_s": 0.00125, "sphere_spacing": 2.0, "search_cell_m": 0.1}}
+"""The explicit step, the spheres' spacing and the contact search's cells each fish model (``plant.fish_model``) was
+checked at (50 seeded dumps, no body through a belt); used where a scenario does not set them.  0.3 m cells against
+0.1 m took Exudyn's time a step down 6 % on the dumped batch and 18 % on the continuous line with the joined fish
+(docs/performance.md, 2026-11-30).  The paper's fish keeps 0.1 m cells: coarser ones measured no faster with it,
+and they change every run in its last bits, which moved a borderline answer of ``diagnose`` (whose benchmark was
+measured with that fish and those cells)."""
 
 
 class NumericsParams(Strict):
@@ -95,6 +99,11 @@ class NumericsParams(Strict):
     sphere_spacing: float = Field(3.0, ge=1.0, le=4.0, description=(
         "distance between contact spheres along the fish, in sphere radii (2 = touching); when not given, the "
         "fish model's own: 3 for 'joined4', 2 for 'paper5'"))
+    search_cell_m: float = Field(0.3, ge=0.02, le=2.0, description=(
+        "edge of the cells of the contact search grid (Exudyn's general contact sorts every sphere into them each "
+        "step and empties every cell first, so small cells over the line's search box cost time; they decide "
+        "speed and the order in which contacts are summed, not which contacts act); when not given, the fish "
+        "model's own: 0.3 m for 'joined4', 0.1 m for 'paper5'"))
     min_body_mass_fraction: float = Field(0.06, ge=0.0, le=0.2, description=(
         "mass scaling, as explicit crash codes do: the paper's tail fin (2.2 %, Table II) is raised to this "
         "share of the fish, taken from the tail body, so that contact springs stiff enough to stop the fin "
