@@ -155,3 +155,11 @@ def test_fish_status_keeps_the_ints_of_the_status_arrays():
     assert [int(s) for s in FishStatus] == [0, 1, 2, 3]  # poses.npz of earlier runs hold 0-2
     assert [s.name for s in FishStatus] == ["WAITING", "ON_LINE", "LEFT", "REJECTED"]
     assert np.array([0, 1, 2], dtype=np.int8)[1] == FishStatus.ON_LINE
+
+
+def test_two_fish_with_one_id_are_refused_before_anything_is_built():
+    # Given to the plant through the Python API, they simulated as two bodies under one name: their tracks,
+    # passages and KPIs would have been read as one fish's.
+    with pytest.raises(ValueError, match="fish id 'f01' is given to 2 fish"):
+        Plant(straight_line(("c1", 0.0, 3.0, 0.0)), [fish("f01", x_m=1.0), fish("f02", x_m=2.0),
+                                                    fish("f01", x_m=1.1, z_m=0.08)])

@@ -85,6 +85,10 @@ class Plant:
                 self._params.numerics.step_s = step_s
         self._fish_specs = list(fish)
         self._fish_ids = tuple(f.fish_id for f in self._fish_specs)
+        twice = sorted({i for i in self._fish_ids if self._fish_ids.count(i) > 1})
+        if twice:  # a fish's id names its track, its passages and its place in the KPIs: two would be read as one
+            raise ValueError(f"fish id '{twice[0]}' is given to {self._fish_ids.count(twice[0])} fish; each fish needs "
+                             f"its own")
         self._roster = FishRoster.of(self._fish_specs)  # which fish waits, is in the system, on the line, gone
         n_sub = comm_step_s / self._params.numerics.step_s
         if abs(n_sub - round(n_sub)) > 1e-6 or round(n_sub) < 1:
