@@ -15,6 +15,7 @@ requires the strata).  Each candidate's module
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -153,29 +154,45 @@ def _heldout_errors(d: Design, shapes: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return e0, best_held, chosen.tolist()
 
 
-def _explained(d: Design, shapes: np.ndarray) -> float:
-    """Share of the constant model's squared error that the best shape's term removes, fitted on all rows: the
-    test statistic (the most powerful of a term's own fit; what it does on held-out runs is reported beside)."""
+def _basis(x: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the span of ``x``'s columns, as least squares sees it (its rank by ``lstsq``'s own
+    cut-off): a residual is then ``y - u (u' y)``, one product for any number of columns."""
+    if not x.shape[1]:
+        return np.zeros((x.shape[0], 0))
+    u, sv, _ = np.linalg.svd(x, full_matrices=False)
+    return u[:, sv > np.finfo(float).eps * max(x.shape) * sv[0]]
+
+
+def explainer(d: Design) -> Callable[[np.ndarray], float]:
+    """The test statistic of ``d`` for any shapes (the observed ones and each shuffle of them): the share of the
+    constant model's squared error that the best shape's term removes, fitted on all rows (the most powerful of a
+    term's own fit; what it does on held-out runs is reported beside).  What a shuffle leaves alone (the response,
+    the base model, its residual, the groups) is worked out once: a test runs it on up to 5000 shuffles."""
+    groups, idx = np.unique(d.group, return_inverse=True)
+    member = np.zeros((len(groups), len(d.y)))
+    member[idx, np.arange(len(d.y))] = 1.0
+    count = member.sum(axis=1)[:, None]
     y = _centre(d.y, d.group) if d.within else d.y.astype(float)
-    s = _centre(shapes, d.group) if d.within else shapes
     nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
-    base_x = np.column_stack([np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1)), nu])
-    r0 = y - base_x @ _lstsq(base_x, y)
+    base = _basis(np.column_stack([np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1)), nu]))
+    r0 = y - base @ (base.T @ y)
     ss0 = float(r0 @ r0)
-    if ss0 <= 0.0:
-        return 0.0
-    best = 0.0
-    for k in range(s.shape[1]):
-        # the shape's part not explained by the base: regress the base's residual on it
-        sk = s[:, k] - base_x @ _lstsq(base_x, s[:, k])
-        den = float(sk @ sk)
-        if den <= 1e-300:
-            continue
-        b = float(sk @ r0) / den
-        if d.sign and np.sign(b) == -d.sign:
-            continue
-        best = max(best, b * b * den / ss0)
-    return best
+
+    def explained(shapes: np.ndarray) -> float:
+        if ss0 <= 0.0:
+            return 0.0
+        s = np.asarray(shapes, dtype=float).reshape(len(y), -1)
+        if d.within:  # each group's mean taken off, all columns in one product
+            s = s - (member @ s / count)[idx]
+        sk = s - base @ (base.T @ s)  # each shape's part the base does not explain
+        den = np.einsum("ij,ij->j", sk, sk)
+        fits = den > 1e-300
+        b = np.divide(sk.T @ r0, den, out=np.zeros(len(den)), where=fits)
+        if d.sign:
+            fits &= np.sign(b) != -d.sign  # a term of the wrong sign is no term
+        return float(np.max(np.where(fits, b * b * den / ss0, 0.0), initial=0.0))
+
+    return explained
 
 
 def each_shape_alone(d: Design) -> list[tuple[float, float]]:
@@ -185,51 +202,61 @@ def each_shape_alone(d: Design) -> list[tuple[float, float]]:
     s = _centre(d.shapes, d.group) if d.within else d.shapes
     nu = _centre(d.nuisance, d.group) if d.within else d.nuisance
     ones = np.zeros((len(y), 0)) if d.within else np.ones((len(y), 1))
-    return [(_explained(d, d.shapes[:, [k]]),
+    explained = explainer(d)
+    return [(explained(d.shapes[:, [k]]),
              float(_lstsq(np.column_stack([ones, nu, s[:, k]]), y)[-1])) for k in range(d.shapes.shape[1])]
 
 
-def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
-    """The shapes under the null: hours shuffled between runs, headings within runs, loads shifted in time, positions
-    among the rows of a stratum, a run's values at each stratum (a transfer) between runs."""
-    groups = np.unique(d.group)
-    if shuffle == "between":
-        perm = rng.permutation(len(groups))
-        # the run -> covariate map permuted: each run takes another run's shape values (one value per run)
-        first = {g: np.flatnonzero(d.group == g)[0] for g in groups}
-        out = np.empty_like(d.shapes)
-        for g, h in zip(groups, groups[perm]):
-            out[d.group == g] = d.shapes[first[h]]
-        return out
+def shuffler(d: Design, shuffle: str) -> Callable[[np.random.Generator], np.ndarray]:
+    """The shapes under the null, one shuffle a call: hours shuffled between runs, headings within runs, loads shifted
+    in time, positions among the rows of a stratum, a run's values at each stratum (a transfer) between runs.  The
+    rows' groups and strata are indexed once; each call draws from ``rng`` what a shuffle needs."""
+    groups, gi = np.unique(d.group, return_inverse=True)
     if shuffle in ("strata", "runs") and d.strata is None:
         raise ValueError(f"the {shuffle} shuffle needs the design's strata")
+    if shuffle == "between":  # the run -> covariate map permuted: each run takes another run's shape values
+        first = np.array([np.flatnonzero(gi == k)[0] for k in range(len(groups))])
+        return lambda rng: d.shapes[first[rng.permutation(len(groups))][gi]]
     if shuffle == "runs":  # each run takes another run's values, stratum by stratum (a run's value at a transfer)
-        perm = dict(zip(groups, groups[rng.permutation(len(groups))]))
-        first = {}
-        for i, (g, s) in enumerate(zip(d.group, d.strata)):
-            first.setdefault((g, s), i)
-        out = np.zeros_like(d.shapes)
-        for i, (g, s) in enumerate(zip(d.group, d.strata)):
-            j = first.get((perm[g], s))
-            if j is not None:  # a run without rows at that stratum lends nothing there
-                out[i] = d.shapes[j]
-        return out
+        _, si = np.unique(d.strata, return_inverse=True)
+        n_s = int(si.max()) + 1
+        keys, first_row = np.unique(gi * n_s + si, return_index=True)
+        first = np.full(len(groups) * n_s, -1)
+        first[keys] = first_row
+        first = first.reshape(len(groups), n_s)
+
+        def runs(rng: np.random.Generator) -> np.ndarray:
+            j = first[rng.permutation(len(groups))[gi], si]
+            # a run without rows at that stratum lends nothing there
+            return np.where((j >= 0).reshape((-1,) + (1,) * (d.shapes.ndim - 1)), d.shapes[np.maximum(j, 0)], 0.0)
+        return runs
     if shuffle in ("rows", "strata"):  # each row takes another row's covariate (of its stratum): no run-level effect
         if d.strata is None:
-            return d.shapes[rng.permutation(len(d.shapes))]
+            return lambda rng: d.shapes[rng.permutation(len(d.shapes))]
+        cells = [np.flatnonzero(d.strata == s) for s in np.unique(d.strata)]
+
+        def rows(rng: np.random.Generator) -> np.ndarray:
+            out = d.shapes.copy()
+            for idx in cells:
+                out[idx] = d.shapes[rng.permutation(idx)]
+            return out
+        return rows
+    members = [np.flatnonzero(gi == k) for k in range(len(groups))]
+
+    def within_groups(rng: np.random.Generator) -> np.ndarray:
         out = d.shapes.copy()
-        for s in np.unique(d.strata):
-            idx = np.flatnonzero(d.strata == s)
-            out[idx] = d.shapes[rng.permutation(idx)]
+        for idx in members:
+            if shuffle == "within":
+                out[idx] = d.shapes[rng.permutation(idx)]
+            else:  # "shift": circular shift in time (rows are in time order within a group)
+                out[idx] = np.roll(d.shapes[idx], int(rng.integers(1, max(len(idx), 2))), axis=0)
         return out
-    out = d.shapes.copy()
-    for g in groups:
-        idx = np.flatnonzero(d.group == g)
-        if shuffle == "within":
-            out[idx] = d.shapes[rng.permutation(idx)]
-        else:  # "shift": circular shift in time (rows are in time order within a group)
-            out[idx] = np.roll(d.shapes[idx], int(rng.integers(1, max(len(idx), 2))), axis=0)
-    return out
+    return within_groups
+
+
+def _shuffled(d: Design, rng: np.random.Generator, shuffle: str) -> np.ndarray:
+    """One shuffle of the shapes (:func:`shuffler`)."""
+    return shuffler(d, shuffle)(rng)
 
 
 def covariate_test(candidate: str, quantity: str, covariate: str, d: Design, shuffle: str,
@@ -242,8 +269,9 @@ def covariate_test(candidate: str, quantity: str, covariate: str, d: Design, shu
     e0, e1, chosen = _heldout_errors(d, d.shapes)
     score = heldout_score(list(groups), e0 - e1, e0, len(d.y), rng)
     out.heldout_gain, out.heldout_gain_ci95, out.gain_by_run = score.gain, score.ci95, score.by_run
-    observed = _explained(d, d.shapes)
-    exceed = sum(_explained(d, _shuffled(d, rng, shuffle)) >= observed - 1e-12 for _ in range(permutations))
+    explained, shuffled = explainer(d), shuffler(d, shuffle)
+    observed = explained(d.shapes)
+    exceed = sum(explained(shuffled(rng)) >= observed - 1e-12 for _ in range(permutations))
     out.explained = observed
     out.p_value = (1 + exceed) / (1 + permutations)
     # the shape and coefficient fitted on all runs
