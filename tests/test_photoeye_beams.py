@@ -23,7 +23,7 @@ def one_section_body(section_x_m: float, half_len_m: float, radius_m: float) -> 
 
 def test_the_neighbourhood_reaches_as_far_as_the_outline_does():
     model = one_section_body(0.45, 0.1, 0.01)
-    assert outline_reach_m(model) == 0.45 + 0.1 + 0.01
+    assert outline_reach_m(model).tolist() == [0.45 + 0.1 + 0.01]
 
 
 def test_a_body_whose_outline_just_reaches_a_beam_blocks_it_from_the_edge_of_the_neighbourhood():

@@ -45,7 +45,7 @@ import numpy as np
 
 from plant.contract.devices import going_out_sideways, in_exit_regions
 from plant.errors import SimulationError
-from plant.sim.state import FishStatus, PlantState
+from plant.sim.state import PlantState
 
 MAX_SPEED_MPS = 25.0
 """Anything faster than this in a fish plant is a numerical blow-up, not physics."""
@@ -201,7 +201,7 @@ class EnergyWatch:
     def fish_energy(state: PlantState) -> np.ndarray:
         """Kinetic plus potential energy [J] of every fish in ``state`` (NaN for fish not on the line)."""
         n = len(state.status)
-        on = state.status[state.fish_of_body] == FishStatus.ON_LINE
+        on = state.on_line_bodies()
         if not np.any(on):
             return np.full(n, np.nan)
         m, inertia = state.body_mass_kg[on], state.body_inertia[on]

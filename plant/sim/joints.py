@@ -26,6 +26,7 @@ stiffness/offset values only to joints whose linearisation changed.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -51,6 +52,12 @@ class JointLaws:
     damping: np.ndarray
     """Rotational damping [N m s/rad]."""
 
+    @cached_property
+    def zone(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(start, end, 4 w, 2 w) of the stiffening zone, w its half-width: worked out once, read every step."""
+        w = self.transition * self.limit_rad
+        return self.limit_rad - w, self.limit_rad + w, 4.0 * w, 2.0 * w
+
 
 def stack_laws(laws: list[JointLaws]) -> JointLaws:
     """One set of arrays for the joints of many fish (same transition width assumed)."""
@@ -62,17 +69,12 @@ def stack_laws(laws: list[JointLaws]) -> JointLaws:
 
 
 def _phi(law: JointLaws, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """phi(|theta|) and its slope, for |theta| = a."""
-    w = law.transition * law.limit_rad
-    lo, hi = law.limit_rad - w, law.limit_rad + w
-    inside = a <= lo
-    beyond = a >= hi
-    zone = ~inside & ~beyond
-    phi = np.where(beyond, a - law.limit_rad, 0.0)
-    slope = np.where(beyond, 1.0, 0.0)
+    """phi(|theta|) and its slope, for |theta| = a (its last two axes (J, 3) those of the law)."""
+    lo, hi, w4, w2 = law.zone
     dz = a - lo
-    phi = np.where(zone, dz**2 / (4.0 * w), phi)
-    slope = np.where(zone, dz / (2.0 * w), slope)
+    beyond, past_lo = a >= hi, a > lo  # past_lo and not beyond: the zone; neither: inside
+    phi = np.where(beyond, a - law.limit_rad, np.where(past_lo, dz * dz / w4, 0.0))
+    slope = np.where(beyond, 1.0, np.where(past_lo, dz / w2, 0.0))
     return phi, slope
 
 
@@ -96,10 +98,10 @@ def linearize(law: JointLaws, theta_now: np.ndarray, theta_next: np.ndarray) -> 
     spring give the exact torque now.
     """
     gap = law.k_limit - law.k_soft
-    phi_now, slope_now = _phi(law, np.abs(theta_now))  # once for both the tangent and the torque now
-    _, slope_next = _phi(law, np.abs(theta_next))
-    k = np.maximum(law.k_soft + gap * slope_now, law.k_soft + gap * slope_next)  # tangent(now), tangent(next)
-    offset = theta_now - (law.k_soft * theta_now + gap * phi_now * np.sign(theta_now)) / k  # torque(now) / k
+    phi, slope = _phi(law, np.abs(np.stack((theta_now, theta_next))))  # now and next at once
+    tangents = law.k_soft + gap * slope
+    k = np.maximum(tangents[0], tangents[1])  # tangent(now), tangent(next)
+    offset = theta_now - (law.k_soft * theta_now + gap * phi[0] * np.sign(theta_now)) / k  # torque(now) / k
     return k, offset
 
 
@@ -122,12 +124,14 @@ def relinearized(laws: JointLaws, rot_a: np.ndarray, rot_b: np.ndarray, omega_a:
     soft_until = laws.limit_rad * (1.0 - laws.transition)
     near = ((np.abs(theta) > soft_until) | (np.abs(theta_next) > soft_until)).any(axis=1)
     near &= active
-    k_new = laws.k_soft.copy()
-    off_new = np.zeros_like(offset_now)
     if near.any():  # the array's own methods: np.any's dispatch costs more than the test on 4 joints a fish
-        sub = JointLaws(laws.limit_rad[near], laws.k_soft[near], laws.k_limit[near], laws.transition,
-                        laws.damping[near])
-        k_new[near], off_new[near] = linearize(sub, theta[near], theta_next[near])
+        # the law over every joint, kept where near (element by element: the same numbers as over those alone);
+        # fewer numpy calls than picking the near ones out and putting them back
+        k_all, off_all = linearize(laws, theta, theta_next)
+        k_new = np.where(near[:, None], k_all, laws.k_soft)
+        off_new = np.where(near[:, None], off_all, 0.0)
+    else:
+        k_new, off_new = laws.k_soft, np.zeros_like(offset_now)
     changed = ((np.abs(k_new - k_now) > 0.02 * k_now).any(axis=1)
                | (np.abs(off_new - offset_now) > 0.005).any(axis=1))
     return changed, k_new, off_new

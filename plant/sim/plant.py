@@ -120,6 +120,7 @@ class Plant:
         self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self._prepared]
         self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
+        self._fish_mass_kg.setflags(write=False)
         self._geometry = tuple(p.geometry for p in self._prepared)
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
@@ -187,6 +188,9 @@ class Plant:
         self._tip_bodies = np.array([[nb * i + r[0] for r in self._tip_refs[m.index]] for i, m in enumerate(members)],
                                     dtype=np.int64).reshape(-1, 2)
         self._tip_local = np.array([[r[1] for r in self._tip_refs[m.index]] for m in members]).reshape(-1, 2, 3)
+        for published in (self._member, self._fish_of_body, self._body_mass, self._body_inertia, self._pose_bodies,
+                          self._pose_local):  # fixed until the next rebuild: published as they are, no view a step
+            published.setflags(write=False)
         self._solver = exu.MainSolverExplicit()
         ss = model.settings
         ss.timeIntegration.endTime = 1.0e6  # extended chunk by chunk
@@ -240,7 +244,7 @@ class Plant:
         centres = (fm.prepared.body_offsets_m[local_body] + self.model.sphere_local[mine]) @ rot.T + mid
         radii = self.model.sphere_radius[mine]
         surface = np.array([self._line.z_top_at(float(x)) for x in centres[:, 0]])  # under each sphere: inclines
-        on_line = (self.status[self._fish_of_body] == ON_LINE)[sph]
+        on_line = self._roster.on_line_slots(self.model.bodies_per_fish)[sph]
         others = sphere_centres(self._pos, self._rot, sph[on_line], self.model.sphere_local[on_line])
         z_mid, raised_by = drop_height(centres, radii, surface, spec.drop_z_m, others,
                                        self.model.sphere_radius[on_line])
@@ -264,7 +268,7 @@ class Plant:
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
         a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
-        on = np.repeat(self.status[self._member] == ON_LINE, joints_per_fish := self.model.bodies_per_fish - 1)
+        on = self._roster.on_line_slots(joints_per_fish := self.model.bodies_per_fish - 1)
         changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
                                                self._omega_local[b], on, self._comm_step_s, self._k_now, self._offset_now)
         moved = np.flatnonzero(changed)
@@ -289,7 +293,7 @@ class Plant:
         direction = self._params.extensions.direction_friction
         if not direction.on or len(self._member) == 0:
             return
-        on = np.flatnonzero(self.status[self._member] == ON_LINE)
+        on = np.flatnonzero(self._roster.on_line_slots())
         if not len(on):
             return
         pts = self._pos[self._pose_bodies[on]] + np.einsum("mkij,mkj->mki", self._rot[self._pose_bodies[on]],
@@ -314,7 +318,7 @@ class Plant:
         if not adhesion.on or len(self._member) == 0:
             return
         m = self.model
-        body_on = self.status[self._fish_of_body] == ON_LINE
+        body_on = self._roster.on_line_slots(m.bodies_per_fish)
         sel = np.flatnonzero(body_on[m.sphere_body])
         centres = sphere_centres(self._pos, self._rot, m.sphere_body[sel], m.sphere_local[sel])
         force = adhesion_forces(centres, m.sphere_radius[sel], m.sphere_body[sel], self._fish_of_body,
@@ -346,15 +350,15 @@ class Plant:
 
     def _sensors(self, step: Step) -> PlantOutputs:
         """What the equipment reads after the solve: every output of the step."""
-        seen = Seen(self._pos, self._rot, self.status[self._fish_of_body] == ON_LINE, self._velocities, self._top_view,
-                    self._roster.rejected_by)
+        seen = Seen(self._pos, self._rot, self._roster.on_line_slots(self.model.bodies_per_fish), self._velocities,
+                    self._top_view, self._roster.rejected_by)
         fields: dict[str, dict] = {}
         for equipment in self._equipment.values():
             fields.update(equipment.after_solve(step, seen))
         return PlantOutputs(t_s=self.t_s, **fields)
 
     def _top_view(self) -> TopView:
-        slots = np.flatnonzero(self.status[self._member] == ON_LINE)
+        slots = np.flatnonzero(self._roster.on_line_slots())
         return fish_seen_from_above(self.model, self._pos, self._rot, slots, self._member[slots],
                                     (self._tip_bodies[slots], self._tip_local[slots]),
                                     (self._pose_bodies[slots, :1], self._pose_local[slots, :1]))
@@ -415,7 +419,7 @@ class Plant:
             fish_mass_kg=self._fish_mass_kg, gravity_mps2=self._gravity, adhesion_force_n=self._adhesion_force,
             outputs=outputs, pose_bodies=self._pose_bodies, pose_local=self._pose_local, geometry=self._geometry,
             drop_adjustments=self._roster.drop_adjustments, rejected_by=self._roster.rejected_by.copy(),
-            timings_s=dict(self._timings_s),
+            timings_s=dict(self._timings_s), body_on=self._roster.on_line_slots(self.model.bodies_per_fish),
             **{k: v for e in self._equipment.values() for k, v in e.published().items()})
 
     def _check_health(self) -> None:

@@ -49,6 +49,9 @@ class FishRoster:
     """(n_slots,) the fish in each slot of the system."""
     slot_of: dict[int, int] = field(default_factory=dict)
     """Fish index -> its slot, for the fish in the system."""
+    # read several times every step, changed only when a fish comes or goes: kept until then
+    _next_drop_t_s: float | None = field(default=None, init=False, repr=False)
+    _on_line: dict[int, np.ndarray] = field(default_factory=dict, init=False, repr=False)
 
     @classmethod
     def of(cls, fish: list[FishSpec]) -> FishRoster:
@@ -60,24 +63,38 @@ class FishRoster:
         """The system was (re)built with these fish in its slots."""
         self.member = member
         self.slot_of = {int(k): i for i, k in enumerate(member)}
+        self._on_line.clear()
 
     def due(self, t_s: float, ahead_s: float = 0.0) -> list[int]:
         """The waiting fish whose drop comes by ``t_s + ahead_s``."""
+        if self._next_drop_t_s is None:
+            waiting = self.drop_t_s[self.status == WAITING]
+            self._next_drop_t_s = float(waiting.min()) if len(waiting) else np.inf
+        if t_s + ahead_s < self._next_drop_t_s:  # most steps: none due
+            return []
         return [int(k) for k in np.flatnonzero((self.status == WAITING) & (self.drop_t_s <= t_s + ahead_s))]
 
     def must_admit(self, due: list[int]) -> bool:
         """Whether some of ``due`` is not in the system yet (it must be rebuilt with them)."""
         return any(k not in self.slot_of for k in due)
 
-    def on_line_slots(self) -> np.ndarray:
-        """(n_slots,) True for the slots whose fish is on the line."""
-        return self.status[self.member] == ON_LINE
+    def on_line_slots(self, repeat: int = 1) -> np.ndarray:
+        """(n_slots,) True for the slots whose fish is on the line; with ``repeat``, each of them that many times
+        (per body, per joint of the system).  Read-only, kept until a fish comes, goes or the system is rebuilt."""
+        if (on := self._on_line.get(repeat)) is None:
+            on = self.status[self.member] == ON_LINE
+            on = on if repeat == 1 else np.repeat(on, repeat)
+            on.setflags(write=False)
+            self._on_line[repeat] = on
+        return on
 
     def released(self, k: int, raised_by_m: float) -> None:
         """Fish ``k`` is on the line, dropped ``raised_by_m`` higher than asked (to clear the fish below it)."""
         if raised_by_m > 0:
             self.drop_adjustments += (DropAdjustment(self.fish_ids[k], raised_by_m),)
         self.status[k] = ON_LINE
+        self._next_drop_t_s = None
+        self._on_line.clear()
 
     def leaving(self, pos: np.ndarray, line: Line, retire_after_m: float, taken: np.ndarray) -> np.ndarray:
         """The slots whose fish is to be retired: on the line and past its end (every body ``retire_after_m`` beyond
@@ -96,6 +113,7 @@ class FishRoster:
         """The fish of ``slot`` has left the line: rejected by device ``taken_by``, or (-1) gone past its end."""
         k = self.member[slot]
         self.status[k], self.rejected_by[k] = (REJECTED, taken_by) if taken_by >= 0 else (LEFT, -1)
+        self._on_line.clear()
 
     def rebuild_due(self) -> bool:
         """A quarter of the fish in the system (two at least) are gone: rebuilt without them it steps faster."""

@@ -30,62 +30,80 @@ def sphere_centres(body_pos: np.ndarray, body_rot: np.ndarray, sphere_body: np.n
     return body_pos[sphere_body] + np.einsum("nij,nj->ni", body_rot[sphere_body], sphere_local)
 
 
+def capsules_cut(centre: np.ndarray, axis: np.ndarray, half_len: np.ndarray, radius: np.ndarray,
+                 beam_xz: np.ndarray, span_y_m: np.ndarray) -> np.ndarray:
+    """True where a beam at (x, z) ``beam_xz`` (..., 2), spanning y from ``span_y_m[..., 1]`` to ``span_y_m[..., 0]``,
+    cuts a fish cross-section; element by element, the arrays broadcast against each other (over their leading axes).
+
+    A cross-section is a capsule: the segment ``centre +- s * axis`` (|s| <= half_len, axis = the body's dorsal
+    direction; (..., 3) each) thickened by ``radius``.  The beam runs along y, so only the distance in the x-z plane
+    counts: minimise it over s (a quadratic) and compare with the radius."""
+    dx = centre[..., 0] - beam_xz[..., 0]
+    dz = centre[..., 2] - beam_xz[..., 1]
+    uu = axis[..., 0] ** 2 + axis[..., 2] ** 2
+    s = -(dx * axis[..., 0] + dz * axis[..., 2]) / np.where(uu > 1e-12, uu, 1.0)
+    s = np.clip(s, -half_len, half_len)
+    ex = dx + s * axis[..., 0]
+    ez = dz + s * axis[..., 2]
+    y = centre[..., 1] + s * axis[..., 1]
+    return (ex * ex + ez * ez < radius ** 2) & (y < span_y_m[..., 0] + radius) & (y > span_y_m[..., 1] - radius)
+
+
 def photoeyes_blocked(section_centres: np.ndarray, section_axes: np.ndarray, half_len: np.ndarray,
                       radius: np.ndarray, beams_xz: np.ndarray, span_y_m: np.ndarray,
                       pairs: np.ndarray | None = None) -> np.ndarray:
     """(n_beams,) True where a beam at (x, z), spanning y from ``span_y_m[:, 1]`` to ``span_y_m[:, 0]`` (between
-    the guides there: (left, right) per beam), cuts a fish cross-section.
-
-    A cross-section is a capsule: the segment ``centre +- s * axis`` (|s| <= half_len, axis = the
-    body's dorsal direction) thickened by ``radius``.  The beam runs along y, so only the distance
-    in the x-z plane counts: minimise it over s (a quadratic) and compare with the radius.  ``pairs``
-    (n_beams, n_sections), when given: only these (beam, cross-section) pairs are looked at.
+    the guides there: (left, right) per beam), cuts a fish cross-section (:func:`capsules_cut`), every beam against
+    every cross-section.  ``pairs`` (n_beams, n_sections), when given: only these (beam, cross-section) pairs are
+    looked at.
     """
     if len(beams_xz) == 0 or len(section_centres) == 0:
         return np.zeros(len(beams_xz), dtype=bool)
-    c, u = section_centres, section_axes
-    dx = c[None, :, 0] - beams_xz[:, None, 0]
-    dz = c[None, :, 2] - beams_xz[:, None, 1]
-    uu = u[:, 0] ** 2 + u[:, 2] ** 2
-    s = -(dx * u[None, :, 0] + dz * u[None, :, 2]) / np.where(uu > 1e-12, uu, 1.0)[None, :]
-    s = np.clip(s, -half_len[None, :], half_len[None, :])
-    ex = dx + s * u[None, :, 0]
-    ez = dz + s * u[None, :, 2]
-    y = c[None, :, 1] + s * u[None, :, 1]
     span = np.asarray(span_y_m, dtype=float).reshape(-1, 2)
-    hit = ((ex * ex + ez * ez < radius[None, :] ** 2) & (y < span[:, :1] + radius[None, :])
-           & (y > span[:, 1:] - radius[None, :]))
+    hit = capsules_cut(section_centres[None], section_axes[None], half_len[None], radius[None], beams_xz[:, None],
+                       span[:, None])
     if pairs is not None:
         hit &= pairs
     return hit.any(axis=1)
 
 
-def outline_reach_m(model: PlantModel) -> float:
-    """The farthest any point of a body's outline lies from the body's centre along any direction (its
-    cross-section's offset along the body, half its length and its radius): a body whose centre is farther than
+def outline_reach_m(model: PlantModel) -> np.ndarray:
+    """(n_bodies,) the farthest any point of each body's outline lies from the body's centre along any direction
+    (a cross-section's offset along the body, half its length and its radius): a body whose centre is farther than
     this from a beam along x cannot cut it."""
-    if len(model.section_body) == 0:
-        return 0.0
-    return float(np.max(np.abs(model.section_x) + model.section_half_len + model.section_radius))
+    n_bodies = int(model.section_body.max()) + 1 if len(model.section_body) else 0
+    reach = np.zeros(n_bodies)
+    np.maximum.at(reach, model.section_body, np.abs(model.section_x) + model.section_half_len + model.section_radius)
+    return reach
 
 
 def beams_blocked(model: PlantModel, pos: np.ndarray, rot: np.ndarray, body_on: np.ndarray, beams_xz: np.ndarray,
-                  span_y_m: np.ndarray, reach_m: float | None = None) -> np.ndarray:
+                  span_y_m: np.ndarray, reach_m: np.ndarray | None = None) -> np.ndarray:
     """(n_beams,) True where a beam cuts the outline of a body of a fish on the line (``body_on``), from the
-    bodies' positions and rotations.  Each beam is tested only against the bodies near it: those whose centre
-    lies within ``reach_m`` (:func:`outline_reach_m`, worked out when not given) of it along x."""
+    bodies' positions and rotations.  Each beam is tested only against the cross-sections near it: those of the
+    bodies whose centre lies within their ``reach_m`` (:func:`outline_reach_m`, worked out when not given) of it
+    along x, and of them those whose centre lies within their half-length and radius of it along x (no other can
+    reach it)."""
+    blocked = np.zeros(len(beams_xz), dtype=bool)
     if len(beams_xz) == 0 or len(model.section_body) == 0:
-        return np.zeros(len(beams_xz), dtype=bool)
+        return blocked
     reach = (outline_reach_m(model) if reach_m is None else reach_m) + 1e-9  # 1e-9: rounding of the centres
-    near = body_on[:, None] & (np.abs(pos[:, :1] - beams_xz[None, :, 0]) < reach)  # (bodies, beams)
-    sel = np.flatnonzero(np.any(near, axis=1)[model.section_body])
+    reach = np.pad(reach, (0, len(pos) - len(reach))) if len(reach) < len(pos) else reach  # no outline: no reach
+    near = body_on[:, None] & (np.abs(pos[:, :1] - beams_xz[None, :, 0]) < reach[:, None])  # (bodies, beams)
+    sel = np.flatnonzero(near.any(axis=1)[model.section_body])
     if not len(sel):
-        return np.zeros(len(beams_xz), dtype=bool)
+        return blocked
     b = model.section_body[sel]
     r = rot[b]
     centres = pos[b] + r[:, :, 0] * model.section_x[sel][:, None]
-    return photoeyes_blocked(centres, r[:, :, 1], model.section_half_len[sel], model.section_radius[sel], beams_xz,
-                             span_y_m, near[b].T)
+    half_len, radius = model.section_half_len[sel], model.section_radius[sel]
+    beam, section = np.nonzero(near[b].T & (np.abs(centres[:, 0] - beams_xz[:, :1]) < half_len + radius + 1e-9))
+    if len(beam):
+        span = np.asarray(span_y_m, dtype=float).reshape(-1, 2)
+        cut = capsules_cut(centres[section], r[section, :, 1], half_len[section], radius[section], beams_xz[beam],
+                           span[beam])
+        blocked[beam[cut]] = True
+    return blocked
 
 
 class BeamDelay:
@@ -114,7 +132,7 @@ class PhotoEyes:
 
     def __init__(self, ids: tuple[str, ...], beams_xz: np.ndarray, span_y_m: np.ndarray, delay: BeamDelay) -> None:
         self.ids, self.beams_xz, self.span_y_m, self.delay = ids, beams_xz, span_y_m, delay
-        self._model, self._reach_m = None, 0.0  # the system the reach was worked out for
+        self._model, self._reach_m = None, np.zeros(0)  # the system the reaches were worked out for
 
     @classmethod
     def of(cls, line: Line, comm_step_s: float) -> PhotoEyes:

@@ -8,8 +8,9 @@ the recorder, the plant FMU, ``fishfmu serve``, re-simulation): the fish's statu
 
 Building it is cheap: the arrays are the plant's own arrays of that step, shared, not copied
 (the plant makes new ones every step and never writes one in place after publishing it); the
-snapshot holds read-only views of them, so nothing can write through it.  The one array the plant
-changes in place, the fish status, is copied (one small int per fish).
+snapshot holds read-only views of them (or the arrays themselves, where the plant made them read-only), so nothing
+can write through it.  The one array the plant changes in place, the fish status, is copied (one small int per
+fish).
 
 >>> import numpy as np
 >>> s = PlantState(t_s=0.0, fish_ids=("f1",), status=np.array([FishStatus.ON_LINE], dtype=np.int8),
@@ -165,11 +166,14 @@ class PlantState:
     timings_s: dict[str, float] = field(default_factory=dict)
     """Wall time spent so far in Exudyn's solver (``exudyn``) and in rebuilding the system (``rebuild``; the longest
     rebuild: ``rebuild_longest``, a step's worth of time at once when serving in real time)."""
+    body_on: np.ndarray | None = None
+    """(n_bodies,) True for the bodies of fish on the line (:meth:`on_line_bodies`; worked out from the status when
+    not given)."""
 
     def __post_init__(self) -> None:
         for name in _ARRAY_FIELDS:
             value = getattr(self, name)
-            if value is not None:
+            if value is not None and (not isinstance(value, np.ndarray) or value.flags.writeable):  # else read-only
                 view = np.asarray(value).view()
                 view.setflags(write=False)
                 object.__setattr__(self, name, view)
@@ -181,6 +185,8 @@ class PlantState:
 
     def on_line_bodies(self) -> np.ndarray:
         """(n_bodies,) True for the bodies of fish on the line."""
+        if self.body_on is not None:
+            return self.body_on
         return self.status[self.fish_of_body] == FishStatus.ON_LINE
 
     def fish_poses(self) -> FishState:
