@@ -202,8 +202,9 @@ class EnergyWatch:
         """Kinetic plus potential energy [J] of every fish in ``state`` (NaN for fish not on the line)."""
         n = len(state.status)
         on = state.on_line_bodies()
-        if not np.any(on):
+        if not on.any():
             return np.full(n, np.nan)
+        on = slice(None) if on.all() else on  # most steps: every body in the system, no copies
         m, inertia = state.body_mass_kg[on], state.body_inertia[on]
         vel = state.vel[on]
         e = (0.5 * m * np.einsum("ij,ij->i", vel, vel)

@@ -258,7 +258,7 @@ class Plant:
         """What the equipment does before the solve: each belt body back at its place moving at its speed, each
         device body at its pose moving at its actuator's rate (plant.sim.belts, plant.sim.devices)."""
         sd = self.model.mbs.systemData
-        q = sd.GetODE2Coordinates()
+        q = sd.GetODE2Coordinates()  # read again: a script may have set the system's state between steps
         v = sd.GetODE2Coordinates_t()
         for equipment in self._equipment.values():
             equipment.before_solve(step, q, v)
@@ -346,6 +346,8 @@ class Plant:
         self._rot = rotvec_to_matrix(coords[:, 3:])
         self._vel = vel[:, :3]
         self._omega_local = vel[:, 3:]
+        for published in (self._pos, self._rot, self._vel, self._omega_local):  # new each step, published as they are
+            published.setflags(write=False)
         self._velocities = v  # the belt and device bodies' too: what the equipment reads of the step
 
     def _sensors(self, step: Step) -> PlantOutputs:
@@ -425,6 +427,9 @@ class Plant:
     def _check_health(self) -> None:
         s = self._state
         body_on = s.on_line_bodies()
-        if not np.any(body_on):
+        if not body_on.any():
             return
-        check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self._line, s.t_s)
+        if body_on.all():  # most steps: every body in the system on the line, no copies
+            check_health(s.pos, s.vel, s.fish_of_body, s.fish_ids, self._line, s.t_s)
+        else:
+            check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self._line, s.t_s)
