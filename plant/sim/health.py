@@ -241,7 +241,7 @@ class EnergyWatch:
         total = float(now[on_now].sum())
         self._lowest = np.where(on_now, np.fmin(self._lowest, now) if self._lowest is not None else now, np.nan)
         self._energy = now
-        if not np.any(on_now):
+        if not on_now.any():
             self._bound_j = 0.0
             return
         mass = float(state.fish_mass_kg[on_now].sum())

@@ -28,7 +28,9 @@ ValueError: assignment destination is read-only
 from __future__ import annotations
 
 import enum
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, make_dataclass
+from types import MappingProxyType
 
 import numpy as np
 
@@ -49,16 +51,20 @@ class FishStatus(enum.IntEnum):
     """Taken off the line by one of its devices (a gate, pusher or diverter)."""
 
 
-def _port_values(self: PlantOutputs) -> dict[str, float | bool]:
+def _port_values(self: PlantOutputs) -> Mapping[str, float | bool]:
     """Every output as ``"<id>.<signal>"`` (the names connections use), in the order of
-    :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`."""
+    :meth:`PlantPorts.outputs <plant.sim.ports.PlantPorts.outputs>`; read-only, worked out once (a step's
+    outputs are read by the master, its recording and its observers)."""
+    if (done := self.__dict__.get("_port_values_done")) is not None:
+        return MappingProxyType(done)
     out: dict[str, float | bool] = {}
     for of in KINDS:
         signals = [(s.name, getattr(self, s.field)) for s in OUTPUT_SIGNALS if s.of == of]
         for i in (signals[0][1] if signals else ()):  # each field holds every unit of its kind, by id
             for name, values in signals:
                 out[f"{i}.{name}"] = values[i]
-    return out
+    object.__setattr__(self, "_port_values_done", out)  # frozen: kept beside the fields, not one of them
+    return MappingProxyType(out)
 
 
 def _at_rest(cls: type, ports: PlantPorts, t_s: float = 0.0) -> PlantOutputs:
