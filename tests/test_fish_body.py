@@ -258,3 +258,34 @@ def test_the_contact_search_cells_decide_speed_not_which_contacts_act():
         ends.append(plant.state.pos.copy())
     assert ends[0].shape == (8, 3) and np.all(ends[0][:, 2] > 0.0)
     assert np.abs(ends[1] - ends[0]).max() < 1e-12 and np.abs(ends[2] - ends[0]).max() < 1e-12  # 1e-15 measured
+
+
+def test_the_friction_table_holds_every_level_the_fish_take_and_cutting_it_changes_no_contact():
+    """Without directional friction a fish's friction level never changes, so the table Exudyn gets stops at the
+    highest level a body of the run's fish takes (mucus and a gradient along the fish move them): the coefficients
+    are the full table's, and a pile of fish with mucus of three ages on a graded friction runs to the last bit as
+    with the full table (the full table forced on a twin plant at every rebuild)."""
+    from dataclasses import replace
+
+    from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels
+    from plant.sim.model import MAT_FISH0, friction_pairings
+    from plant.sim.plant import Plant
+
+    full = np.array(friction_pairings(0.3, 0.2, 0.4))
+    short = np.array(friction_pairings(0.3, 0.2, 0.4, (), 90))
+    assert short.shape == (MAT_FISH0 + 90,) * 2 and np.array_equal(short, full[:MAT_FISH0 + 90, :MAT_FISH0 + 90])
+
+    params = PlantParams.model_validate({"friction": {"belt_gradient": 0.4}, "numerics": {"step_s": 0.002},
+                                         "extensions": {"mucus_friction": {"gain": 1.5, "time_constant_h": 10.0}}})
+    line = straight_line(("c1", 0.0, 2.0, 0.0))
+    fishes = [replace(fish(f"f{k}", x_m=0.5 + 0.05 * k, t_s=0.05 + 0.1 * k, z_m=0.02 + 0.09 * k),
+                      hours_post_mortem=h) for k, h in enumerate((1.0, 12.0, 48.0))]
+    cut, whole = Plant(line, fishes, params), Plant(line, fishes, params)
+    whole._highest_level = None  # the full table at every rebuild
+    taken = [int(body_friction_levels(int(lv), 0.4, 4).max()) for lv in cut._level]
+    assert cut._highest_level == max(taken) and FRICTION_LEVELS[max(taken)] > 2.0  # the oldest fish's tail
+    for _ in range(80):
+        cut.step({"c1": 0.3})
+        whole.step({"c1": 0.3})
+    assert (cut.status == 1).all()
+    assert np.array_equal(cut.state.pos, whole.state.pos) and np.array_equal(cut.state.vel, whole.state.vel)

@@ -66,6 +66,9 @@ class PreparedFish:
     body_offsets_m: np.ndarray
     """(5, 3) body centre of mass relative to the mid-length point, in the fish frame."""
     n_spheres: int
+    outline: np.ndarray
+    """(n_sections, 4) the outline's cross-sections, head first: (body index in the fish, offset along the body, half
+    length, radius); the photo-eyes read them (plant.sim.sensors), every rebuild copies them."""
 
 
 @dataclass
@@ -195,17 +198,23 @@ def park_positions(line: Line, n: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=16)
 def friction_pairings(fish_belt: float, fish_guide: float, fish_fish: float,
-                      guide_sections: tuple[float, ...] = ()) -> list[list[float]]:
+                      guide_sections: tuple[float, ...] = (), fish_levels: int = len(FRICTION_LEVELS)
+                      ) -> list[list[float]]:
     """Coulomb coefficients between materials (fish levels scale their friction on belts and guides) as Exudyn takes
-    them fastest: a list (it converts in half the time of an array), made once for all the rebuilds of a run
-    (converting it took 0.9 ms of a rebuild's 11).  Shared: never changed.  ``guide_sections``: each guide
-    section's factor on the fish-guide friction (guide wear), one material each from :data:`MAT_SECTION0`."""
-    mu = np.zeros((MAT_SECTION0 + len(guide_sections),) * 2)
-    fish = slice(MAT_FISH0, MAT_SECTION0)
-    mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = fish_belt * FRICTION_LEVELS
-    mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = fish_guide * FRICTION_LEVELS
+    them fastest: a list (it converts in half the time of an array), made once for all the rebuilds of a run.
+    Shared: never changed.  ``guide_sections``: each guide section's factor on the fish-guide friction (guide wear),
+    one material each from :data:`MAT_SECTION0`.  ``fish_levels``: only the first that many levels get a material
+    (the levels above the highest any fish of the run can take; all of them with guide sections): Exudyn converts
+    the whole table at every rebuild, 0.9 ms for all 281 levels, a rebuild's most costly single call."""
+    if guide_sections and fish_levels != len(FRICTION_LEVELS):
+        raise ValueError("guide sections take their materials after every fish level")
+    levels = FRICTION_LEVELS[:fish_levels]
+    mu = np.zeros((MAT_FISH0 + fish_levels + len(guide_sections),) * 2)
+    fish = slice(MAT_FISH0, MAT_FISH0 + fish_levels)
+    mu[MAT_BELT, fish] = mu[fish, MAT_BELT] = fish_belt * levels
+    mu[MAT_GUIDE, fish] = mu[fish, MAT_GUIDE] = fish_guide * levels
     for k, factor in enumerate(guide_sections):
-        mu[MAT_SECTION0 + k, fish] = mu[fish, MAT_SECTION0 + k] = fish_guide * factor * FRICTION_LEVELS
+        mu[MAT_SECTION0 + k, fish] = mu[fish, MAT_SECTION0 + k] = fish_guide * factor * levels
     mu[fish, fish] = fish_fish
     return mu.tolist()
 
@@ -220,7 +229,9 @@ def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float,
     inertias = tuple(_shaped_inertia(b, num.inertia_shaping, 1.0 if joined else 0.5) for b in geo.bodies)
     laws = joint_laws(geo, params.joints, num, params.gravity_mps2, list(inertias), *joint_factor)
     offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
-    return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies))
+    outline = np.array([(i, x, max(half_h - half_w, 0.0), half_w) for i, b in enumerate(geo.bodies)
+                        for (x, half_h, half_w) in b.outline]).reshape(-1, 4)
+    return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies), outline)
 
 
 def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, friction_level: int) -> Member:
@@ -233,9 +244,10 @@ def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, fricti
 
 
 def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantParams, gravity: np.ndarray,
-                line: Line) -> PlantModel:
+                line: Line, highest_level: int | None = None) -> PlantModel:
     """Create, connect and assemble the line (its ``surfaces``, worked out once per run by
-    :func:`plant.sim.surfaces.line_surfaces`) and the given fish in their given states."""
+    :func:`plant.sim.surfaces.line_surfaces`) and the given fish in their given states.  ``highest_level``: the
+    highest friction level a body of a fish of the run can take (None: any, as directional friction may)."""
     num = params.numerics
     system = exu.SystemContainer()
     mbs = system.AddSystem()
@@ -244,8 +256,9 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     gc.frictionProportionalZone = num.friction_regularization_mps
     wear = params.extensions.guide_wear
     section_factors = tuple(wear.sections(line.x_start_m, line.x_end_m)[1].tolist()) if wear.on else ()
+    fish_levels = len(FRICTION_LEVELS) if highest_level is None or section_factors else highest_level + 1
     gc.SetFrictionPairings(friction_pairings(params.friction.fish_belt, params.friction.fish_guide,
-                                          params.friction.fish_fish, section_factors))
+                                          params.friction.fish_fish, section_factors, fish_levels))
     belt_nodes, device_nodes = _add_line(mbs, gc, surfaces, line, section_factors)
     items = _FishItems()
     fish_models = [_add_fish(mbs, gc, mem, params, gravity, items) for mem in members]
@@ -266,8 +279,7 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
     device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in device_nodes], dtype=np.int64).reshape(-1, 6)
     return PlantModel(system, mbs, gc, _solver_settings(num), line, params, fish_models, body_ltg, body_ref, belt_ltg,
                       np.array(items.sphere_body, dtype=np.int64), np.array(items.sphere_local).reshape(-1, 3),
-                      np.array(items.sphere_radius), np.array(items.section_body, dtype=np.int64),
-                      np.array(items.section_x), np.array(items.section_half_len), np.array(items.section_radius),
+                      np.array(items.sphere_radius), *items.sections(),
                       (lo, hi), device_ltg)
 
 
@@ -317,10 +329,13 @@ class _FishItems:
     sphere_body: list[int] = field(default_factory=list)
     sphere_local: list[tuple] = field(default_factory=list)
     sphere_radius: list[float] = field(default_factory=list)
-    section_body: list[int] = field(default_factory=list)
-    section_x: list[float] = field(default_factory=list)
-    section_half_len: list[float] = field(default_factory=list)
-    section_radius: list[float] = field(default_factory=list)
+    outlines: list[np.ndarray] = field(default_factory=list)
+    """Each fish's :attr:`PreparedFish.outline`, its body index made the system's."""
+
+    def sections(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(body, offset along it, half length, radius) of every cross-section of the system."""
+        rows = np.concatenate(self.outlines) if self.outlines else np.zeros((0, 4))
+        return rows[:, 0].astype(np.int64), rows[:, 1].copy(), rows[:, 2].copy(), rows[:, 3].copy()
 
 
 def _add_fish(mbs, gc, mem: Member, params: PlantParams, gravity: np.ndarray, items: _FishItems) -> FishModel:
@@ -354,16 +369,12 @@ def _add_fish(mbs, gc, mem: Member, params: PlantParams, gravity: np.ndarray, it
             items.sphere_body.append(first + i)
             items.sphere_local.append((x, y, 0.0))
             items.sphere_radius.append(r)
-        for (x, half_h, half_w) in b.outline:
-            items.section_body.append(first + i)
-            items.section_x.append(x)
-            items.section_half_len.append(max(half_h - half_w, 0.0))
-            items.section_radius.append(half_w)
         if params.extensions.adhesion.on:
             com = mbs.AddMarker(MarkerBodyPosition(bodyNumber=obj, localPosition=[0.0, 0.0, 0.0]))
             sticky.append(mbs.AddLoad(LoadForceVector(markerNumber=com, loadVector=[0.0, 0.0, 0.0])))
         objects.append(obj)
         items.body_nodes.append(node)
+    items.outlines.append(prep.outline + np.array([first, 0.0, 0.0, 0.0]))  # copied as a whole, not row by row
     connectors = []
     for j in range(len(geo.bodies) - 1):
         a, b = geo.bodies[j], geo.bodies[j + 1]

@@ -124,7 +124,11 @@ class Plant:
         self._geometry = tuple(p.geometry for p in self._prepared)
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
-        self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line), [])
+        # without directional friction a fish's level never changes: the friction table needs none above these
+        self._highest_level = None if ext.direction_friction.on else max(
+            (int(body_friction_levels(int(lv), self._params.friction.belt_gradient, len(g.bodies)).max())
+             for lv, g in zip(self._level, self._geometry)), default=0)
+        self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line, self._highest_level), [])
         self._publish(PlantOutputs.at_rest(self._ports))
 
     @property
@@ -216,7 +220,8 @@ class Plant:
         members += [parked_member(int(k), self._prepared[k], parks[len(members) + i], int(self._level[k]))
                     for i, k in enumerate(due)]
         t0 = time.perf_counter()
-        self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line), members)
+        self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line,
+                                    self._highest_level), members)
         self._timings_s["rebuild"] += (took_s := time.perf_counter() - t0)
         self._timings_s["rebuild_longest"] = max(self._timings_s["rebuild_longest"], took_s)
 
