@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from plant.errors import InputError
+from plant.fish.extensions import highest_body_level
+from plant.fish.fish_body import FISH_MODELS
 from plant.sim import model
 from plant.sim.surfaces import line_surfaces
 
@@ -49,11 +51,15 @@ def main() -> int:
     parks = model.park_positions(line, len(fish))
     members = [model.parked_member(i, model.prepare_fish(f, params), parks[i], 80) for i, f in enumerate(fish)]
     surfaces = line_surfaces(line, params.guide_height_m)
+    # the friction table as the plant gives it: up to the fish's level, all levels with directional friction
+    top = None if params.extensions.direction_friction.on else highest_body_level(
+        [80] * len(members), params.friction.belt_gradient, FISH_MODELS[params.fish_model])
     figures = {"scenario": args.scenario, "fish": len(fish), "repeats": args.repeats,
-               "line_alone_ms": best_ms(lambda: model.build_model(surfaces, [], params, gravity, line), args.repeats),
-               "with_fish_ms": best_ms(lambda: model.build_model(surfaces, members, params, gravity, line),
+               "line_alone_ms": best_ms(lambda: model.build_model(surfaces, [], params, gravity, line, top),
+                                        args.repeats),
+               "with_fish_ms": best_ms(lambda: model.build_model(surfaces, members, params, gravity, line, top),
                                        args.repeats)}
-    built = model.build_model(surfaces, members, params, gravity, line)
+    built = model.build_model(surfaces, members, params, gravity, line, top)
 
     def initialise() -> None:
         solver = model.exu.MainSolverExplicit()

@@ -166,6 +166,12 @@ def body_friction_levels(level: int, gradient: float, n_bodies: int = 5) -> np.n
     return friction_level(FRICTION_LEVELS[int(level)] * factor)
 
 
+def highest_body_level(levels: np.ndarray, gradient: float, n_bodies: int) -> int:
+    """The highest friction level any body of fish at ``levels`` takes (:func:`body_friction_levels`): without
+    directional friction no fish leaves its level, and the friction table needs none above it."""
+    return max((int(body_friction_levels(int(lv), gradient, n_bodies).max()) for lv in levels), default=0)
+
+
 # ---------------------------------------------------------------- the forces, as functions of the state
 
 def direction_friction_levels(spine_xy: np.ndarray, mid_velocity_xy: np.ndarray, belt_speed_mps: np.ndarray,

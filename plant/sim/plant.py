@@ -40,7 +40,8 @@ from plant.contract.devices import step_for_devices
 from plant.contract.line import Line
 from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
-                                   stiffening_limit_loss)
+                                   highest_body_level, stiffening_limit_loss)
+from plant.fish.fish_body import FISH_MODELS
 from plant.fish.population import FishSpec
 from plant.sim.health import check_health
 from plant.sim.joints import relinearized, stack_laws
@@ -125,9 +126,8 @@ class Plant:
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0 = 0, 0.0
         # without directional friction a fish's level never changes: the friction table needs none above these
-        self._highest_level = None if ext.direction_friction.on else max(
-            (int(body_friction_levels(int(lv), self._params.friction.belt_gradient, len(g.bodies)).max())
-             for lv, g in zip(self._level, self._geometry)), default=0)
+        self._highest_level = None if ext.direction_friction.on else highest_body_level(
+            self._level, self._params.friction.belt_gradient, FISH_MODELS[self._params.fish_model])
         self._set_model(build_model(self._surfaces, [], self._params, self._gravity, line, self._highest_level), [])
         self._publish(PlantOutputs.at_rest(self._ports))
 
