@@ -69,6 +69,9 @@ class PreparedFish:
     outline: np.ndarray
     """(n_sections, 4) the outline's cross-sections, head first: (body index in the fish, offset along the body, half
     length, radius); the photo-eyes read them (plant.sim.sensors), every rebuild copies them."""
+    joint_springs: np.ndarray
+    """(n_joints, 2, 6, 6) each joint's stiffness with its rotational block zero (the state's linearisation goes
+    there at each rebuild) and its damping, as the joint's connector takes them: made once, copied at each rebuild."""
 
 
 @dataclass
@@ -231,7 +234,15 @@ def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float,
     offsets = np.array([[geo.mid_from_snout_m - b.com_from_snout_m, 0.0, 0.0] for b in geo.bodies])
     outline = np.array([(i, x, max(half_h - half_w, 0.0), half_w) for i, b in enumerate(geo.bodies)
                         for (x, half_h, half_w) in b.outline]).reshape(-1, 4)
-    return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies), outline)
+    springs = []
+    for j, (a, b) in enumerate(zip(geo.bodies[:-1], geo.bodies[1:])):
+        # the joint's translation held by a stiff spring from the two bodies' reduced mass
+        m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
+        k_t = m_red * num.joint_translation_omega_rad_s**2
+        d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
+        springs.append((np.diag([k_t] * 3 + [0.0] * 3), np.diag([d_t] * 3 + list(laws.damping[j]))))
+    return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies), outline,
+                        np.array(springs).reshape(-1, 2, 6, 6))
 
 
 def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, friction_level: int) -> Member:
@@ -381,15 +392,18 @@ def _add_fish(mbs, gc, mem: Member, params: PlantParams, gravity: np.ndarray, it
         xj = geo.joint_from_snout_m[j]
         m0, m1 = (mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": objects[j + e],
                                  "localPosition": [body.com_from_snout_m - xj, 0.0, 0.0]}) for e, body in ((0, a), (1, b)))
-        m_red = a.mass_kg * b.mass_kg / (a.mass_kg + b.mass_kg)
-        k_t = m_red * num.joint_translation_omega_rad_s**2
-        d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
+        stiffness, damping = prep.joint_springs[j]
+        stiffness = stiffness.copy()
+        stiffness[_ROTATION_DIAGONAL] = mem.joint_k[j]  # the joint's linearisation now (plant.sim.joints)
         connectors.append(mbs.AddObject({
-            "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1],
-            "stiffness": np.diag([k_t] * 3 + list(mem.joint_k[j])), "damping": np.diag([d_t] * 3 + list(prep.laws.damping[j])),
-            "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
+            "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1], "stiffness": stiffness,
+            "damping": damping, "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
     return FishModel(mem.index, prep, first, connectors, loads, first_sphere, len(items.sphere_body) - first_sphere,
                      sticky)
+
+
+_ROTATION_DIAGONAL = (np.array([3, 4, 5]), np.array([3, 4, 5]))
+"""The rotational stiffnesses' places in a joint connector's 6 x 6 stiffness."""
 
 
 def _solver_settings(num) -> exu.SimulationSettings:
