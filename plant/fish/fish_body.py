@@ -137,16 +137,26 @@ def _spheres_overlap_at_limits(pa: np.ndarray, ra: np.ndarray, pb: np.ndarray, r
                                limits_rad: tuple[float, float]) -> bool:
     """True if a sphere of body a (positions relative to the joint) touches one of body b
     when b is bent to any corner of the joint's limits (lateral about y, dorso-ventral about z)."""
-    lat, dv = limits_rad
+    for rot_t in _limit_corners(*limits_rad):
+        q = pb @ rot_t
+        d = np.linalg.norm(pa[:, None, :] - q[None, :, :], axis=2)
+        if np.any(d < (ra[:, None] + rb[None, :])):
+            return True
+    return False
+
+
+@functools.lru_cache(maxsize=64)
+def _limit_corners(lat: float, dv: float) -> tuple[np.ndarray, ...]:
+    """The transposed rotations of a joint bent to each corner of its limits (lateral about y, dorso-ventral about
+    z): the same for every fish cut alike, worked out once (they were most of a fish's geometry's time)."""
+    corners = []
     for ay in (-lat, 0.0, lat):
         for az in (-dv, 0.0, dv):
             cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
             rot = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]]) @ np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-            q = pb @ rot.T
-            d = np.linalg.norm(pa[:, None, :] - q[None, :, :], axis=2)
-            if np.any(d < (ra[:, None] + rb[None, :])):
-                return True
-    return False
+            rot.setflags(write=False)  # shared by every fish
+            corners.append(rot.T)
+    return tuple(corners)
 
 
 def _place_spheres(cuts: tuple[float, ...], clearance: list[float], length_m: float, height_m: float,
