@@ -38,7 +38,6 @@ import numpy as np
 
 from plant.contract.devices import step_for_devices
 from plant.contract.line import Line
-from plant.errors import SimulationError
 from plant.fish.extensions import (adhesion_forces, body_friction_levels, direction_friction_levels, friction_level,
                                    highest_body_level, stiffening_limit_loss)
 from plant.fish.fish_body import FISH_MODELS
