@@ -42,6 +42,7 @@ from typing import Any
 
 import fmpy
 import numpy as np
+import pandas as pd
 
 from plant.errors import InputError, SimulationError
 from plant.contract.measured import write_dataset
@@ -218,7 +219,7 @@ class RunFolder:
                  "run": out / "run", "report": out / "report.html", "info": out / MARKER}
         write_text_atomic(paths["scenario"], resolved_toml(result.scenario))
         self.write_kpis(kpis_document(result, partial))
-        write_text_atomic(paths["signals"], result.signals.to_csv(index=False, float_format="%.10g"))
+        write_text_atomic(paths["signals"], signals_csv(result.signals))
         if paths["run"].exists():
             shutil.rmtree(paths["run"])
         manifest.write_tree_atomic(paths["run"], lambda tmp: write_dataset(result.dataset(), tmp))
@@ -246,6 +247,18 @@ class RunFolder:
             versions={"exudyn": exu.config.Version(), "fmpy": fmpy.__version__, "python": platform.python_version()},
         )
         return paths
+
+
+def signals_csv(signals: pd.DataFrame) -> str:
+    """signals.csv's text: every float to ten significant digits, a missing value empty.  The same text as pandas'
+    ``to_csv(float_format="%.10g")``, which formats value by value in Python (about 0.1 s of a dumped batch's 4 s)."""
+    text = {}
+    for name, column in signals.items():
+        if column.dtype.kind == "f":
+            text[name] = np.array(["" if v != v else "%.10g" % v for v in column.to_numpy().tolist()], dtype=object)
+        else:
+            text[name] = column
+    return pd.DataFrame(text, index=signals.index).to_csv(index=False)
 
 
 def kpis_document(result: RunResult, partial: bool = False) -> dict[str, Any]:
