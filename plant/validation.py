@@ -28,12 +28,12 @@ class Strict(pydantic.BaseModel):
     """Base for every user-facing table: unknown keys are errors, values are checked on assignment, and no float
     anywhere in it (a guide's point, a part's offset, a value in a list) may be NaN or infinite.
 
-    A field is documented by ``Field(description=...)`` or by a docstring line under it
-    (``use_attribute_docstrings``; a description given in ``Field`` wins); either way it shows in
-    docs/scenario-reference.md (:mod:`fishfmu.scenario.reference`).  Validation is the same."""
+    A field is documented by ``Field(description=...)``: it shows in docs/scenario-reference.md
+    (:mod:`fishfmu.scenario.reference`) and on the served line's variables.  (Not by a docstring under it: pydantic's
+    ``use_attribute_docstrings`` reads every model's source at import, a third of a run's own start-up, and no field
+    needed it.)"""
 
-    model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
-                                       use_attribute_docstrings=True, allow_inf_nan=False)
+    model_config = pydantic.ConfigDict(extra="forbid", validate_assignment=True, frozen=False, allow_inf_nan=False)
 
 
 def suggest(name: str, known: Iterable[str], *, prefix: str = "", cutoff: float = 0.6, allowed: str | None = None,
