@@ -122,71 +122,82 @@ def _body_mass_properties(s0: float, s1: float, length_m: float, height_m: float
     return xc, (float(ixx), float(iyy), float(izz))
 
 
-def _sphere_rows(s: float, length_m: float, height_m: float, width_m: float,
-                 min_radius_m: float) -> list[tuple[float, float]]:
-    """(local y offset, radius) of the spheres across the body at position s."""
-    r = max(0.5 * width_m * float(np.interp(s, OUTLINE_S, OUTLINE_W)), min_radius_m)
-    half_h = 0.5 * height_m * float(np.interp(s, OUTLINE_S, OUTLINE_H))
-    offset = half_h - r
-    if offset < 0.5 * r:
-        return [(0.0, r)]
-    return [(offset, r), (-offset, r)]
+def _sphere_rows(s: np.ndarray, length_m: float, height_m: float, width_m: float,
+                 min_radius_m: float) -> list[list[tuple[float, float]]]:
+    """(local y offset, radius) of the spheres across the body at each position of ``s`` (one interpolation for a
+    body's every position: one call per position cost most of a fish's geometry)."""
+    r = np.maximum(0.5 * width_m * np.interp(s, OUTLINE_S, OUTLINE_W), min_radius_m).tolist()
+    half_h = (0.5 * height_m * np.interp(s, OUTLINE_S, OUTLINE_H)).tolist()
+    return [[(0.0, ri)] if hi - ri < 0.5 * ri else [(hi - ri, ri), (-(hi - ri), ri)] for ri, hi in zip(r, half_h)]
 
 
 def _spheres_overlap_at_limits(pa: np.ndarray, ra: np.ndarray, pb: np.ndarray, rb: np.ndarray,
                                limits_rad: tuple[float, float]) -> bool:
     """True if a sphere of body a (positions relative to the joint) touches one of body b
     when b is bent to any corner of the joint's limits (lateral about y, dorso-ventral about z)."""
-    for rot_t in _limit_corners(*limits_rad):
-        q = pb @ rot_t
-        d = np.linalg.norm(pa[:, None, :] - q[None, :, :], axis=2)
-        if np.any(d < (ra[:, None] + rb[None, :])):
-            return True
-    return False
+    q = pb @ _limit_corners(*limits_rad)  # b's spheres at all nine corners at once: (9, nb, 3)
+    d = np.linalg.norm(pa[None, :, None, :] - q[:, None, :, :], axis=3)
+    return bool(np.any(d < (ra[:, None] + rb[None, :])))
 
 
 @functools.lru_cache(maxsize=64)
-def _limit_corners(lat: float, dv: float) -> tuple[np.ndarray, ...]:
+def _limit_corners(lat: float, dv: float) -> np.ndarray:
     """The transposed rotations of a joint bent to each corner of its limits (lateral about y, dorso-ventral about
-    z): the same for every fish cut alike, worked out once (they were most of a fish's geometry's time)."""
+    z), stacked (9, 3, 3): the same for every fish cut alike, worked out once (they were most of a fish's geometry's
+    time)."""
     corners = []
     for ay in (-lat, 0.0, lat):
         for az in (-dv, 0.0, dv):
             cy, sy, cz, sz = np.cos(ay), np.sin(ay), np.cos(az), np.sin(az)
             rot = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]]) @ np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
-            rot.setflags(write=False)  # shared by every fish
             corners.append(rot.T)
-    return tuple(corners)
+    out = np.array(corners)
+    out.setflags(write=False)  # shared by every fish
+    return out
+
+
+def _body_spheres(i: int, cuts: tuple[float, ...], clear_head: float, clear_tail: float, length_m: float,
+                  height_m: float, width_m: float, min_radius_m: float, spacing: float) -> list[tuple[float, float, float]]:
+    """Body i's spheres as (distance from snout, local y, radius), evenly spaced along the spine, kept
+    ``clear_head`` / ``clear_tail`` radii from the joints at its ends (``min_radius_m`` already the fish's floor)."""
+    x0, x1 = cuts[i] * length_m, cuts[i + 1] * length_m
+
+    def radius_at(x: np.ndarray) -> list[float]:
+        return np.maximum(0.5 * width_m * np.interp(x / length_m, OUTLINE_S, OUTLINE_W), min_radius_m).tolist()
+
+    # first/last centre: one radius inside the snout / fin tip, or clear of the joint
+    r_head, r_head_in, r_tail_in, r_tail = radius_at(np.array([x0 - 1e-6, x0 + 1e-6, x1 - 1e-6, x1 + 1e-6]))
+    lo = radius_at(np.array([x0]))[0] if i == 0 else x0 + clear_head * max(r_head, r_head_in)
+    hi = x1 - radius_at(np.array([x1]))[0] if i == N_BODIES - 1 else x1 - clear_tail * max(r_tail_in, r_tail)
+    if i == N_BODIES - 1:
+        # the fin: one pair of spheres at its tip, so that contact and photo-eyes see the whole
+        # length (the fin is light; more spheres would only cost time)
+        xs = np.array([max(hi, 0.5 * (x0 + x1))])
+    elif hi <= lo:
+        xs = np.array([0.5 * (x0 + x1)])
+    else:
+        # narrow parts (tail, fin) would need many small spheres: space them by at least
+        # a third of the fish's thickness, which keeps the count near 30 per fish
+        pitch = spacing * max(radius_at(np.array([0.5 * (lo + hi)]))[0], width_m / 3)
+        n = int(np.ceil((hi - lo) / pitch)) + 1
+        xs = np.linspace(lo, hi, n)
+    rows = _sphere_rows(xs / length_m, length_m, height_m, width_m, min_radius_m)
+    return [(x, y, r) for x, row in zip(xs.tolist(), rows) for (y, r) in row]
 
 
 def _place_spheres(cuts: tuple[float, ...], clearance: list[float], length_m: float, height_m: float,
-                   width_m: float, min_radius_m: float, spacing: float,
-                   min_radius_fraction: float) -> list[list[tuple[float, float, float]]]:
-    """Per body, spheres as (distance from snout, local y, radius), evenly spaced along the spine."""
-    raw = []
+                   width_m: float, min_radius_m: float, spacing: float, min_radius_fraction: float,
+                   placed: dict | None = None) -> list[list[tuple[float, float, float]]]:
+    """Per body, spheres as (distance from snout, local y, radius), evenly spaced along the spine.  ``placed``: the
+    bodies placed before, by their two clearances (the clearance search moves one joint's at a time)."""
+    placed = {} if placed is None else placed
     min_radius_m = max(min_radius_m, min_radius_fraction * width_m)
+    raw = []
     for i in range(N_BODIES):
-        x0, x1 = cuts[i] * length_m, cuts[i + 1] * length_m
-
-        def radius_at(x: float) -> float:
-            return _sphere_rows(x / length_m, length_m, height_m, width_m, min_radius_m)[0][1]
-
-        # first/last centre: one radius inside the snout / fin tip, or clear of the joint
-        lo = radius_at(x0) if i == 0 else x0 + clearance[i - 1] * max(radius_at(x0 - 1e-6), radius_at(x0 + 1e-6))
-        hi = x1 - radius_at(x1) if i == N_BODIES - 1 else x1 - clearance[i] * max(radius_at(x1 - 1e-6), radius_at(x1 + 1e-6))
-        if i == N_BODIES - 1:
-            # the fin: one pair of spheres at its tip, so that contact and photo-eyes see the whole
-            # length (the fin is light; more spheres would only cost time)
-            xs = np.array([max(hi, 0.5 * (x0 + x1))])
-        elif hi <= lo:
-            xs = np.array([0.5 * (x0 + x1)])
-        else:
-            # narrow parts (tail, fin) would need many small spheres: space them by at least
-            # a third of the fish's thickness, which keeps the count near 30 per fish
-            pitch = spacing * max(radius_at(0.5 * (lo + hi)), width_m / 3)
-            n = int(np.ceil((hi - lo) / pitch)) + 1
-            xs = np.linspace(lo, hi, n)
-        raw.append([(float(x), y, r) for x in xs for (y, r) in _sphere_rows(x / length_m, length_m, height_m, width_m, min_radius_m)])
+        key = (i, clearance[i - 1] if i > 0 else 0.0, clearance[i] if i < N_BODIES - 1 else 0.0)
+        if key not in placed:
+            placed[key] = _body_spheres(i, cuts, key[1], key[2], length_m, height_m, width_m, min_radius_m, spacing)
+        raw.append(placed[key])
     return raw
 
 
@@ -242,12 +253,19 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
     # Clearance of the spheres from each joint, in radii of the larger neighbouring sphere,
     # grown until the two bodies' spheres do not touch with the joint at its limits (+15 %).
     clearance = [1.0] * (N_BODIES - 1)
+    placed: dict = {}
+    tested: dict = {}  # a joint's test by its two bodies' clearances: most do not move from one round to the next
     for _ in range(40):
         raw = _place_spheres(cuts, clearance, length_m, height_m, width_m, min_radius_m, sphere_spacing,
-                             min_radius_fraction)
-        touching = [j for j in range(N_BODIES - 1)
-                    if _touch_at_limits(raw[j], raw[j + 1], cuts[j + 1] * length_m,
-                                        tuple(1.15 * a for a in joint_limits_rad[j]))]
+                             min_radius_fraction, placed)
+        touching = []
+        for j in range(N_BODIES - 1):
+            key = (j, *clearance[max(j - 1, 0):j + 2])
+            if key not in tested:
+                tested[key] = _touch_at_limits(raw[j], raw[j + 1], cuts[j + 1] * length_m,
+                                               tuple(1.15 * a for a in joint_limits_rad[j]))
+            if tested[key]:
+                touching.append(j)
         if not touching:
             break
         for j in touching:
@@ -267,8 +285,9 @@ def fish_geometry(length_m: float, height_m: float, width_m: float, mass_kg: flo
         # local x points to the head: a point at distance d from the snout is at local x = xc - d
         spheres = tuple((xc - x, y, r) for x, y, r in raw[i])
         stations = np.linspace(s0, s1, max(2, int(np.ceil((s1 - s0) * length_m / 0.01)) + 1))
-        outline = tuple((float(xc - st * length_m), float(0.5 * height_m * np.interp(st, OUTLINE_S, OUTLINE_H)),
-                         float(0.5 * width_m * np.interp(st, OUTLINE_S, OUTLINE_W))) for st in stations)
+        outline = tuple(zip((xc - stations * length_m).tolist(),
+                            (0.5 * height_m * np.interp(stations, OUTLINE_S, OUTLINE_H)).tolist(),
+                            (0.5 * width_m * np.interp(stations, OUTLINE_S, OUTLINE_W)).tolist()))
         bodies.append(BodyGeometry(BODY_NAMES[i], s0, s1, m, inertia, xc, spheres, outline))
     return FishGeometry(length_m, height_m, width_m, mass_kg, tuple(bodies),
                         tuple(c * length_m for c in cuts[1:-1]))
