@@ -33,8 +33,10 @@ def _script(name: str):
 
 
 def _finding(kind: str, id_: str, covariate: str = "hours_post_mortem") -> dict:
-    return {"quantity": "lag", "location": {"kind": kind, "id": id_}, "covariate": covariate, "effect": 0.05,
-            "unit": "s", "p_value": 0.001, "heldout_gain": 0.04, "runs": ["r01", "r02"]}
+    """An unexplained finding as diagnosis.json holds it: its covariate in words and by its column."""
+    return {"quantity": "lag", "location": {"kind": kind, "id": id_}, "covariate": f"the fish's {covariate} (in words)",
+            "covariate_key": covariate, "effect": 0.05, "unit": "s", "p_value": 0.001, "heldout_gain": 0.04,
+            "runs": ["r01", "r02"]}
 
 
 # ------------------------------------------------------------------ reading the two documents

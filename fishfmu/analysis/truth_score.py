@@ -156,7 +156,8 @@ def open_outcome(families: tuple[str, ...], diagnosis: dict, available: frozense
     else:
         outcome = "located" if at else "elsewhere"
     return {"outcome": outcome, "answer": answer_of(diagnosis), "wrong": wrong, "unnamed": unnamed,
-            "following": any(x.get("covariate") in covariates for x in at),
+            # a finding names its covariate for the reader ("covariate") and by its column ("covariate_key")
+            "following": any(x.get("covariate_key", x.get("covariate")) in covariates for x in at),
             "where": sorted({f"{(x.get('location') or {}).get('kind')}:{(x.get('location') or {}).get('id')}"
                              for x in findings})}
 
