@@ -122,11 +122,17 @@ def _body_mass_properties(s0: float, s1: float, length_m: float, height_m: float
     return xc, (float(ixx), float(iyy), float(izz))
 
 
+def _sphere_radii(s: np.ndarray, width_m: float, min_radius_m: float) -> list[float]:
+    """The spheres' radius at each position ``s`` along the fish: its half-thickness there, at least
+    ``min_radius_m``."""
+    return np.maximum(0.5 * width_m * np.interp(s, OUTLINE_S, OUTLINE_W), min_radius_m).tolist()
+
+
 def _sphere_rows(s: np.ndarray, length_m: float, height_m: float, width_m: float,
                  min_radius_m: float) -> list[list[tuple[float, float]]]:
     """(local y offset, radius) of the spheres across the body at each position of ``s`` (one interpolation for a
     body's every position: one call per position cost most of a fish's geometry)."""
-    r = np.maximum(0.5 * width_m * np.interp(s, OUTLINE_S, OUTLINE_W), min_radius_m).tolist()
+    r = _sphere_radii(s, width_m, min_radius_m)
     half_h = (0.5 * height_m * np.interp(s, OUTLINE_S, OUTLINE_H)).tolist()
     return [[(0.0, ri)] if hi - ri < 0.5 * ri else [(hi - ri, ri), (-(hi - ri), ri)] for ri, hi in zip(r, half_h)]
 
@@ -163,7 +169,7 @@ def _body_spheres(i: int, cuts: tuple[float, ...], clear_head: float, clear_tail
     x0, x1 = cuts[i] * length_m, cuts[i + 1] * length_m
 
     def radius_at(x: np.ndarray) -> list[float]:
-        return np.maximum(0.5 * width_m * np.interp(x / length_m, OUTLINE_S, OUTLINE_W), min_radius_m).tolist()
+        return _sphere_radii(x / length_m, width_m, min_radius_m)
 
     # first/last centre: one radius inside the snout / fin tip, or clear of the joint
     r_head, r_head_in, r_tail_in, r_tail = radius_at(np.array([x0 - 1e-6, x0 + 1e-6, x1 - 1e-6, x1 + 1e-6]))
