@@ -224,6 +224,14 @@ class EnergyWatch:
             return 0.0
         return float(np.abs(np.einsum("ij,ij->i", force, vel)).sum())
 
+    @classmethod
+    def _work_j(cls, state: PlantState, dt_s: float) -> float:
+        """What the sources did on the fish during the step: the belts (load times speed), at most the adhesion
+        forces' power, the devices' work."""
+        out = state.outputs
+        work = dt_s * sum(out.belt_load_force_n[c] * out.belt_speed_mps[c] for c in out.belt_speed_mps)
+        return work + (dt_s * cls._adhesion_power_bound(state) + state.device_work_j)  # as summed before
+
     def after_step(self, state: PlantState, outputs: object, inputs: object, dt_s: float) -> None:
         """As a step observer (:mod:`plant.sim.observers`): :meth:`check` after each step."""
         self.check(state, dt_s)
@@ -236,12 +244,10 @@ class EnergyWatch:
         if self._layout is not None:  # the quick steps before kept the energies of the system's fish alone
             self._energy, self._lowest = self._layout.per_fish(len(state.status))
             self._layout = None
-        belt_speed_mps, belt_load_force_n = state.outputs.belt_speed_mps, state.outputs.belt_load_force_n
         now = self.fish_energy(state)
         before = self._energy if self._energy is not None else np.full(len(now), np.nan)
         on_now, on_before = ~np.isnan(now), ~np.isnan(before)
-        work = dt_s * sum(belt_load_force_n[c] * belt_speed_mps[c] for c in belt_speed_mps)
-        work += dt_s * self._adhesion_power_bound(state) + state.device_work_j
+        work = self._work_j(state, dt_s)
         entered = float(now[on_now & ~on_before].sum())
         left = float(before[on_before & ~on_now].sum())
         bound = self._bound_j + work + entered - left
@@ -282,10 +288,7 @@ class EnergyWatch:
             x = x[lay.bodies]
         now = (x * (x * lay.square + lay.linear)).reshape(len(lay.fish), -1).sum(axis=1)
         total = float(now.sum())
-        outputs = state.outputs
-        work = dt_s * sum(outputs.belt_load_force_n[c] * outputs.belt_speed_mps[c] for c in outputs.belt_speed_mps)
-        work += dt_s * self._adhesion_power_bound(state) + state.device_work_j
-        bound = self._bound_j + work
+        bound = self._bound_j + self._work_j(state, dt_s)
         excess = total - bound
         if not np.isfinite(total) or excess > lay.reserve_j:
             return False
