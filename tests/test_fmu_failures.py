@@ -328,7 +328,7 @@ def test_booleans_come_out_of_an_fmu_as_bool_in_process_and_in_a_worker(builtin_
 
 
 def test_strings_pass_as_str_and_booleans_as_bool(builtin_fmus) -> None:
-    """fmpy's getString gives bytes and getBoolean C ints; an FMU instance gives str and bool."""
+    """fmpy's getString gives bytes and fmi2GetBoolean C ints; an FMU instance gives str and bool."""
     from fishfmu.fmu.archive import FmuVariable
     from fishfmu.fmu.instance import InProcessFmu
 
@@ -346,17 +346,20 @@ def test_strings_pass_as_str_and_booleans_as_bool(builtin_fmus) -> None:
             assert all(isinstance(v, str) for v in values)  # fmpy encodes str itself
             self.strings.update({v: s.encode() for v, s in zip(vrs, values)})
 
-        def getBoolean(self, vrs):  # noqa: N802
-            return [self.booleans[v] for v in vrs]
+        component = None  # FMI 2 booleans go to the C functions, the value references made once
 
-        def setBoolean(self, vrs, values):  # noqa: N802
-            self.booleans.update(zip(vrs, values))
+        def fmi2GetBoolean(self, c, vrs, n, values):  # noqa: N802
+            for i in range(n):
+                values[i] = self.booleans[vrs[i]]
+
+        def fmi2SetBoolean(self, c, vrs, n, values):  # noqa: N802
+            self.booleans.update((vrs[i], values[i]) for i in range(n))
 
     with open_fmu(builtin_fmus["conveyor_drive"]) as fmu:
         instance = InProcessFmu("d", fmu, {})
         instance.terminate()
     instance._slave = Slave()
-    instance._ref_cache.clear()
+    instance._batch_cache.clear()
     instance.variables = {"label": FmuVariable("label", "output", "String", "discrete", 1, None, None),
                           "on": FmuVariable("on", "output", "Boolean", "discrete", 2, None, None)}
     assert instance.get(["label", "on"]) == {"label": "grüß", "on": True}

@@ -38,13 +38,14 @@ import itertools
 import os
 import re
 from collections import deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from ctypes import byref, c_void_p
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fmpy.fmi2 import (FMU2Slave, calloc, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
-                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, free)
+from fmpy.fmi2 import (FMU2Slave, calloc, fmi2Boolean, fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE,
+                       fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, fmi2Integer, fmi2Real, fmi2ValueReference, free)
 from fmpy.fmi3 import FMU3Slave
 from fmpy.logging import addLoggerProxy
 
@@ -193,6 +194,27 @@ def _from(kind: str, value: Any) -> Any:
     return value
 
 
+_FMI2_C_TYPES = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
+"""FMI 2 value types the instance hands to the FMU's C functions with value references made once: fmpy's setReal and
+getReal build them on every call (about half the FMUs' Python time a step)."""
+
+
+@dataclass(frozen=True)
+class _Batch:
+    """The variables of one FMI get or set call: their names, the kind of Python value, and for FMI 2's numbers
+    and booleans what fmpy's C function takes (the value references' array and the values' array type) with that
+    function (None: fmpy's own setter and getter, which build them each call)."""
+
+    call: str
+    kind: str
+    names: tuple[str, ...]
+    vrs: list[int]
+    c_vrs: Any = None
+    c_values: Any = None
+    set_c: Callable[..., Any] | None = None
+    get_c: Callable[..., Any] | None = None
+
+
 class InProcessFmu:
     """An instantiated, initialised FMI 2.0 or 3.0 co-simulation FMU in this process (``run.fmu_process =
     "in-process"``; :class:`fishfmu.fmu.worker.WorkerFmu` is the same in a worker process); ``set``/``get`` take
@@ -202,7 +224,7 @@ class InProcessFmu:
         check_parameters(name, fmu, parameters)
         self.name = name
         self.variables = fmu.variables
-        self._ref_cache: dict[tuple[str, ...], dict[str, list[tuple[str, int]]]] = {}
+        self._batch_cache: dict[tuple[str, ...], list[_Batch]] = {}
         md = fmu.model_description
         self._time = start_time_s
         self._fatal = False
@@ -297,10 +319,11 @@ class InProcessFmu:
                 detail += f': "{said}"'
             raise SimulationError(f"FMU '{self.name}': {what} returned {text}{detail}", self._time) from None
 
-    def _refs(self, names: Iterable[str]) -> dict[tuple[str, str], list[tuple[str, int]]]:
-        """The names grouped by (the FMI call's type: Real or Float64, ...; the kind of Python value)."""
+    def _batches(self, names: Iterable[str]) -> list[_Batch]:
+        """The names grouped into FMI calls (by the call's type: Real or Float64, ...; and the kind of Python value),
+        made once for each set of names a caller passes."""
         key = tuple(names)
-        cached = self._ref_cache.get(key)
+        cached = self._batch_cache.get(key)
         if cached is not None:
             return cached
         by_type: dict[tuple[str, str], list[tuple[str, int]]] = {}
@@ -310,19 +333,34 @@ class InProcessFmu:
             call = (("Int64" if v.fmi_type == "Enumeration" else v.fmi_type) if self._fmi3 and v.fmi_type
                     else kind)
             by_type.setdefault((call, kind), []).append((n, v.value_reference))
-        self._ref_cache[key] = by_type
-        return by_type
+        batches = []
+        for (call, kind), refs in by_type.items():
+            c_type = None if self._fmi3 else _FMI2_C_TYPES.get(call)
+            vrs = [vr for _, vr in refs]
+            direct = {} if c_type is None else {
+                "c_vrs": (fmi2ValueReference * len(vrs))(*vrs), "c_values": c_type * len(vrs),
+                "set_c": getattr(self._slave, f"fmi2Set{call}"), "get_c": getattr(self._slave, f"fmi2Get{call}")}
+            batches.append(_Batch(call, kind, tuple(n for n, _ in refs), vrs, **direct))
+        self._batch_cache[key] = batches
+        return batches
 
     def set(self, values: Mapping[str, Any]) -> None:
-        for (call, kind), refs in self._refs(values).items():
-            vrs = [vr for _, vr in refs]
-            self._call(f"set{call}", getattr(self._slave, f"set{call}"), vrs, [_as(kind, values[n]) for n, _ in refs])
+        for b in self._batches(values):
+            converted = [_as(b.kind, values[n]) for n in b.names]
+            if b.set_c is not None:
+                self._call(f"set{b.call}", b.set_c, self._slave.component, b.c_vrs, len(b.vrs), b.c_values(*converted))
+            else:
+                self._call(f"set{b.call}", getattr(self._slave, f"set{b.call}"), b.vrs, converted)
 
     def get(self, names: Iterable[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
-        for (call, kind), refs in self._refs(names).items():
-            vals = self._call(f"get{call}", getattr(self._slave, f"get{call}"), [vr for _, vr in refs])
-            out.update({n: _from(kind, v) for (n, _), v in zip(refs, vals)})
+        for b in self._batches(names):
+            if b.get_c is not None:
+                vals = b.c_values()
+                self._call(f"get{b.call}", b.get_c, self._slave.component, b.c_vrs, len(b.vrs), vals)
+            else:
+                vals = self._call(f"get{b.call}", getattr(self._slave, f"get{b.call}"), b.vrs)
+            out.update({n: _from(b.kind, v) for n, v in zip(b.names, vals)})
         return out
 
     def do_step(self, t_s: float, dt_s: float) -> None:
