@@ -1,21 +1,19 @@
 """One FMU instance in this process: fmpy's FMU2Slave, with typed batch access and clear errors.
 
-The master talks to every FMU through the same four calls (``set``, ``do_step``, ``get``,
-``terminate``), so an FMU running in a worker process (:mod:`fishfmu.fmu.worker`) can stand in
-for this one.  Every failure of the FMU (a status of error, fatal or discard from any call) is
-raised as :class:`plant.errors.SimulationError` naming the FMU, the call, the status and the time.
-A binary that cannot be loaded (wrong platform, missing libraries) is bad input
-(:class:`plant.errors.InputError` naming the file).  After a status of fatal, no further call
-is made to the FMU (FMI 2.0: its state is undefined), not even terminate or freeInstance.
+The master talks to every FMU through the same four calls (``set``, ``do_step``, ``get``, ``terminate``), so an FMU
+running in a worker process (:mod:`fishfmu.fmu.worker`) can stand in for this one.  Every failure of the FMU (a status
+of error, fatal or discard from any call) is raised as :class:`plant.errors.SimulationError` naming the FMU, the call,
+the status and the time. A binary that cannot be loaded (wrong platform, missing libraries) is bad input
+(:class:`plant.errors.InputError` naming the file).  After a status of fatal, no further call is made to the FMU
+(FMI 2.0: its state is undefined), not even terminate or freeInstance.
 
-**The FMU's log.** Every instance gets a logger callback that keeps the last
-:data:`LOG_LINES` messages (nothing is printed); when a call fails, the last message of status
-warning, error or fatal that the FMU logged during that call is appended to the error, on one
-line and at most :data:`LOG_MESSAGE_CHARS` characters: ``FMU 'drive_c1': setReal returned error:
-"fmi2SetReal: 'speed_setpoint' = 9 is outside its range [-2, 2]"``.
+**The FMU's log.** Every instance gets a logger callback that keeps the last :data:`LOG_LINES` messages (nothing is
+printed); when a call fails, the last message of status warning, error or fatal that the FMU logged during that call
+is appended to the error, on one line and at most :data:`LOG_MESSAGE_CHARS` characters: ``FMU 'drive_c1': setReal
+returned error: "fmi2SetReal: 'speed_setpoint' = 9 is outside its range [-2, 2]"``.
 
-**Values.** ``get`` gives Real as float, Integer and Enumeration as int, Boolean as bool and
-String as str (fmpy gives C ints and UTF-8 bytes); ``set`` takes the same.
+**Values.** ``get`` gives Real as float, Integer and Enumeration as int, Boolean as bool and String as str (fmpy gives
+C ints and UTF-8 bytes); ``set`` takes the same.
 
 **Events inside a step (FMI 3.0).** An FMU whose modelDescription declares ``hasEventMode`` is instantiated with
 event mode used (and early return allowed where it declares ``mightReturnEarlyFromDoStep``): ``do_step`` from t to
@@ -27,9 +25,8 @@ active in that event mode).  The times the FMU was in event mode are kept in ``e
 stepped as before: one doStep per call.  Its outputs are read by the master at t + dt, so another component sees a
 value set at an event from the end of that step on (see :mod:`fishfmu.cosim.master`).
 
-**The library loaded** is ``binaries/linux64/<modelIdentifier>.so`` inside the unpacked archive,
-checked by :func:`fishfmu.fmu.archive.library_path` right before loading and passed to fmpy by
-its full path.
+**The library loaded** is ``binaries/linux64/<modelIdentifier>.so`` inside the unpacked archive, checked by
+:func:`fishfmu.fmu.archive.library_path` right before loading and passed to fmpy by its full path.
 """
 
 from __future__ import annotations
@@ -38,7 +35,7 @@ import itertools
 import os
 import re
 from collections import deque
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Iterable, Mapping
 from ctypes import byref, c_void_p
 from dataclasses import dataclass
 from pathlib import Path
@@ -195,15 +192,14 @@ def _from(kind: str, value: Any) -> Any:
 
 
 _FMI2_C_TYPES = {"Real": fmi2Real, "Integer": fmi2Integer, "Boolean": fmi2Boolean}
-"""FMI 2 value types the instance hands to the FMU's C functions with value references made once: fmpy's setReal and
-getReal build them on every call (about half the FMUs' Python time a step)."""
+"""FMI 2 types handed to fmpy's C functions (``fmi2SetReal``, ...) with the value references made once: fmpy's setReal
+and getReal build them on every call, about half the FMUs' Python time a step."""
 
 
 @dataclass(frozen=True)
 class _Batch:
-    """The variables of one FMI get or set call: their names, the kind of Python value, and for FMI 2's numbers
-    and booleans what fmpy's C function takes (the value references' array and the values' array type) with that
-    function (None: fmpy's own setter and getter, which build them each call)."""
+    """The variables of one FMI get or set call; for FMI 2's numbers and booleans also the value references' C array,
+    the values' array type and fmpy's C functions that take them (None: fmpy's own setter and getter)."""
 
     call: str
     kind: str
@@ -211,8 +207,8 @@ class _Batch:
     vrs: list[int]
     c_vrs: Any = None
     c_values: Any = None
-    set_c: Callable[..., Any] | None = None
-    get_c: Callable[..., Any] | None = None
+    set_c: Any = None
+    get_c: Any = None
 
 
 class InProcessFmu:
@@ -320,8 +316,7 @@ class InProcessFmu:
             raise SimulationError(f"FMU '{self.name}': {what} returned {text}{detail}", self._time) from None
 
     def _batches(self, names: Iterable[str]) -> list[_Batch]:
-        """The names grouped into FMI calls (by the call's type: Real or Float64, ...; and the kind of Python value),
-        made once for each set of names a caller passes."""
+        """The names grouped into FMI calls by the call's type (Real, Float64, ...) and the kind of value; made once."""
         key = tuple(names)
         cached = self._batch_cache.get(key)
         if cached is not None:
@@ -335,31 +330,30 @@ class InProcessFmu:
             by_type.setdefault((call, kind), []).append((n, v.value_reference))
         batches = []
         for (call, kind), refs in by_type.items():
-            c_type = None if self._fmi3 else _FMI2_C_TYPES.get(call)
             vrs = [vr for _, vr in refs]
-            direct = {} if c_type is None else {
-                "c_vrs": (fmi2ValueReference * len(vrs))(*vrs), "c_values": c_type * len(vrs),
-                "set_c": getattr(self._slave, f"fmi2Set{call}"), "get_c": getattr(self._slave, f"fmi2Get{call}")}
-            batches.append(_Batch(call, kind, tuple(n for n, _ in refs), vrs, **direct))
+            c_type = None if self._fmi3 else _FMI2_C_TYPES.get(call)
+            c = ((fmi2ValueReference * len(vrs))(*vrs), c_type * len(vrs), getattr(self._slave, f"fmi2Set{call}"),
+                 getattr(self._slave, f"fmi2Get{call}")) if c_type is not None else ()
+            batches.append(_Batch(call, kind, tuple(n for n, _ in refs), vrs, *c))
         self._batch_cache[key] = batches
         return batches
 
     def set(self, values: Mapping[str, Any]) -> None:
         for b in self._batches(values):
             converted = [_as(b.kind, values[n]) for n in b.names]
-            if b.set_c is not None:
-                self._call(f"set{b.call}", b.set_c, self._slave.component, b.c_vrs, len(b.vrs), b.c_values(*converted))
-            else:
+            if b.c_vrs is None:
                 self._call(f"set{b.call}", getattr(self._slave, f"set{b.call}"), b.vrs, converted)
+            else:
+                self._call(f"set{b.call}", b.set_c, self._slave.component, b.c_vrs, len(b.vrs), b.c_values(*converted))
 
     def get(self, names: Iterable[str]) -> dict[str, Any]:
         out: dict[str, Any] = {}
         for b in self._batches(names):
-            if b.get_c is not None:
+            if b.c_vrs is None:
+                vals = self._call(f"get{b.call}", getattr(self._slave, f"get{b.call}"), b.vrs)
+            else:
                 vals = b.c_values()
                 self._call(f"get{b.call}", b.get_c, self._slave.component, b.c_vrs, len(b.vrs), vals)
-            else:
-                vals = self._call(f"get{b.call}", getattr(self._slave, f"get{b.call}"), b.vrs)
             out.update({n: _from(b.kind, v) for n, v in zip(b.names, vals)})
         return out
 
