@@ -12,6 +12,8 @@ Two rounds, each with its own random stream, so that the second cannot move the 
   mucus+drive_droop and rigor+adhesion, and four pairs drawn from the other eight), four each of the two
   families no candidate was built for at first (guide_friction_wear, photoeye_latency) and six more without an
   effect (a no-effect dataset can now also be wrongly called "unexplained"); its own held-out third.
+- round 3 (2026-11-30, seed 20261130): four more without an effect and two singles of families drawn from all seven,
+  every one held out: the false alarms and the singles measured once more on data nothing was ever tuned on.
 """
 import itertools
 import random
@@ -28,6 +30,9 @@ ROUND2_FIRST_SEED = 9000
 ROUND2_NAMED_COMPOUNDS = (("mucus", "drive_droop"), ("rigor", "adhesion"))
 """The compounds issue 41 reports the method failing on: always in the benchmark."""
 ROUND2_COUNTS = {"compound": 6, "guide_friction_wear": 4, "photoeye_latency": 4, "none": 6}
+ROUND3_SEED, ROUND3_FIRST_SEED = 20261130, 9700
+"""Round 3's dataset seeds start above round 2's (9000-9666)."""
+SINGLE_FAMILIES = (*CANDIDATE_FAMILIES, "guide_friction_wear", "photoeye_latency")
 HEADER = ["# The diagnose benchmark: ten-run campaign datasets of ../shared/linesim (18 fish a run).",
           "# Drawn by draw_recipe.py (seeded); made by generate.py (commands: README.md here).",
           "# split = dev | heldout (drawn before any run). Round 1: the first 30 (2026-11-26); round 2: issue 41.", ""]
@@ -117,6 +122,23 @@ def round2():
     return [r | {"split": "heldout" if r["name"] in held else "dev"} for r in rows]
 
 
+def round3(before: list[dict]):
+    """2026-11-30: four without an effect and two singles of two families drawn from all seven; all held out, drawn
+    before any was made. Numbered on from the rounds ``before`` (none_17, ...)."""
+    rng = random.Random(ROUND3_SEED)
+    effects = ["none"] * 4 + rng.sample(SINGLE_FAMILIES, 2)
+    count = {}
+    for r in before:
+        count[r["effect"]] = count.get(r["effect"], 0) + 1
+    rows, seed = [], ROUND3_FIRST_SEED
+    for effect in effects:
+        seed += rng.randint(1, 97)
+        count[effect] = count.get(effect, 0) + 1
+        rows.append({"name": f"{effect}_{count[effect]}", "effect": effect, "seed": seed, "split": "heldout",
+                     "flags": {**base_shift(rng), **magnitude(rng, effect)}})
+    return rows
+
+
 def entry(r):
     return ["[[dataset]]", f'name = "{r["name"]}"', f'effect = "{r["effect"]}"', f'seed = {r["seed"]}',
             f'split = "{r["split"]}"',
@@ -124,7 +146,8 @@ def entry(r):
 
 
 def recipe_text():
-    return "\n".join(HEADER + [line for r in round1() + round2() for line in entry(r)])
+    earlier = round1() + round2()
+    return "\n".join(HEADER + [line for r in earlier + round3(earlier) for line in entry(r)])
 
 
 def main(out: Path):
