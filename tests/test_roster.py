@@ -48,3 +48,39 @@ def test_the_on_line_masks_follow_releases_retirements_and_rebuilds():
     assert roster.on_line_slots(2).tolist() == [True, True, True, True]
     mask = roster.on_line_slots()
     assert not mask.flags.writeable  # shared between the step's readers: none may change it
+
+
+def test_the_next_rebuild_is_foreseen_as_the_plant_will_make_it():
+    """Steps of 0.1 s.  Fish b (2.0 s) and a (0.5 s) are in the system's slots 0 and 1, a on the line; c (2.0 s),
+    d (2.05 s) and e (3.5 s) wait outside it.  The admission comes at the first step whose start reaches c's drop,
+    step 20 (t = 2.0); b, seated, is released at that same step, after the rebuild: so it is parked again, after a
+    (on the line), with c and d (due within the second) in drop order; e (3.5 s) is beyond the second."""
+    roster = FishRoster.of([fish("a", t_s=0.5), fish("b", t_s=2.0), fish("c", t_s=2.0), fish("d", t_s=2.05),
+                            fish("e", t_s=3.5)])
+    roster.seated(np.array([1, 0]))
+    roster.released(0, 0.0)
+    no_x = np.zeros(2)
+    assert roster.next_rebuild(17, 0.1, no_x) == [0, 1, 2, 3]  # 0.3 s ahead (step 17): within ADMISSION_FIRST_S
+    # b seated with an earlier drop (1.85 s): released at step 19, on the line (in its slot, 0) at the admission
+    early = FishRoster.of([fish("a", t_s=0.5), fish("b", t_s=1.85), fish("c", t_s=2.0), fish("d", t_s=2.05)])
+    early.seated(np.array([1, 0]))
+    early.released(0, 0.0)
+    assert early.next_rebuild(17, 0.1, no_x) == [1, 0, 2, 3]
+    early.released(1, 0.0)  # the plant releases b at step 19; the foresight from step 19 on says the same
+    assert early.next_rebuild(19, 0.1, no_x) == [1, 0, 2, 3]
+
+
+def test_the_next_retirement_keeps_all_but_the_fish_furthest_downstream():
+    """Eight fish on the line: a rebuild is due once two have gone (a quarter, two at least).  None gone: the two
+    furthest downstream are taken as leaving; one gone (parked, still in its slot): the one furthest downstream of
+    those left."""
+    roster = FishRoster.of([fish(f"f{i}", t_s=0.1 * i) for i in range(8)])
+    roster.seated(np.arange(8))
+    for k in range(8):
+        roster.released(k, 0.0)
+    rear_x = np.array([5.0, 4.0, 7.0, 1.0, 6.9, 2.0, 3.0, 0.5])
+    assert roster.next_rebuild(100, 0.01, rear_x) == [0, 1, 3, 5, 6, 7]  # 2 (7.0 m) and 4 (6.9 m) leave
+    roster.retired(2, -1)
+    assert roster.next_rebuild(100, 0.01, rear_x) == [0, 1, 3, 5, 6, 7]  # then 4, furthest of those left
+    roster.retired(4, -1)  # two gone: the plant rebuilds now; nothing left to foresee in this system
+    assert roster.next_rebuild(100, 0.01, rear_x) == []

@@ -16,7 +16,7 @@ import numpy as np
 from plant.errors import InputError
 from plant.fish.extensions import highest_body_level
 from plant.fish.fish_body import FISH_MODELS
-from plant.sim import model
+from plant.sim import model, system
 from plant.sim.surfaces import line_surfaces
 
 from fishfmu import commands
@@ -55,11 +55,11 @@ def main() -> int:
     top = None if params.extensions.direction_friction.on else highest_body_level(
         [80] * len(members), params.friction.belt_gradient, FISH_MODELS[params.fish_model])
     figures = {"scenario": args.scenario, "fish": len(fish), "repeats": args.repeats,
-               "line_alone_ms": best_ms(lambda: model.build_model(surfaces, [], params, gravity, line, top),
+               "line_alone_ms": best_ms(lambda: system.build_model(surfaces, [], params, gravity, line, top),
                                         args.repeats),
-               "with_fish_ms": best_ms(lambda: model.build_model(surfaces, members, params, gravity, line, top),
+               "with_fish_ms": best_ms(lambda: system.build_model(surfaces, members, params, gravity, line, top),
                                        args.repeats)}
-    built = model.build_model(surfaces, members, params, gravity, line, top)
+    built = system.build_model(surfaces, members, params, gravity, line, top)
 
     def initialise() -> None:
         solver = model.exu.MainSolverExplicit()

@@ -1,4 +1,4 @@
-"""Building the Exudyn system of a line and its fish (once per run).
+"""What the Exudyn system of a line and its fish is made of (laid out and assembled by :mod:`plant.sim.system`).
 
 What is in it:
 
@@ -30,10 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant.sim.exudyn_module import exu  # the fast build, quiet; a missing system library in one line
-from exudyn.itemInterface import (  # after exudyn_module: Exudyn loaded as the plant wants it
-    LoadForceVector, MarkerBodyPosition, MarkerBodyRigid, NodeRigidBodyRotVecLG, ObjectGround, ObjectRigidBody)
 
-from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels
+from plant.fish.extensions import FRICTION_LEVELS
 from plant.fish.fish_body import FISH_MODELS, FishGeometry, fish_geometry
 from plant.sim.joints import JointLaws, joint_laws
 from plant.contract.devices import BIN_DEPTH_M, device_shapes
@@ -41,7 +39,6 @@ from plant.contract.line import Line
 from plant.sim.params import PlantParams
 from plant.fish.population import FishSpec
 from plant.sim.rotations import matrix_to_rotvec
-from plant.sim.surfaces import LineSurfaces
 
 
 MAT_BELT, MAT_GUIDE, MAT_FISH0 = 0, 1, 2
@@ -108,6 +105,10 @@ class FishModel:
     n_spheres: int
     adhesion_loads: list[int] = field(default_factory=list)
     """A force load at each body's centre of mass, when adhesion is on."""
+    nodes: list[int] = field(default_factory=list)
+    """Its bodies' nodes, head first (their state is set when the system is assembled)."""
+    friction_level: int = 80
+    """The friction level its spheres' material was laid out with."""
 
     @property
     def spec(self) -> FishSpec:
@@ -252,171 +253,6 @@ def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, fricti
     coords[:, :3] = park_m[None, :] + prepared.body_offsets_m
     return Member(index, prepared, coords, np.zeros((n, 6)), False, prepared.laws.k_soft.copy(), np.zeros((n - 1, 3)),
                   friction_level)
-
-
-def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantParams, gravity: np.ndarray,
-                line: Line, highest_level: int | None = None) -> PlantModel:
-    """Create, connect and assemble the line (its ``surfaces``, worked out once per run by
-    :func:`plant.sim.surfaces.line_surfaces`) and the given fish in their given states.  ``highest_level``: the
-    highest friction level a body of a fish of the run can take (None: any, as directional friction may)."""
-    num = params.numerics
-    system = exu.SystemContainer()
-    mbs = system.AddSystem()
-    gc = mbs.AddGeneralContact()
-    gc.verboseMode = 0
-    gc.frictionProportionalZone = num.friction_regularization_mps
-    wear = params.extensions.guide_wear
-    section_factors = tuple(wear.sections(line.x_start_m, line.x_end_m)[1].tolist()) if wear.on else ()
-    fish_levels = len(FRICTION_LEVELS) if highest_level is None or section_factors else highest_level + 1
-    gc.SetFrictionPairings(friction_pairings(params.friction.fish_belt, params.friction.fish_guide,
-                                          params.friction.fish_fish, section_factors, fish_levels))
-    belt_nodes, device_nodes = _add_line(mbs, gc, surfaces, line, section_factors)
-    items = _FishItems()
-    fish_models = [_add_fish(mbs, gc, mem, params, gravity, items) for mem in members]
-
-    # contact search: a box over the line, the space above it and the parking grid below it
-    lo = np.array([line.x_start_m - 0.6, -0.5 * line.guide_width_m - 0.15,
-                   park_top_z(line) - PARK_SPACING_M[2] * 4 - 0.3])
-    hi = np.array([line.x_end_m + params.retire_after_m + 1.0, 0.5 * line.guide_width_m + 0.15,
-                   line.z_range_m[1] + 1.2])
-    gc.SetSearchTreeBox(lo, hi)
-    gc.SetSearchTreeCellSize([max(1, int(np.ceil(s_ / num.search_cell_m))) for s_ in hi - lo])
-    mbs.Assemble()
-
-    sd = mbs.systemData
-    body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in items.body_nodes], dtype=np.int64).reshape(-1, 6)
-    body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in items.body_nodes]).reshape(-1, 6)
-    belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in belt_nodes], dtype=np.int64)
-    device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in device_nodes], dtype=np.int64).reshape(-1, 6)
-    return PlantModel(system, mbs, gc, _solver_settings(num), line, params, fish_models, body_ltg, body_ref, belt_ltg,
-                      np.array(items.sphere_body, dtype=np.int64), np.array(items.sphere_local).reshape(-1, 3),
-                      np.array(items.sphere_radius), *items.sections(),
-                      (lo, hi), device_ltg)
-
-
-def _add_line(mbs, gc, surfaces: LineSurfaces, line: Line, section_factors: tuple[float, ...]) -> tuple[list, list]:
-    """The line's surfaces into the system: guides, parts and bins static, then a body for each belt and each device
-    (moved by the plant every step); returns the belts' and the devices' nodes."""
-    ground = mbs.AddObject(ObjectGround())
-    m_ground = mbs.AddMarker(MarkerBodyRigid(bodyNumber=ground))
-    # guides (in sections of their own friction with guide wear), fixed parts and the gates' bins: static, added
-    # before the moving belts as Exudyn requires
-    statics = [(MAT_GUIDE, surfaces.guides)] if not section_factors else [
-        (MAT_SECTION0 + k, tris) for k, tris in enumerate(surfaces.guide_sections)]
-    for material, (pts, trigs) in [*statics, (MAT_GUIDE, surfaces.parts), (MAT_GUIDE, surfaces.bins)]:
-        if trigs:
-            gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=m_ground, contactStiffness=TRIANGLE_STIFFNESS,
-                                          contactDamping=0.0, frictionMaterialIndex=material, pointList=pts,
-                                          triangleList=trigs, staticTriangles=True)
-    belt_nodes = []
-    for c, (pts, trigs) in zip(line.conveyors, surfaces.belts):
-        # an inclined belt's body is turned about y: its local x runs up (or down) the belt
-        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[c.x_start_m, 0.0, c.z_top_m, 0.0,
-                                                                       -np.radians(c.incline_deg), 0.0]))
-        body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
-        marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
-        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
-                                      frictionMaterialIndex=MAT_BELT, pointList=pts, triangleList=trigs, staticTriangles=False)
-        belt_nodes.append(node)
-    device_nodes = []
-    for shape in surfaces.devices:  # moved like the belts: put at their pose and given its rate every step
-        node = mbs.AddNode(NodeRigidBodyRotVecLG(referenceCoordinates=[*shape.origin_m, 0.0, 0.0, 0.0]))
-        body = mbs.AddObject(ObjectRigidBody(mass=BELT_MASS_KG, inertia=[BELT_MASS_KG] * 3 + [0.0] * 3, nodeNumber=node))
-        marker = mbs.AddMarker(MarkerBodyRigid(bodyNumber=body))
-        gc.AddTrianglesRigidBodyBased(rigidBodyMarkerIndex=marker, contactStiffness=TRIANGLE_STIFFNESS, contactDamping=0.0,
-                                      frictionMaterialIndex=MAT_BELT if shape.device.kind == "gate" else MAT_GUIDE,
-                                      pointList=shape.points_m.tolist(),
-                                      triangleList=shape.triangles.tolist(), staticTriangles=False)
-        device_nodes.append(node)
-    return belt_nodes, device_nodes
-
-
-@dataclass
-class _FishItems:
-    """What the fish added to the system so far, in order: their body nodes, contact spheres (body, position in it,
-    radius) and outline cross-sections (body, offset along it, half length, radius)."""
-
-    body_nodes: list[int] = field(default_factory=list)
-    sphere_body: list[int] = field(default_factory=list)
-    sphere_local: list[tuple] = field(default_factory=list)
-    sphere_radius: list[float] = field(default_factory=list)
-    outlines: list[np.ndarray] = field(default_factory=list)
-    """Each fish's :attr:`PreparedFish.outline`, its body index made the system's."""
-
-    def sections(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(body, offset along it, half length, radius) of every cross-section of the system."""
-        rows = np.concatenate(self.outlines) if self.outlines else np.zeros((0, 4))
-        return rows[:, 0].astype(np.int64), rows[:, 1].copy(), rows[:, 2].copy(), rows[:, 3].copy()
-
-
-def _add_fish(mbs, gc, mem: Member, params: PlantParams, gravity: np.ndarray, items: _FishItems) -> FishModel:
-    """One fish into the system in its given state: its bodies with their gravity (none while parked), contact
-    spheres, outline and (with adhesion) a force load each, and its joints."""
-    num = params.numerics
-    prep = mem.prepared
-    geo = prep.geometry
-    first = len(items.body_nodes)
-    # contact: one spring per sphere from the fish's mass per sphere (see NumericsParams);
-    # the same for all its bodies, so a fast tail fin is stopped as firmly as the body
-    m_share = prep.spec.weight_kg / prep.n_spheres
-    k_c = m_share * num.contact_omega_rad_s**2
-    d_c = 2.0 * num.contact_damping_ratio * np.sqrt(k_c * m_share)
-    objects, loads, sticky = [], [], []
-    first_sphere = len(items.sphere_body)
-    materials = MAT_FISH0 + body_friction_levels(mem.friction_level, params.friction.belt_gradient, len(geo.bodies))
-    for i, (b, inertia) in enumerate(zip(geo.bodies, prep.inertias)):
-        # a fish's items as plain dicts: Exudyn's item classes cost 3.5 us more an item (2 ms a rebuild of 8 fish)
-        node = mbs.AddNode({"nodeType": "RigidBodyRotVecLG", "referenceCoordinates": mem.coords[i].tolist(),
-                            "initialVelocities": mem.velocities[i].tolist()})
-        obj = mbs.AddObject({"objectType": "RigidBody", "mass": b.mass_kg, "inertia": [*inertia, 0.0, 0.0, 0.0],
-                             "nodeNumber": node})
-        mass = mbs.AddMarker({"markerType": "BodyMass", "bodyNumber": obj})
-        loads.append(mbs.AddLoad({"loadType": "MassProportional", "markerNumber": mass,
-                                  "loadVector": list(gravity) if mem.gravity else [0.0, 0.0, 0.0]}))
-        for (x, y, r) in b.spheres:
-            marker = mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": obj, "localPosition": [x, y, 0.0]})
-            gc.AddSphereWithMarker(marker, radius=r, contactStiffness=k_c, contactDamping=d_c,
-                                   frictionMaterialIndex=int(materials[i]))
-            items.sphere_body.append(first + i)
-            items.sphere_local.append((x, y, 0.0))
-            items.sphere_radius.append(r)
-        if params.extensions.adhesion.on:
-            com = mbs.AddMarker(MarkerBodyPosition(bodyNumber=obj, localPosition=[0.0, 0.0, 0.0]))
-            sticky.append(mbs.AddLoad(LoadForceVector(markerNumber=com, loadVector=[0.0, 0.0, 0.0])))
-        objects.append(obj)
-        items.body_nodes.append(node)
-    items.outlines.append(prep.outline + np.array([first, 0.0, 0.0, 0.0]))  # copied as a whole, not row by row
-    connectors = []
-    for j in range(len(geo.bodies) - 1):
-        a, b = geo.bodies[j], geo.bodies[j + 1]
-        xj = geo.joint_from_snout_m[j]
-        m0, m1 = (mbs.AddMarker({"markerType": "BodyRigid", "bodyNumber": objects[j + e],
-                                 "localPosition": [body.com_from_snout_m - xj, 0.0, 0.0]}) for e, body in ((0, a), (1, b)))
-        stiffness, damping = prep.joint_springs[j]
-        stiffness = stiffness.copy()
-        stiffness[_ROTATION_DIAGONAL] = mem.joint_k[j]  # the joint's linearisation now (plant.sim.joints)
-        connectors.append(mbs.AddObject({
-            "objectType": "ConnectorRigidBodySpringDamper", "markerNumbers": [m0, m1], "stiffness": stiffness,
-            "damping": damping, "offset": [0.0] * 3 + list(mem.joint_offset[j]), "useIntrinsicFormulation": True}))
-    return FishModel(mem.index, prep, first, connectors, loads, first_sphere, len(items.sphere_body) - first_sphere,
-                     sticky)
-
-
-_ROTATION_DIAGONAL = (np.array([3, 4, 5]), np.array([3, 4, 5]))
-"""The rotational stiffnesses' places in a joint connector's 6 x 6 stiffness."""
-
-
-def _solver_settings(num) -> exu.SimulationSettings:
-    """Explicit integration (VelocityVerlet), each body's mass matrix inverted alone, no files, ``num.threads``."""
-    ss = exu.SimulationSettings()
-    ss.timeIntegration.solverType = exu.DynamicSolverType.VelocityVerlet
-    ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
-    ss.timeIntegration.explicit.computeMassMatrixInversePerBody = True
-    ss.linearSolver.solverType = exu.LinearSolverType.EigenSparse
-    ss.solution.file.write = False
-    ss.timeIntegration.verboseMode = 0
-    ss.parallel.numberOfThreads = num.threads
-    return ss
 
 
 def pose_coordinates(model: PlantModel, slot: int, mid_m: np.ndarray, rotation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,8 @@
 The plant has one output: after each step it publishes its state (:attr:`Plant.state`, a read-only
 :class:`plant.sim.state.PlantState`, of which the step's return value is the sensor readings).  That is all
 that code outside the plant reads of it (``tests/test_architecture.py`` checks fishfmu/); its inputs and
-outputs are named by its ports (:mod:`plant.sim.ports`).
+outputs are named by its ports (:mod:`plant.sim.ports`).  A run served in real time may also hand it the wall time
+its steps leave over (:meth:`Plant.build_ahead`), which changes nothing it computes.
 
 One step is a short, fixed pipeline (read it top to bottom):
 
@@ -25,9 +26,8 @@ One step is a short, fixed pipeline (read it top to bottom):
 5. read the state, work out the sensors, retire fish that have left the line or been taken off it by a device,
    publish the state, check its health.
 
-Only fish in play are in the Exudyn system (see :mod:`plant.sim.model`): when fish are about to be
-dropped, or a quarter of those in the system have left the line, the system is rebuilt with the
-state of every body carried over.
+Only fish in play are in the Exudyn system (:mod:`plant.sim.model`, :mod:`plant.sim.system`): when fish are about
+to be dropped, or a quarter of those in it have left the line, it is rebuilt with every body's state carried over.
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ from plant.fish.fish_body import FISH_MODELS
 from plant.fish.population import FishSpec
 from plant.sim.health import check_health
 from plant.sim.joints import relinearized, stack_laws
-from plant.sim.model import (MAT_FISH0, Member, PlantModel, build_model, drop_height, exu,
-                             park_positions, parked_member, pose_coordinates, prepare_fish)
+from plant.sim.model import (MAT_FISH0, Member, PlantModel, drop_height, exu, park_positions, parked_member,
+                             pose_coordinates, prepare_fish)
 from plant.sim.params import PlantParams
 from plant.sim.ports import PlantPorts
 from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
@@ -57,6 +57,7 @@ from plant.sim.sensors import PhotoEyes, sphere_centres, spine_point_local
 from plant.sim.roster import ADMIT_AHEAD_S, FishRoster
 from plant.sim.state import FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
+from plant.sim.system import build_model, lay_out_ahead
 
 ON_LINE = FishStatus.ON_LINE
 
@@ -171,7 +172,20 @@ class Plant:
         return outputs
 
     # ---- the system: which fish are in it ----------------------------------------------------
+    def build_ahead(self, budget_s: float) -> None:
+        """Within ``budget_s`` of wall time, lay out the system of the next rebuild as far as it can be foreseen (and
+        let go of the one last replaced): that rebuild then only sets the state and assembles.  For a run served in
+        real time, in the time its steps leave over; the run steps the same to the bit with or without it."""
+        until_s = time.perf_counter() + budget_s
+        self._replaced = None
+        rear_x_m = self._pos[:, 0].reshape(-1, self.model.bodies_per_fish).min(axis=1)
+        if fish := self._roster.next_rebuild(self._steps, self._comm_step_s, rear_x_m):
+            self._ahead = lay_out_ahead(self._ahead, tuple((k, int(self._level[k])) for k in fish), self._prepared,
+                                        self._surfaces, self._params, self._line, self._highest_level, until_s)
+
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
+        self._replaced = (getattr(self, "model", None), getattr(self, "_solver", None))  # let go of in build_ahead
+        self._ahead = None  # the next admission's system laid out ahead (build_ahead): none yet for this one
         self.model = model
         self._roster.seated(model.member_index)
         self._member = model.member_index
@@ -220,7 +234,7 @@ class Plant:
                     for i, k in enumerate(due)]
         t0 = time.perf_counter()
         self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line,
-                                    self._highest_level), members)
+                                    self._highest_level, self._ahead), members)
         self._timings_s["rebuild"] += (took_s := time.perf_counter() - t0)
         self._timings_s["rebuild_longest"] = max(self._timings_s["rebuild_longest"], took_s)
 
@@ -390,15 +404,12 @@ class Plant:
             return
         parks = park_positions(self._line, len(self.model.fish))
         for slot in slots:
-            self._park(int(slot), parks[slot])
+            self._place(int(slot), parks[slot], np.eye(3), [0.0, 0.0, 0.0])  # parked: at rest, gravity off
             self._roster.retired(int(slot), int(through[slot]))
         if self._roster.rebuild_due():
             self._rebuild(self.t_s)
         else:
             self._read_state()
-
-    def _park(self, slot: int, where: np.ndarray) -> None:
-        self._place(slot, where, np.eye(3), [0.0, 0.0, 0.0])
 
     def _place(self, slot: int, mid: np.ndarray, rot: np.ndarray, gravity: list[float]) -> None:
         """Put the fish of ``slot`` at rest at ``mid`` with orientation ``rot``, under ``gravity``
