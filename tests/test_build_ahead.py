@@ -16,14 +16,14 @@ from tests.plant_helpers import fish, straight_line
 def run(ahead: bool) -> tuple[Plant, list[np.ndarray], list[str]]:
     """Eight fish dropped 0.7 s apart onto a 1.2 m belt at 0.8 m/s (admissions; fish leaving its end:
     retirements), 6.5 s; the state after every step and, per rebuild, whether a layout made ahead for its fish was
-    used ("used"), one made for others was set aside ("other"), or there was none."""
+    used ("used"), those made were for others ("other"), or there were none."""
     line = straight_line(("c1", 0.0, 1.2, 0.0), photoeyes=(("pe1", 1.0, 0.015),))
     plant = Plant(line, [fish(f"f{i}", x_m=0.35, t_s=0.05 + 0.7 * i) for i in range(8)])
     used: list[str] = []
     build = plant_module.build_model
 
-    def watched(surfaces, members, params, gravity, line_, highest, laid=None):
-        used.append("none" if laid is None else "used" if laid.planned == member_keys(members) else "other")
+    def watched(surfaces, members, params, gravity, line_, highest, laid=()):
+        used.append("used" if any(a.planned == member_keys(members) for a in laid) else "other" if laid else "none")
         return build(surfaces, members, params, gravity, line_, highest, laid)
 
     plant_module.build_model = watched

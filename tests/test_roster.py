@@ -60,27 +60,31 @@ def test_the_next_rebuild_is_foreseen_as_the_plant_will_make_it():
     roster.seated(np.array([1, 0]))
     roster.released(0, 0.0)
     no_x = np.zeros(2)
-    assert roster.next_rebuild(17, 0.1, no_x) == [0, 1, 2, 3]  # 0.3 s ahead (step 17): within ADMISSION_FIRST_S
+    assert roster.next_rebuilds(17, 0.1, no_x) == [[0, 1, 2, 3]]  # from step 17 (0.3 s ahead); no retirement
     # b seated with an earlier drop (1.85 s): released at step 19, on the line (in its slot, 0) at the admission
     early = FishRoster.of([fish("a", t_s=0.5), fish("b", t_s=1.85), fish("c", t_s=2.0), fish("d", t_s=2.05)])
     early.seated(np.array([1, 0]))
     early.released(0, 0.0)
-    assert early.next_rebuild(17, 0.1, no_x) == [1, 0, 2, 3]
+    assert early.next_rebuilds(17, 0.1, no_x) == [[1, 0, 2, 3]]
     early.released(1, 0.0)  # the plant releases b at step 19; the foresight from step 19 on says the same
-    assert early.next_rebuild(19, 0.1, no_x) == [1, 0, 2, 3]
+    assert early.next_rebuilds(19, 0.1, no_x) == [[1, 0, 2, 3]]
 
 
 def test_the_next_retirement_keeps_all_but_the_fish_furthest_downstream():
-    """Eight fish on the line: a rebuild is due once two have gone (a quarter, two at least).  None gone: the two
-    furthest downstream are taken as leaving; one gone (parked, still in its slot): the one furthest downstream of
-    those left."""
-    roster = FishRoster.of([fish(f"f{i}", t_s=0.1 * i) for i in range(8)])
+    """Eight fish on the line, a ninth waiting outside the system (due at 5 s): a rebuild is due once two have gone
+    (a quarter, two at least).  Foreseen: the admission (all eight, then the ninth) and the retirement; none gone:
+    the two furthest downstream are taken as leaving; one gone (parked, still in its slot): the one furthest
+    downstream of those left."""
+    roster = FishRoster.of([fish(f"f{i}", t_s=0.1 * i) for i in range(8)] + [fish("late", t_s=5.0)])
     roster.seated(np.arange(8))
     for k in range(8):
         roster.released(k, 0.0)
     rear_x = np.array([5.0, 4.0, 7.0, 1.0, 6.9, 2.0, 3.0, 0.5])
-    assert roster.next_rebuild(100, 0.01, rear_x) == [0, 1, 3, 5, 6, 7]  # 2 (7.0 m) and 4 (6.9 m) leave
+    admission = list(range(9))
+    assert roster.next_rebuilds(100, 0.01, rear_x) == [admission, [0, 1, 3, 5, 6, 7]]  # 2 (7.0 m), 4 (6.9 m) leave
     roster.retired(2, -1)
-    assert roster.next_rebuild(100, 0.01, rear_x) == [0, 1, 3, 5, 6, 7]  # then 4, furthest of those left
-    roster.retired(4, -1)  # two gone: the plant rebuilds now; nothing left to foresee in this system
-    assert roster.next_rebuild(100, 0.01, rear_x) == []
+    admission.remove(2)
+    assert roster.next_rebuilds(100, 0.01, rear_x) == [admission, [0, 1, 3, 5, 6, 7]]  # then 4, furthest of the rest
+    roster.retired(4, -1)  # two gone: the plant rebuilds now; in this system only the admission is left to foresee
+    admission.remove(4)
+    assert roster.next_rebuilds(100, 0.01, rear_x) == [admission]

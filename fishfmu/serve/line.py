@@ -60,9 +60,10 @@ POLL_S = 0.05
 """How often the event loop looks for a signal (a Python signal handler cannot wake it) and a due step."""
 PUBLISH_EVERY_S = 0.1
 """Wall time between two publications of a long step(n)'s progress."""
-AHEAD_AFTER_S = 0.002
-"""Served in real time, the wall time left before the next step beyond which the plant lays out its next rebuild's
-system ahead (a fish's items take about 0.2 ms, the line's 0.5-2 ms: a step may start up to that much late)."""
+AHEAD_KEEP_S = 0.0005
+"""Served in real time, the wall time before the next step kept free when the plant lays out its next rebuilds'
+systems ahead in the rest (:meth:`plant.sim.plant.Plant.build_ahead`: a piece begun only if it fits, a fish's items
+about 0.2 ms): for handing the work to the worker thread and back."""
 
 
 class LineServer:
@@ -406,7 +407,7 @@ class LineServer:
                 self.pacing.record(now - due)
                 await self._in_worker(self._run_steps, 1, math.inf)
                 await self._publish()
-                if (spare_s := start + (k + 1) * dt_wall - time.monotonic() - AHEAD_AFTER_S) > 0:
+                if (spare_s := start + (k + 1) * dt_wall - time.monotonic() - AHEAD_KEEP_S) > 0:
                     await self._in_worker(self._build_ahead, spare_s)
             k += 1
             late_s = self.pacing.recent_median_s()

@@ -57,7 +57,7 @@ from plant.sim.sensors import PhotoEyes, sphere_centres, spine_point_local
 from plant.sim.roster import ADMIT_AHEAD_S, FishRoster
 from plant.sim.state import FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
-from plant.sim.system import build_model, lay_out_ahead
+from plant.sim.system import AheadCost, build_model, lay_out_ahead
 
 ON_LINE = FishStatus.ON_LINE
 
@@ -124,7 +124,7 @@ class Plant:
         self._fish_mass_kg.setflags(write=False)
         self._geometry = tuple(p.geometry for p in self._prepared)
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
-        self._steps, self._t_model0 = 0, 0.0
+        self._steps, self._t_model0, self._ahead_cost = 0, 0.0, AheadCost()
         # without directional friction a fish's level never changes: the friction table needs none above these
         self._highest_level = None if ext.direction_friction.on else highest_body_level(
             self._level, self._params.friction.belt_gradient, FISH_MODELS[self._params.fish_model])
@@ -173,19 +173,20 @@ class Plant:
 
     # ---- the system: which fish are in it ----------------------------------------------------
     def build_ahead(self, budget_s: float) -> None:
-        """Within ``budget_s`` of wall time, lay out the system of the next rebuild as far as it can be foreseen (and
-        let go of the one last replaced): that rebuild then only sets the state and assembles.  For a run served in
+        """Within ``budget_s`` of wall time, lay out the systems of the next rebuilds as far as they can be foreseen
+        (and let go of the one last replaced): a rebuild then only sets the state and assembles.  For a run served in
         real time, in the time its steps leave over; the run steps the same to the bit with or without it."""
-        until_s = time.perf_counter() + budget_s
-        self._replaced = None
+        until_s, self._replaced = time.perf_counter() + budget_s, None
         rear_x_m = self._pos[:, 0].reshape(-1, self.model.bodies_per_fish).min(axis=1)
-        if fish := self._roster.next_rebuild(self._steps, self._comm_step_s, rear_x_m):
-            self._ahead = lay_out_ahead(self._ahead, tuple((k, int(self._level[k])) for k in fish), self._prepared,
-                                        self._surfaces, self._params, self._line, self._highest_level, until_s)
+        plans = [tuple((k, int(self._level[k])) for k in fish)
+                 for fish in self._roster.next_rebuilds(self._steps, self._comm_step_s, rear_x_m)]
+        self._ahead = lay_out_ahead(self._ahead, plans, self._prepared, self._surfaces, self._params, self._line,
+                                    self._highest_level, until_s, self._ahead_cost)
 
     def _set_model(self, model: PlantModel, members: list[Member]) -> None:
-        self._replaced = (getattr(self, "model", None), getattr(self, "_solver", None))  # let go of in build_ahead
-        self._ahead = None  # the next admission's system laid out ahead (build_ahead): none yet for this one
+        # the system replaced and the layouts made ahead for it: let go of in build_ahead's time, if served
+        self._replaced = (getattr(self, "model", None), getattr(self, "_solver", None), getattr(self, "_ahead", None))
+        self._ahead = []  # the next rebuilds' systems laid out ahead (build_ahead): none yet for this one
         self.model = model
         self._roster.seated(model.member_index)
         self._member = model.member_index
@@ -219,22 +220,21 @@ class Plant:
 
     def _rebuild(self, t: float) -> None:
         """A new system with the fish on the line (state carried over) and those due soon (parked)."""
-        members, nb = [], self.model.bodies_per_fish
-        for slot, k in enumerate(self._member):
-            if self.status[k] == ON_LINE:
-                b = slice(nb * slot, nb * (slot + 1))
-                coords = np.hstack([self._pos[b], matrix_to_rotvec(self._rot[b])])
-                vel = np.hstack([self._vel[b], self._omega_local[b]])
-                j = slice((nb - 1) * slot, (nb - 1) * (slot + 1))
-                members.append(Member(int(k), self._prepared[k], coords, vel, True, self._k_now[j].copy(),
-                                      self._offset_now[j].copy(), int(self._level[k])))
+        nb = self.model.bodies_per_fish
+        on = self._roster.on_line_slots(nb)
+        coords, vel = np.zeros((len(on), 6)), np.hstack([self._vel, self._omega_local])
+        coords[on] = np.hstack([self._pos[on], matrix_to_rotvec(self._rot[on])])  # row by row: as fish by fish
+        members = [Member(int(k), self._prepared[k], coords[nb * s:nb * (s + 1)], vel[nb * s:nb * (s + 1)], True,
+                          self._k_now[(j := slice((nb - 1) * s, (nb - 1) * (s + 1)))].copy(),
+                          self._offset_now[j].copy(), int(self._level[k]))
+                   for s, k in enumerate(self._member) if self.status[k] == ON_LINE]
         due = self._roster.due(t, ADMIT_AHEAD_S)
         parks = park_positions(self._line, len(members) + len(due))  # each slot its own place, as _retire_fish parks
         members += [parked_member(int(k), self._prepared[k], parks[len(members) + i], int(self._level[k]))
                     for i, k in enumerate(due)]
         t0 = time.perf_counter()
         self._set_model(build_model(self._surfaces, members, self._params, self._gravity, self._line,
-                                    self._highest_level, self._ahead), members)
+                                    self._highest_level, tuple(self._ahead)), members)
         self._timings_s["rebuild"] += (took_s := time.perf_counter() - t0)
         self._timings_s["rebuild_longest"] = max(self._timings_s["rebuild_longest"], took_s)
 

@@ -30,9 +30,6 @@ from plant.sim.state import DropAdjustment, FishStatus
 WAITING, ON_LINE, LEFT, REJECTED = FishStatus.WAITING, FishStatus.ON_LINE, FishStatus.LEFT, FishStatus.REJECTED
 ADMIT_AHEAD_S = 1.0
 """Fish due within this time are put into the system together (fewer rebuilds); they wait parked."""
-ADMISSION_FIRST_S = 0.5
-"""A rebuild laid out ahead (:meth:`plant.sim.plant.Plant.build_ahead`) is the next admission's if it comes within
-this time, else the next retirement's: which comes first is a guess."""
 
 
 @dataclass
@@ -81,25 +78,24 @@ class FishRoster:
         """Whether some of ``due`` is not in the system yet (it must be rebuilt with them)."""
         return any(k not in self.slot_of for k in due)
 
-    def next_rebuild(self, steps: int, step_s: float, rear_x_m: np.ndarray) -> list[int]:
-        """The fish the next rebuild will hold, in its order, as far as it can be foreseen (step ``k`` at
+    def next_rebuilds(self, steps: int, step_s: float, rear_x_m: np.ndarray) -> list[list[int]]:
+        """The fish the next rebuilds may hold, in their order, as far as they can be foreseen (step ``k`` at
         ``t = k step_s``, ``steps`` made so far; ``rear_x_m``: each slot's rearmost point along the line): the next
-        admission's if it comes within :data:`ADMISSION_FIRST_S`, else the next retirement's, else the admission's; none
-        if neither is foreseen."""
-        admission = self._next_admission(steps, step_s)
-        if admission is not None and (admission[0] - steps) * step_s <= ADMISSION_FIRST_S:
-            return admission[1]
-        return self._next_retirement(rear_x_m, steps * step_s) or (admission[1] if admission is not None else [])
+        admission's (its time is known), then the next retirement's (a guess); either may come first."""
+        plans = [admission] if (admission := self._next_admission(steps, step_s)) else []
+        if (retirement := self._next_retirement(rear_x_m, steps * step_s)) and retirement not in plans:
+            plans.append(retirement)
+        return plans
 
-    def _next_admission(self, steps: int, step_s: float) -> tuple[int, list[int]] | None:
-        """The next rebuild that admits fish, if no fish leaves the line before it: its step and its fish (those on
-        the line then in their slots' order, then those it admits or keeps parked, as :meth:`due` will give them);
-        None if no fish waits outside the system."""
+    def _next_admission(self, steps: int, step_s: float) -> list[int]:
+        """The fish of the next rebuild that admits fish, if no fish leaves the line before it: those on the line
+        then in their slots' order, then those it admits or keeps parked, as :meth:`due` will give them; none if no
+        fish waits outside the system."""
         waiting = self.status == WAITING
         outside = waiting.copy()
         outside[self.member] = False
         if not outside.any():
-            return None
+            return []
         t_next = float(self.drop_t_s[outside].min())
         k = max(steps, int((t_next - 1e-9) / step_s) - 1)
         while k * step_s + 1e-9 < t_next:  # the plant admits at its step k's start, t = k step_s (+ 1e-9)
@@ -107,7 +103,7 @@ class FishRoster:
         released = waiting & (self.drop_t_s <= (k - 1) * step_s + 1e-9) if k > steps else np.zeros_like(waiting)
         on_line = [int(m) for m in self.member if self.status[m] == ON_LINE or released[m]]
         due = np.flatnonzero(waiting & ~released & (self.drop_t_s <= (k * step_s + 1e-9) + ADMIT_AHEAD_S))
-        return k, on_line + [int(m) for m in due]
+        return on_line + [int(m) for m in due]
 
     def _next_retirement(self, rear_x_m: np.ndarray, t_s: float) -> list[int]:
         """The fish of the next rebuild that fish leaving the line make due, if those that leave are the ones furthest

@@ -125,28 +125,60 @@ def assemble(layout: Layout, members: list[Member], gravity: np.ndarray) -> Plan
 
 
 def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantParams, gravity: np.ndarray,
-                line: Line, highest_level: int | None = None, ahead: Layout | None = None) -> PlantModel:
+                line: Line, highest_level: int | None = None, ahead: tuple[Layout, ...] = ()) -> PlantModel:
     """Lay out, set and assemble the line and the given fish in their given states: a rebuild, in one go or on a
-    layout made ``ahead`` for these fish (used if planned for them, the fish it lacks added now)."""
+    layout made ``ahead`` for these fish (the one planned for them, if any; the fish it lacks added now)."""
     keys = member_keys(members)
-    layout = ahead if ahead is not None and ahead.planned == keys else lay_out(surfaces, params, line, highest_level)
+    layout = next((a for a in ahead if a.planned == keys), None) or lay_out(surfaces, params, line, highest_level)
     for mem in members[len(layout.fish):]:
         add_fish(layout, mem.index, mem.prepared, mem.friction_level)
     return assemble(layout, members, gravity)
 
 
-def lay_out_ahead(layout: Layout | None, planned: tuple[tuple[int, int], ...], prepared: list[PreparedFish],
+@dataclass
+class AheadCost:
+    """What laying out ahead took (wall s, a moving mean): the line's items, a fish's.  A piece is begun only if its
+    cost fits in the time left, and every piece put off lowers its cost a little (a slow one is not believed
+    forever)."""
+
+    line_s: float = 1.0e-3
+    fish_s: float = 3.0e-4
+
+    def fits(self, piece_s: float, until_s: float) -> bool:
+        return time.perf_counter() + piece_s <= until_s
+
+    def took(self, name: str, since_s: float) -> None:
+        setattr(self, name, 0.5 * getattr(self, name) + 0.5 * (time.perf_counter() - since_s))
+
+
+def lay_out_ahead(layouts: list[Layout], plans: list[tuple[tuple[int, int], ...]], prepared: list[PreparedFish],
                   surfaces: LineSurfaces, params: PlantParams, line: Line, highest_level: int | None,
-                  until_s: float) -> Layout:
-    """``layout`` laid out further towards the system of the ``planned`` fish (from the line up, if it was planned
-    for others), fish by fish until the clock (``time.perf_counter``) passes ``until_s``."""
-    if layout is None or layout.planned != planned:
-        layout = lay_out(surfaces, params, line, highest_level)
-        layout.planned = planned
-    while len(layout.fish) < len(planned) and time.perf_counter() < until_s:
-        k, level = planned[len(layout.fish)]
-        add_fish(layout, k, prepared[k], level)
-    return layout
+                  until_s: float, cost: AheadCost) -> list[Layout]:
+    """Layouts for the ``plans`` (each the (fish index, friction level) of the fish a rebuild may hold, in order),
+    laid out further in the plans' order, a piece at a time while its ``cost`` fits before the clock
+    (``time.perf_counter``) reaches ``until_s``; those of ``layouts`` made for one of the plans are kept, the
+    others let go."""
+    kept = {layout.planned: layout for layout in layouts}
+    out = []
+    for planned in plans:
+        if (layout := kept.get(planned)) is None and cost.fits(cost.line_s, until_s):
+            t0 = time.perf_counter()
+            layout = lay_out(surfaces, params, line, highest_level)
+            layout.planned = planned
+            cost.took("line_s", t0)
+        if layout is None:
+            cost.line_s *= 0.9
+            continue
+        out.append(layout)
+        while len(layout.fish) < len(planned):
+            if not cost.fits(cost.fish_s, until_s):
+                cost.fish_s *= 0.9
+                break
+            t0 = time.perf_counter()
+            k, level = planned[len(layout.fish)]
+            add_fish(layout, k, prepared[k], level)
+            cost.took("fish_s", t0)
+    return out
 
 
 def _add_line(mbs, gc, surfaces: LineSurfaces, line: Line, section_factors: tuple[float, ...]) -> tuple[list, list]:
