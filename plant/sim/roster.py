@@ -110,8 +110,7 @@ class FishRoster:
         downstream (as many as it takes; a pile's leave together) and leave about ``t_s``: those on the line but them,
         in their slots' order, then the fish due then; none if too few are on the line."""
         on = self.on_line_slots()
-        gone = int(np.sum(self.status[self.member] >= LEFT))
-        more = max(2, len(self.member) // 4) - gone
+        more = self._gone_for_rebuild() - self._gone()  # as rebuild_due counts
         if more < 1 or int(np.sum(on)) <= more:
             return []
         leaving = np.argsort(np.where(on, -rear_x_m, np.inf), kind="stable")[:more]
@@ -156,5 +155,10 @@ class FishRoster:
 
     def rebuild_due(self) -> bool:
         """A quarter of the fish in the system (two at least) are gone: rebuilt without them it steps faster."""
-        gone = int(np.sum(self.status[self.member] >= LEFT))
-        return gone >= max(2, len(self.member) // 4)
+        return self._gone() >= self._gone_for_rebuild()
+
+    def _gone(self) -> int:
+        return int(np.sum(self.status[self.member] >= LEFT))
+
+    def _gone_for_rebuild(self) -> int:
+        return max(2, len(self.member) // 4)

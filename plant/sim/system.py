@@ -64,8 +64,8 @@ class Layout:
     items: _FishItems = field(default_factory=_FishItems)
     fish: list[FishModel] = field(default_factory=list)
     planned: tuple[tuple[int, int], ...] = ()
-    """Laid out ahead: the (fish index, friction level) of each fish it is to hold, the first :attr:`keys` of them
-    in it (:func:`lay_out_ahead`)."""
+    """Laid out ahead (:func:`lay_out_ahead`): the (fish index, friction level) of each fish it is to hold; those
+    laid out so far (:attr:`keys`) are the first of them."""
 
     @property
     def keys(self) -> tuple[tuple[int, int], ...]:
