@@ -88,6 +88,15 @@ class FishGeometry:
         """The tracked position of a fish is its mid-length point (contracts/measured-data.md)."""
         return 0.5 * self.length_m
 
+    def spine_point(self, s: float) -> tuple[int, np.ndarray]:
+        """(body index, position in that body's frame) of the spine point at fraction s of the length from the snout
+        (the tracked points; the poses themselves: :meth:`plant.sim.state.PlantState.fish_poses`)."""
+        d = s * self.length_m
+        for i, b in enumerate(self.bodies):
+            if b.s_start <= s <= b.s_end or i == len(self.bodies) - 1:
+                return i, np.array([b.com_from_snout_m - d, 0.0, 0.0])
+        raise AssertionError("unreachable")
+
 
 def _area(s: np.ndarray) -> np.ndarray:
     """Cross-section area per unit (height x width), elliptic: pi/4 h w."""

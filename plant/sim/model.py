@@ -33,7 +33,7 @@ from plant.sim.exudyn_module import exu  # the fast build, quiet; a missing syst
 
 from plant.fish.extensions import FRICTION_LEVELS
 from plant.fish.fish_body import FISH_MODELS, FishGeometry, fish_geometry
-from plant.sim.joints import JointLaws, joint_laws
+from plant.sim.joints import JointLaws, joint_laws, stack_laws
 from plant.contract.devices import BIN_DEPTH_M, device_shapes
 from plant.contract.line import Line
 from plant.sim.params import PlantParams
@@ -69,6 +69,10 @@ class PreparedFish:
     joint_springs: np.ndarray
     """(n_joints, 2, 6, 6) each joint's stiffness with its rotational block zero (the state's linearisation goes
     there at each rebuild) and its damping, as the joint's connector takes them: made once, copied at each rebuild."""
+    spine_refs: tuple[tuple[int, np.ndarray], ...]
+    """(body, position in it) of the tracked spine points at 0.5, 0.2 and 0.8 of the length from the snout."""
+    tip_refs: tuple[tuple[int, np.ndarray], ...]
+    """(body, position in it) of the snout and the tail's tip."""
 
 
 @dataclass
@@ -115,6 +119,51 @@ class FishModel:
         return self.prepared.spec
 
 
+@dataclass(frozen=True)
+class FishArrays:
+    """The fish of a system, body by body and joint by joint in its order: fixed until the next rebuild, so made
+    with its layout (ahead, if served) and published as they are (read-only)."""
+
+    member_index: np.ndarray
+    """The run's fish index of each fish in the system."""
+    fish_of_body: np.ndarray
+    body_mass_kg: np.ndarray
+    body_inertia: np.ndarray
+    """(n_bodies, 3) principal inertias as simulated."""
+    laws: JointLaws
+    """Every joint's law, stacked (plant.sim.joints)."""
+    joint_bodies: np.ndarray
+    """(n_joints, 2) the two bodies of each joint."""
+    pose_bodies: np.ndarray
+    """(n_fish, 3) the body of each tracked spine point (:attr:`PreparedFish.spine_refs`); pose_local: where in it."""
+    pose_local: np.ndarray
+    tip_bodies: np.ndarray
+    """(n_fish, 2) the body of the snout and of the tail's tip; tip_local: where in it."""
+    tip_local: np.ndarray
+
+
+def fish_arrays(fish: list[FishModel], bodies_per_fish: int) -> FishArrays:
+    """The arrays of the ``fish`` of a system, in its order."""
+    nb, prepared = bodies_per_fish, [f.prepared for f in fish]
+    member = np.array([f.index for f in fish], dtype=np.int64)
+    laws = stack_laws([p.laws for p in prepared])
+    laws.zone  # worked out here (a cached property), not in the first step after the rebuild
+    arrays = FishArrays(
+        member, np.repeat(member, nb),
+        np.array([b.mass_kg for p in prepared for b in p.geometry.bodies], dtype=float),
+        np.array([np.asarray(i, dtype=float) for p in prepared for i in p.inertias], dtype=float).reshape(-1, 3),
+        laws, np.array([(nb * i + j, nb * i + j + 1) for i in range(len(fish)) for j in range(nb - 1)],
+                       dtype=np.int64).reshape(-1, 2),
+        np.array([[nb * i + r[0] for r in p.spine_refs] for i, p in enumerate(prepared)], dtype=np.int64).reshape(-1, 3),
+        np.array([[r[1] for r in p.spine_refs] for p in prepared]).reshape(-1, 3, 3),
+        np.array([[nb * i + r[0] for r in p.tip_refs] for i, p in enumerate(prepared)], dtype=np.int64).reshape(-1, 2),
+        np.array([[r[1] for r in p.tip_refs] for p in prepared]).reshape(-1, 2, 3))
+    for published in (arrays.member_index, arrays.fish_of_body, arrays.body_mass_kg, arrays.body_inertia,
+                      arrays.pose_bodies, arrays.pose_local):  # published as they are, no view a step
+        published.setflags(write=False)
+    return arrays
+
+
 @dataclass
 class PlantModel:
     """The assembled Exudyn system and the index arrays the stepping code needs."""
@@ -123,6 +172,9 @@ class PlantModel:
     mbs: exu.MainSystem
     contact: exu.GeneralContact
     settings: exu.SimulationSettings
+    solver: exu.MainSolverExplicit
+    """Made with the system, initialised by the plant when it takes the system."""
+    arrays: FishArrays
     line: Line
     params: PlantParams
     fish: list[FishModel]
@@ -150,11 +202,6 @@ class PlantModel:
     def bodies_per_fish(self) -> int:
         """Every fish in the system has as many bodies (its slot s holds bodies nb s .. nb s + nb - 1)."""
         return FISH_MODELS[self.params.fish_model]
-
-    @property
-    def member_index(self) -> np.ndarray:
-        """The run's fish index of each fish in the system."""
-        return np.array([f.index for f in self.fish], dtype=np.int64)
 
 
 def _shaped_inertia(body, enabled: bool, share: float = 0.5) -> np.ndarray:
@@ -243,7 +290,9 @@ def prepare_fish(spec: FishSpec, params: PlantParams, joint_factor: tuple[float,
         d_t = 2.0 * params.joints.damping_ratio * np.sqrt(k_t * m_red)
         springs.append((np.diag([k_t] * 3 + [0.0] * 3), np.diag([d_t] * 3 + list(laws.damping[j]))))
     return PreparedFish(spec, geo, inertias, laws, offsets, sum(len(b.spheres) for b in geo.bodies), outline,
-                        np.array(springs).reshape(-1, 2, 6, 6))
+                        np.array(springs).reshape(-1, 2, 6, 6),
+                        tuple(geo.spine_point(s) for s in (0.5, 0.2, 0.8)),
+                        tuple(geo.spine_point(s) for s in (0.0, 1.0)))
 
 
 def parked_member(index: int, prepared: PreparedFish, park_m: np.ndarray, friction_level: int) -> Member:

@@ -43,7 +43,7 @@ from plant.fish.extensions import (adhesion_forces, body_friction_levels, direct
 from plant.fish.fish_body import FISH_MODELS
 from plant.fish.population import FishSpec
 from plant.sim.health import check_health
-from plant.sim.joints import relinearized, stack_laws
+from plant.sim.joints import relinearized
 from plant.sim.model import (MAT_FISH0, Member, PlantModel, drop_height, exu, park_positions, parked_member,
                              pose_coordinates, prepare_fish)
 from plant.sim.params import PlantParams
@@ -53,7 +53,7 @@ from plant.sim.belts import Belts
 from plant.sim.camera import Cameras, TopView, fish_seen_from_above
 from plant.sim.devices import DeviceActuators
 from plant.sim.equipment import Equipment, Seen, Step
-from plant.sim.sensors import PhotoEyes, sphere_centres, spine_point_local
+from plant.sim.sensors import PhotoEyes, sphere_centres
 from plant.sim.roster import ADMIT_AHEAD_S, FishRoster
 from plant.sim.state import FishStatus, PlantOutputs, PlantState
 from plant.sim.surfaces import line_surfaces
@@ -118,8 +118,6 @@ class Plant:
         # each fish's friction multiplier on belts and guides: mucus (hours post mortem) x direction of slip
         self._mucus = np.array([ext.mucus_friction.factor(f.hours_post_mortem) for f in self._fish_specs])
         self._level = friction_level(self._mucus) if len(self._fish_specs) else np.zeros(0, dtype=np.int64)
-        self._spine_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.5, 0.2, 0.8)) for p in self._prepared]
-        self._tip_refs = [tuple(spine_point_local(p.geometry, s) for s in (0.0, 1.0)) for p in self._prepared]
         self._fish_mass_kg = np.array([sum(b.mass_kg for b in prep.geometry.bodies) for prep in self._prepared])
         self._fish_mass_kg.setflags(write=False)
         self._geometry = tuple(p.geometry for p in self._prepared)
@@ -175,8 +173,12 @@ class Plant:
     def build_ahead(self, budget_s: float) -> None:
         """Within ``budget_s`` of wall time, lay out the systems of the next rebuilds as far as they can be foreseen
         (and let go of the one last replaced): a rebuild then only sets the state and assembles.  For a run served in
-        real time, in the time its steps leave over; the run steps the same to the bit with or without it."""
+        real time, in the time its steps leave over; the run steps the same to the bit with or without it.  A rebuild
+        the next step's admission needs is made here at once, whatever the budget: it has to be made before that step
+        in any case, and the state it carries is already the one that step starts from."""
         until_s, self._replaced = time.perf_counter() + budget_s, None
+        if (due := self._roster.due(t := self.t_s + 1e-9)) and self._roster.must_admit(due):
+            self._rebuild(t)  # the next step's admission rebuilds (as step() asks): now, in the time left over
         rear_x_m = self._pos[:, 0].reshape(-1, self.model.bodies_per_fish).min(axis=1)
         plans = [tuple((k, int(self._level[k])) for k in fish)
                  for fish in self._roster.next_rebuilds(self._steps, self._comm_step_s, rear_x_m)]
@@ -188,32 +190,16 @@ class Plant:
         self._replaced = (getattr(self, "model", None), getattr(self, "_solver", None), getattr(self, "_ahead", None))
         self._ahead = []  # the next rebuilds' systems laid out ahead (build_ahead): none yet for this one
         self.model = model
-        self._roster.seated(model.member_index)
-        self._member = model.member_index
-        self._fish_of_body = np.repeat(self._member, nb := model.bodies_per_fish)  # every fish of a run: as many
-        self._body_mass = np.array([b.mass_kg for k in self._member for b in self._prepared[k].geometry.bodies],
-                                   dtype=float)
-        self._body_inertia = np.array([np.asarray(i, dtype=float) for k in self._member
-                                       for i in self._prepared[k].inertias], dtype=float).reshape(-1, 3)
-        self._laws = stack_laws([m.prepared.laws for m in members])
+        a = model.arrays
+        self._roster.seated(a.member_index)
+        self._member, self._fish_of_body, self._laws = a.member_index, a.fish_of_body, a.laws
+        self._body_mass, self._body_inertia, self._joint_bodies = a.body_mass_kg, a.body_inertia, a.joint_bodies
+        self._pose_bodies, self._pose_local, self._tip_bodies, self._tip_local = (a.pose_bodies, a.pose_local,
+                                                                                  a.tip_bodies, a.tip_local)
         self._k_now = np.vstack([m.joint_k for m in members]) if members else np.zeros((0, 3))
         self._offset_now = np.vstack([m.joint_offset for m in members]) if members else np.zeros((0, 3))
-        self._joint_bodies = np.array([(nb * i + j, nb * i + j + 1) for i in range(len(members)) for j in range(nb - 1)],
-                                      dtype=np.int64).reshape(-1, 2)
-        self._pose_bodies = np.array([[nb * i + r[0] for r in self._spine_refs[m.index]] for i, m in enumerate(members)],
-                                     dtype=np.int64).reshape(-1, 3)
-        self._pose_local = np.array([[r[1] for r in self._spine_refs[m.index]] for m in members]).reshape(-1, 3, 3)
-        self._tip_bodies = np.array([[nb * i + r[0] for r in self._tip_refs[m.index]] for i, m in enumerate(members)],
-                                    dtype=np.int64).reshape(-1, 2)
-        self._tip_local = np.array([[r[1] for r in self._tip_refs[m.index]] for m in members]).reshape(-1, 2, 3)
-        for published in (self._member, self._fish_of_body, self._body_mass, self._body_inertia, self._pose_bodies,
-                          self._pose_local):  # fixed until the next rebuild: published as they are, no view a step
-            published.setflags(write=False)
-        self._solver = exu.MainSolverExplicit()
-        ss = model.settings
-        ss.timeIntegration.endTime = 1.0e6  # extended chunk by chunk
-        ss.timeIntegration.numberOfSteps = int(round(1.0e6 / self._params.numerics.step_s))
-        self._solver.InitializeSolver(model.mbs, ss)
+        self._solver = model.solver
+        self._solver.InitializeSolver(model.mbs, model.settings)
         self._t_model0 = self.t_s
         self._adhesion_force, self._joint_stiffness = None, {}  # connector -> its 6x6 stiffness, read once
         self._read_state()

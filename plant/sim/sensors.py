@@ -5,9 +5,7 @@
   the coarser contact spheres, whose valleys would let a beam through a fish; an eye with a latency
   reports that state that much later (:class:`BeamDelay`);
 - belt load: the force the fish put on a belt along x and down, from the belt body's momentum
-  change over the step (nothing else acts on it);
-- where on each fish's spine its tracked points are (:func:`spine_point_local`; the poses themselves:
-  :meth:`plant.sim.state.PlantState.fish_poses`).
+  change over the step (nothing else acts on it).
 """
 
 from __future__ import annotations
@@ -17,7 +15,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from plant.contract.line import Line
-from plant.fish.fish_body import FishGeometry
 from plant.sim.equipment import Seen, Step
 
 if TYPE_CHECKING:  # the system's outline cross-sections are read, the system is not built here
@@ -172,11 +169,3 @@ def belt_loads(vel_end: np.ndarray, speed_set_mps: np.ndarray, mass_kg: float, d
     mass = -normal / gravity_mps2 if gravity_mps2 > 0 else np.zeros_like(normal)
     return load, mass
 
-
-def spine_point_local(geometry: FishGeometry, s: float) -> tuple[int, np.ndarray]:
-    """(body index, position in that body's frame) of the spine point at fraction s from the snout."""
-    d = s * geometry.length_m
-    for i, b in enumerate(geometry.bodies):
-        if b.s_start <= s <= b.s_end or i == len(geometry.bodies) - 1:
-            return i, np.array([b.com_from_snout_m - d, 0.0, 0.0])
-    raise AssertionError("unreachable")

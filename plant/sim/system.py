@@ -22,9 +22,10 @@ from exudyn.itemInterface import (  # after exudyn_module: Exudyn loaded as the 
 
 from plant.contract.line import Line
 from plant.fish.extensions import FRICTION_LEVELS, body_friction_levels
+from plant.fish.fish_body import FISH_MODELS
 from plant.sim.model import (BELT_MASS_KG, MAT_BELT, MAT_FISH0, MAT_GUIDE, MAT_SECTION0, PARK_SPACING_M,
-                             TRIANGLE_STIFFNESS, FishModel, Member, PlantModel, PreparedFish, friction_pairings,
-                             park_top_z)
+                             TRIANGLE_STIFFNESS, FishArrays, FishModel, Member, PlantModel, PreparedFish, friction_pairings,
+                             fish_arrays, park_top_z)
 from plant.sim.params import PlantParams
 from plant.sim.surfaces import LineSurfaces
 
@@ -51,6 +52,20 @@ class _FishItems:
 
 
 @dataclass
+class _Finished:
+    """What a system's model takes from its layout alone: its solver and settings, its spheres and outline
+    cross-sections as arrays, its fish's arrays."""
+
+    solver: exu.MainSolverExplicit
+    settings: exu.SimulationSettings
+    sphere_body: np.ndarray
+    sphere_local: np.ndarray
+    sphere_radius: np.ndarray
+    sections: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+    arrays: FishArrays
+
+
+@dataclass
 class Layout:
     """A system being laid out: the line and the fish added so far, without their state; not assembled."""
 
@@ -66,6 +81,8 @@ class Layout:
     planned: tuple[tuple[int, int], ...] = ()
     """Laid out ahead (:func:`lay_out_ahead`): the (fish index, friction level) of each fish it is to hold; those
     laid out so far (:attr:`keys`) are the first of them."""
+    finished: _Finished | None = None
+    """What follows from the layout alone, made once all its fish are in (:func:`finish`)."""
 
     @property
     def keys(self) -> tuple[tuple[int, int], ...]:
@@ -115,13 +132,25 @@ def assemble(layout: Layout, members: list[Member], gravity: np.ndarray) -> Plan
 
     sd = mbs.systemData
     body_ltg = np.array([sd.GetNodeLTGODE2(n) for n in items.body_nodes], dtype=np.int64).reshape(-1, 6)
-    body_ref = np.array([mbs.GetNodeParameter(n, "referenceCoordinates") for n in items.body_nodes]).reshape(-1, 6)
+    # the reference coordinates as set (Exudyn keeps the doubles given): no read back
+    body_ref = np.vstack([m.coords for m in members]).reshape(-1, 6) if members else np.zeros((0, 6))
     belt_ltg = np.array([sd.GetNodeLTGODE2(n) for n in layout.belt_nodes], dtype=np.int64)
     device_ltg = np.array([sd.GetNodeLTGODE2(n) for n in layout.device_nodes], dtype=np.int64).reshape(-1, 6)
-    return PlantModel(layout.system, mbs, layout.contact, _solver_settings(params.numerics), line, params,
-                      layout.fish, body_ltg, body_ref, belt_ltg, np.array(items.sphere_body, dtype=np.int64),
-                      np.array(items.sphere_local).reshape(-1, 3), np.array(items.sphere_radius), *items.sections(),
-                      (lo, hi), device_ltg)
+    done = layout.finished or finish(layout)
+    return PlantModel(layout.system, mbs, layout.contact, done.settings, done.solver, done.arrays, line, params,
+                      layout.fish, body_ltg, body_ref, belt_ltg, done.sphere_body, done.sphere_local,
+                      done.sphere_radius, *done.sections, (lo, hi), device_ltg)
+
+
+def finish(layout: Layout) -> _Finished:
+    """What the model of a fully laid-out system takes from its layout alone (made ahead if served, see
+    :func:`lay_out_ahead`)."""
+    items = layout.items
+    layout.finished = _Finished(
+        exu.MainSolverExplicit(), _solver_settings(layout.params.numerics), np.array(items.sphere_body, dtype=np.int64),
+        np.array(items.sphere_local).reshape(-1, 3), np.array(items.sphere_radius), items.sections(),
+        fish_arrays(layout.fish, FISH_MODELS[layout.params.fish_model]))
+    return layout.finished
 
 
 def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantParams, gravity: np.ndarray,
@@ -137,12 +166,13 @@ def build_model(surfaces: LineSurfaces, members: list[Member], params: PlantPara
 
 @dataclass
 class AheadCost:
-    """What laying out ahead took (wall s, a moving mean): the line's items, a fish's.  A piece is begun only if its
-    cost fits in the time left, and every piece put off lowers its cost a little (a slow one is not believed
-    forever)."""
+    """What laying out ahead took (wall s, a moving mean): the line's items, a fish's, finishing a layout.  A piece
+    is begun only if its cost fits in the time left, and every piece put off lowers its cost a little (a slow one is
+    not believed forever)."""
 
     line_s: float = 1.0e-3
     fish_s: float = 3.0e-4
+    finish_s: float = 5.0e-4
 
     def fits(self, piece_s: float, until_s: float) -> bool:
         return time.perf_counter() + piece_s <= until_s
@@ -178,6 +208,13 @@ def lay_out_ahead(layouts: list[Layout], plans: list[tuple[tuple[int, int], ...]
             k, level = planned[len(layout.fish)]
             add_fish(layout, k, prepared[k], level)
             cost.took("fish_s", t0)
+        if len(layout.fish) == len(planned) and layout.finished is None:
+            if cost.fits(cost.finish_s, until_s):
+                t0 = time.perf_counter()
+                finish(layout)
+                cost.took("finish_s", t0)
+            else:
+                cost.finish_s *= 0.9
     return out
 
 
@@ -285,8 +322,11 @@ def _set_state(mbs, fm: FishModel, mem: Member, gravity: np.ndarray) -> None:
 
 
 def _solver_settings(num) -> exu.SimulationSettings:
-    """Explicit integration (VelocityVerlet), each body's mass matrix inverted alone, no files, ``num.threads``."""
+    """Explicit integration (VelocityVerlet) at ``num.step_s`` with no end (the plant extends it chunk by chunk),
+    each body's mass matrix inverted alone, no files, ``num.threads``."""
     ss = exu.SimulationSettings()
+    ss.timeIntegration.endTime = 1.0e6
+    ss.timeIntegration.numberOfSteps = int(round(1.0e6 / num.step_s))
     ss.timeIntegration.solverType = exu.DynamicSolverType.VelocityVerlet
     ss.timeIntegration.explicit.computeEndOfStepAccelerations = False
     ss.timeIntegration.explicit.computeMassMatrixInversePerBody = True
