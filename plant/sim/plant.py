@@ -123,6 +123,7 @@ class Plant:
         self._geometry = tuple(p.geometry for p in self._prepared)
         self._timings_s = {"exudyn": 0.0, "rebuild": 0.0, "rebuild_longest": 0.0}
         self._steps, self._t_model0, self._ahead_cost = 0, 0.0, AheadCost()
+        self._retired_rebuild_due = False  # a retirement's rebuild: made before the next step, from this state
         # without directional friction a fish's level never changes: the friction table needs none above these
         self._highest_level = None if ext.direction_friction.on else highest_body_level(
             self._level, self._params.friction.belt_gradient, FISH_MODELS[self._params.fish_model])
@@ -149,6 +150,7 @@ class Plant:
              device_commands: dict[str, bool] | None = None) -> PlantOutputs:
         """Advance one communication step with the given belt surface speeds and device commands (by device id;
         a device not named, or all with None, is commanded home)."""
+        self._rebuild_for_retired()
         speeds = self._belts.speeds(belt_speeds_mps, self.t_s)
         self._admit_and_release(self.t_s + 1e-9)  # may rebuild the system: the step's model is the one after it
         step = Step((self._steps + 1) * self._comm_step_s, self._comm_step_s, self.model, speeds,
@@ -174,9 +176,11 @@ class Plant:
         """Within ``budget_s`` of wall time, lay out the systems of the next rebuilds as far as they can be foreseen
         (and let go of the one last replaced): a rebuild then only sets the state and assembles.  For a run served in
         real time, in the time its steps leave over; the run steps the same to the bit with or without it.  A rebuild
-        the next step's admission needs is made here at once, whatever the budget: it has to be made before that step
-        in any case, and the state it carries is already the one that step starts from."""
+        the last step's retirements or the next step's admission need is made here at once, whatever the budget: it
+        has to be made before that step in any case, and the state it carries is already the one that step starts
+        from."""
         until_s, self._replaced = time.perf_counter() + budget_s, None
+        self._rebuild_for_retired()
         if (due := self._roster.due(t := self.t_s + 1e-9)) and self._roster.must_admit(due):
             self._rebuild(t)  # the next step's admission rebuilds (as step() asks): now, in the time left over
         rear_x_m = self._pos[:, 0].reshape(-1, self.model.bodies_per_fish).min(axis=1)
@@ -392,10 +396,15 @@ class Plant:
         for slot in slots:
             self._place(int(slot), parks[slot], np.eye(3), [0.0, 0.0, 0.0])  # parked: at rest, gravity off
             self._roster.retired(int(slot), int(through[slot]))
-        if self._roster.rebuild_due():
+        # the rebuild the retirements make due is made after the step's state is published (build_ahead, or the next
+        # step): the same state goes into it, and a served step publishes without waiting for it
+        self._retired_rebuild_due = self._roster.rebuild_due()
+        self._read_state()
+
+    def _rebuild_for_retired(self) -> None:
+        if self._retired_rebuild_due:
+            self._retired_rebuild_due = False
             self._rebuild(self.t_s)
-        else:
-            self._read_state()
 
     def _place(self, slot: int, mid: np.ndarray, rot: np.ndarray, gravity: list[float]) -> None:
         """Put the fish of ``slot`` at rest at ``mid`` with orientation ``rot``, under ``gravity``

@@ -3,10 +3,12 @@
 A system is made in two parts.  Its **layout**, the line's items and each fish's nodes, bodies, spheres, loads and
 joints in order, depends only on which fish are in it and the friction level each is laid out with.  The fish's
 **state**, each body's position, rotation and velocity, gravity on or off and each joint's linearisation, is set
-after it, and the system is assembled.  A rebuild does both at once.  Served in real time, the plant can lay out the
-next admission's system ahead, in the wall time the steps leave over (:meth:`plant.sim.plant.Plant.build_ahead`), so
-that the rebuild, when it comes, only sets the state and assembles: the same values reach Exudyn either way, so the
-system and every step after it are the same to the bit.
+after it, and the system is assembled.  What the model takes from the layout alone (its solver, settings, sphere and
+outline arrays, the fish's arrays) is made once the layout is complete (:func:`finish`).  A rebuild does all at once.
+Served in real time, the plant lays out the next rebuilds' systems ahead, in the wall time the steps leave over
+(:meth:`plant.sim.plant.Plant.build_ahead`), so that the rebuild, when it comes, only sets the state, assembles and
+initialises the solver: the same values reach Exudyn either way, so the system and every step after it are the same
+to the bit.
 """
 
 from __future__ import annotations
