@@ -231,6 +231,32 @@ def test_real_time_paces_the_run_and_reports_its_lateness(tmp_path):
     assert "lateness p50" in cli.stdout and info["t_end_s"] == pytest.approx(1.0)
 
 
+def test_a_served_step_never_starts_before_it_is_due_and_a_stop_ends_the_wait():
+    """The wait for a step's due time ends on the OS's timer, not the event loop's whole milliseconds: never early
+    (a PLC's scan must not see a step before its time), and a stop still ends it."""
+    from fishfmu.serve.line import LineServer
+
+    class Waiting:  # what _sleep_until reads of the server
+        _restarted = False
+
+        def __init__(self, ending_after_s: float) -> None:
+            self.ends = time.monotonic() + ending_after_s
+
+        def _ending(self) -> bool:
+            return time.monotonic() >= self.ends
+
+    async def wait(server: Waiting, due: float) -> tuple[bool, float]:
+        done = await LineServer._sleep_until(server, due)
+        return done, time.monotonic()
+
+    for ahead_s in (0.0, 0.0004, 0.0013, 0.0017, 0.0031, 0.0123):
+        due = time.monotonic() + ahead_s
+        done, now = asyncio.run(wait(Waiting(60.0), due))
+        assert done and now >= due, (ahead_s, now - due)
+    done, now = asyncio.run(wait(Waiting(0.02), time.monotonic() + 30.0))  # a stop 20 ms in: not 30 s
+    assert not done
+
+
 NODE_OPCUA = ROOT / ".ci" / "node-opcua" / "node_modules"
 
 
