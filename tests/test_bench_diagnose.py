@@ -274,13 +274,20 @@ def test_round_2_holds_the_issues_datasets_and_its_own_held_out_third():
 
 
 def test_round_3_is_all_held_out_four_without_an_effect_and_two_singles_of_different_families():
-    third = _recipe()[50:]
+    third = _recipe()[50:56]
     assert len(third) == 6 and {d["split"] for d in third} == {"heldout"}
     effects = [d["effect"] for d in third]
     assert effects.count("none") == 4
     singles = [e for e in effects if e != "none"]
     assert len(set(singles)) == 2 and all(e in FAMILIES for e in singles)
     assert min(d["seed"] for d in third) > max(d["seed"] for d in _recipe()[:50])  # fish and drops never met before
+
+
+def test_round_4_is_all_held_out_one_single_of_each_family_and_one_without_an_effect():
+    fourth = _recipe()[56:]
+    assert len(fourth) == 8 and {d["split"] for d in fourth} == {"heldout"}
+    assert sorted(d["effect"] for d in fourth) == sorted([*FAMILIES, "none"])
+    assert min(d["seed"] for d in fourth) > max(d["seed"] for d in _recipe()[:56])
 
 
 def test_generate_makes_each_entry_with_linesims_own_command_line(tmp_path):
@@ -290,7 +297,8 @@ def test_generate_makes_each_entry_with_linesims_own_command_line(tmp_path):
     assert {d["name"] for d in held} == ROUND2_HELDOUT
     assert [d["name"] for d in gen.selected(recipe, only=["rigor+adhesion", "none_1"])] == ["none_1", "rigor+adhesion"]
     assert len(gen.selected(recipe, round_=1)) == 30 and len(gen.selected(recipe)) == len(recipe)
-    assert len(gen.selected(recipe, round_=2)) == 20 and gen.selected(recipe, round_=3) == recipe[50:]
+    assert len(gen.selected(recipe, round_=2)) == 20 and gen.selected(recipe, round_=3) == recipe[50:56]
+    assert gen.selected(recipe, round_=4) == recipe[56:]
     entry = next(d for d in recipe if d["name"] == "rigor+adhesion")
     cmd = gen.command(entry, Path("/ls"), "py", tmp_path, runs=10, fish=18, jobs=2)
     assert cmd[:2] == ["py", "/ls/gen.py"]
