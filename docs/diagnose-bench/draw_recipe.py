@@ -130,28 +130,23 @@ def round3(before: list[dict]):
     """2026-11-30: four without an effect and two singles of two families drawn from all seven; all held out, drawn
     before any was made. Numbered on from the rounds ``before`` (none_17, ...)."""
     rng = random.Random(ROUND3_SEED)
-    effects = ["none"] * 4 + rng.sample(SINGLE_FAMILIES, 2)
-    count = {}
-    for r in before:
-        count[r["effect"]] = count.get(r["effect"], 0) + 1
-    rows, seed = [], ROUND3_FIRST_SEED
-    for effect in effects:
-        seed += rng.randint(1, 97)
-        count[effect] = count.get(effect, 0) + 1
-        rows.append({"name": f"{effect}_{count[effect]}", "effect": effect, "seed": seed, "split": "heldout",
-                     "flags": {**base_shift(rng), **magnitude(rng, effect)}})
-    return rows
+    return _held_out(rng, ["none"] * 4 + rng.sample(SINGLE_FAMILIES, 2), before, ROUND3_FIRST_SEED)
 
 
 def round4(before: list[dict]):
     """2026-11-30: one single of each of the seven families and one without an effect, in a drawn order; all held out,
     drawn before any was made. Numbered on from the rounds ``before``."""
     rng = random.Random(ROUND4_SEED)
-    effects = rng.sample([*SINGLE_FAMILIES, "none"], len(SINGLE_FAMILIES) + 1)
+    return _held_out(rng, rng.sample([*SINGLE_FAMILIES, "none"], len(SINGLE_FAMILIES) + 1), before, ROUND4_FIRST_SEED)
+
+
+def _held_out(rng, effects: list[str], before: list[dict], first_seed: int) -> list[dict]:
+    """A held-out round's rows for ``effects`` in order: seeds on from ``first_seed``, each its own base shift and
+    magnitude, named on from the rounds ``before`` (none_17, ...)."""
     count = {}
     for r in before:
         count[r["effect"]] = count.get(r["effect"], 0) + 1
-    rows, seed = [], ROUND4_FIRST_SEED
+    rows, seed = [], first_seed
     for effect in effects:
         seed += rng.randint(1, 97)
         count[effect] = count.get(effect, 0) + 1
