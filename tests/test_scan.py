@@ -13,7 +13,9 @@ from plant.contract.measured import read_dataset
 
 from fishfmu.analysis.candidates import CANDIDATES
 from fishfmu.analysis.mismatch import take_up_law, take_up_text
-from fishfmu.analysis.scan import _place, scan, scan_tables
+from fishfmu.analysis import scan as scan_module
+from fishfmu.analysis.scan import _place, scan
+from fishfmu.analysis.scan_tables import scan_tables
 from fishfmu.analysis.signatures import ALPHA, judge
 
 DEV = Path(__file__).resolve().parents[2] / "shared" / "data" / "dev"
@@ -97,6 +99,75 @@ def test_a_pair_a_named_cause_explains_is_left_out():
     found = scan(tables, np.random.default_rng(0), {("transfers", "hours_post_mortem")}, ALPHA)
     assert not found.findings
     assert all(cov != "hours_post_mortem" for _, _, cov, _ in found.tests)
+
+
+
+def _pairs(rng: np.random.Generator, measured_shift: float) -> dict[str, pd.DataFrame]:
+    """Side-by-side pairs at three transfers, ten runs: how much of the belts' speed difference each pair's separation
+    gained, touching or with a gap, measured and as the calibrated model has the same runs; the measured touching
+    pairs part ``measured_shift`` more than the model's (negative: held together)."""
+    def rows(shift: float) -> pd.DataFrame:
+        out = []
+        for r in range(10):
+            for k in range(16):
+                touching = float(k % 2)
+                growth = rng.normal(0.6 - 0.2 * touching, 0.25) + shift * touching
+                out.append({"run_id": f"r{r:02d}", "conveyor_id": ("c2", "c3", "c4")[k % 3], "leader": f"f{k}",
+                            "follower": f"f{k + 1}", "touching": touching, "growth": growth})
+        return pd.DataFrame(out)
+    return {"pairs": rows(measured_shift), "model_pairs": rows(0.0)}
+
+
+def test_touching_pairs_held_together_more_than_the_model_are_found_parting_more_is_not():
+    # held: a quarter of the belts' speed difference less than the model's touching pairs (adhesion's size on the
+    # benchmark's datasets: their rank 0.1-0.2 below the model's)
+    held = scan(_pairs(np.random.default_rng(5), -0.25), np.random.default_rng(0), set(), ALPHA)
+    assert [(f.location_kind, f.location_id, f.covariate_key) for f in held.findings] == [("pairs", "all", "touching")]
+    assert held.findings[0].test.slope < 0.0
+    # the other way is the model's own fish-fish contact (our fish part less readily than the independent
+    # simulator's on all of its no-effect datasets): no finding
+    parted = scan(_pairs(np.random.default_rng(5), +0.25), np.random.default_rng(0), set(), ALPHA)
+    assert not parted.findings
+    # a named cause standing for the pairs' dependence on contact (adhesion) takes it
+    named = scan(_pairs(np.random.default_rng(5), -0.25), np.random.default_rng(0), {("pairs", "touching")}, ALPHA)
+    assert not named.findings
+
+
+def test_a_quantity_read_against_the_models_rows_leaves_the_other_tests_draws_as_they_were():
+    transfers = _transfers(np.random.default_rng(1), 3e-4)
+    alone = scan(transfers, np.random.default_rng(0), set(), ALPHA)
+    with_pairs = scan({**transfers, **_pairs(np.random.default_rng(5), -0.25)}, np.random.default_rng(0), set(), ALPHA)
+    before = [(q.table, key, t.p_value, t.heldout_gain) for q, _, key, t in alone.tests]
+    after = [(q.table, key, t.p_value, t.heldout_gain) for q, _, key, t in with_pairs.tests]
+    assert [a for a in after if a[0] != "pairs"] == before
+    assert len(after) > len(before)
+
+
+def _drying(rng: np.random.Generator, slip_s: float) -> dict[str, pd.DataFrame]:
+    """Drops at the infeed as a campaign has them (half its runs drop fish alone): five runs of 14 fish at 1, 8, 24,
+    36 and 72 h; the slip falls by ``slip_s`` from fresh to 8 h and older (log-time: the mucus dries within hours),
+    5 ms of scatter a drop."""
+    rows = []
+    for r, h in enumerate((1.0, 8.0, 24.0, 36.0, 72.0)):
+        for f in range(14):
+            rows.append({"run_id": f"r{r:02d}", "fish_id": f"f{f}", "conveyor_id": "c1", "hours_post_mortem": h,
+                         "slip_s": 0.035 - slip_s * np.clip(np.log(h) / np.log(8.0), 0.0, 1.0) + rng.normal(0.0, 0.005),
+                         "belt_speed_mps": 0.25, "t_in_run_s": 2.0 * f})
+    return {"drops": pd.DataFrame(rows)}
+
+
+def test_age_offered_in_monotone_shapes_apart_finds_a_drying_more_often_and_says_it_once(monkeypatch):
+    def found(covariates) -> int:
+        monkeypatch.setattr(scan_module, "COVARIATES", covariates)
+        n = 0
+        for seed in range(20):
+            f = scan(_drying(np.random.default_rng(seed), 0.018), np.random.default_rng(0), set(), ALPHA).findings
+            assert len(f) <= 1  # found in both families of shapes: said once
+            n += len(f)
+        return n
+    both = found(dict(scan_module.COVARIATES))
+    bumps_too = found({k: c for k, c in scan_module.COVARIATES.items() if k != "hours_monotone"})
+    assert both > bumps_too
 
 
 def test_the_fish_size_is_the_base_models_mismatch_not_an_unexplained_effect():

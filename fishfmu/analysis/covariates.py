@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 from scipy import stats
 
 from fishfmu.analysis.fitting import heldout_score
@@ -286,6 +287,21 @@ def covariate_test(candidate: str, quantity: str, covariate: str, d: Design, shu
     out.min_effect = d.min_effect
     return out
 
+
+
+def against_model(measured: pd.DataFrame, model: pd.DataFrame, column: str, sign: int,
+                  min_effect: float = 0.0) -> Design:
+    """Rows of the measured runs against those of the same runs re-simulated with the calibrated model, compared
+    within each run by the rank of ``column`` among both: the rows are not matched one to one (a pile's chaos decides
+    which pair of fish parts, the physics how many), and a pair held together and one that parted differ by rank,
+    not by how far the parted one went. The term: measured (1) or modelled (0), shuffled among a run's rows (the
+    ``within`` shuffle). Only the runs both have."""
+    both = pd.concat([measured.assign(measured=1.0), model.assign(measured=0.0)], ignore_index=True)
+    both = both[both["run_id"].isin(set(measured["run_id"]) & set(model["run_id"]))]
+    both = both.sort_values(["run_id", "measured"], kind="stable")
+    rank = both.groupby("run_id")[column].rank(pct=True).to_numpy(float)
+    return Design(rank, both["run_id"].to_numpy(), both[["measured"]].to_numpy(float), ["measured (1) or modelled (0)"],
+                  np.zeros((len(both), 0)), within=True, sign=sign, min_effect=min_effect)
 
 
 def run_clustered_test(candidate: str, quantity: str, covariate: str, d: Design, rng: np.random.Generator

@@ -40,7 +40,8 @@ from fishfmu.analysis.residuals import DRIVE_RESIDUAL_DTYPES, RunResiduals, conc
 from fishfmu.analysis.resim import (Resim, drive_check, fish_model_lines, measured_data_plant, pool_for,
                                     refuse_unreplayed, resimulate_many)
 from fishfmu.analysis.mismatch import base_mismatch, fit_quality, take_up_law, tracker_noise_m
-from fishfmu.analysis.scan import Scan, scan, scan_tables
+from fishfmu.analysis.scan import Scan, scan
+from fishfmu.analysis.scan_tables import scan_tables
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
 DECISION_RULE = (f"a candidate is significant when its covariate test's p-value is at most {ALPHA:g} (its quantity "

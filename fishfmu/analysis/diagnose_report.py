@@ -196,12 +196,19 @@ def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
     ax = axes[len(names)]
     f = d.unexplained[0] if d.unexplained else None
     table = d.scan.tables.get(f.table) if f is not None and d.scan is not None else None
+    model = d.scan.tables.get(f.against_model) if f is not None and f.against_model else None
     if f is not None and table is not None:
-        col = next(q.column for q in QUANTITIES if q.table == f.table)
-        for place, g in table.groupby(next(q.location_column for q in QUANTITIES if q.table == f.table)):
-            ax.plot(g[COVARIATES[f.covariate_key].column], g[col], ".", alpha=0.4, label=str(place))
-        ax.legend(fontsize=7)
-        ax.set(xlabel=f.covariate, ylabel=f"{f.quantity} [{f.unit}]" if f.unit else f.quantity)
+        q = next(q for q in QUANTITIES if q.table == f.table and q.model_table == f.against_model)
+        flag = COVARIATES[f.covariate_key].column
+        if model is not None:  # the rows where the covariate holds, measured against modelled
+            ax.boxplot([t.loc[t[flag] == 1.0, q.column].to_numpy(float) for t in (table, model)],
+                       tick_labels=["measured", "model"])
+            ax.set(ylabel=f"{q.column} where {flag}")
+        else:
+            for place, g in table.groupby(q.location_column):
+                ax.plot(g[flag], g[q.column], ".", alpha=0.4, label=str(place))
+            ax.legend(fontsize=7)
+            ax.set(xlabel=f.covariate, ylabel=f"{f.quantity} [{f.unit}]" if f.unit else f.quantity)
         ax.set_title(f"unexplained: at {f.location_kind} {f.location_id}\np = {f.test.p_value:.4f}, held-out gain "
                      f"{f.test.heldout_gain:.0%}", fontsize=10, fontweight="bold")
     else:

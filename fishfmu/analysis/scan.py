@@ -9,7 +9,7 @@ every **covariate** it carries:
 
 - quantities and locations (:data:`QUANTITIES`): the slip of fish dropped alone (the infeed), the lag of fish alone
   across each transfer against the calibrated model, the blocked share of each photo-eye's passages, each drive's
-  sag below its setpoint, the growth of pairs' separation at each transfer;
+  sag below its setpoint, the growth of touching pairs' separation at the transfers against the model's;
 - covariates (:data:`COVARIATES`): hours post mortem, the fish's weight, length and heading, when in the run it came,
   the belt's speed, the load on a belt, contact between fish.
 
@@ -30,11 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from plant.contract.measured import Dataset
-
-from fishfmu.analysis.covariates import (CovariateTest, Design, bump_shapes, covariate_test, each_shape_alone,
-                                         log_hours_shapes, robust, run_clustered_test)
-from fishfmu.analysis.residuals import RunResiduals, alone
+from fishfmu.analysis.covariates import (CovariateTest, Design, against_model, bump_shapes, covariate_test,
+                                         each_shape_alone, log_hours_shapes, robust, run_clustered_test)
 
 FIRST_PERMUTATIONS = 199
 """Shuffles per test first; a test whose p-value could still reach the threshold is shuffled more."""
@@ -58,6 +55,12 @@ class Quantity:
     nuisance: tuple[str, ...] = ()
     against_model: bool = False
     """Read as the measured value minus the calibrated model's (the transfers' lags), not as measured alone."""
+    model_table: str = ""
+    """Read against this table's rows (the same runs re-simulated with the calibrated model) by rank within each run,
+    among the rows where the covariate (a 0/1 flag) is 1 (:func:`~fishfmu.analysis.covariates.against_model`): for
+    rows no model row matches one to one (which pairs of a pile part is chaos)."""
+    sign: int = 0
+    """+1 / -1: only a dependence of this sign is a finding (:attr:`~fishfmu.analysis.covariates.Design.sign`)."""
     shared: tuple[str, ...] = ()
     """The base model's own mismatch in this quantity, the same law at every location (its response to what it is
     given: the fish's heading, the speed step at a transfer): columns fitted beside every other covariate's term, so
@@ -92,6 +95,14 @@ def _hours(h: np.ndarray) -> tuple[np.ndarray, list[str]]:
             ["linear in hours"] + [an[i] for i in keep_a] + [bn[i] for i in keep_b])
 
 
+def _hours_monotone(h: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Only shapes that rise or fall with age (drying, ageing), offered apart from :func:`_hours`' bumps: where a bump
+    fits some runs best but predicts a run of another age badly (held out, it loses), a monotone dependence on age
+    would be masked by it (a drying mucus's slip at the infeed, found with its bump losing 525 % held out)."""
+    a, an = log_hours_shapes(h)
+    return np.column_stack([np.asarray(h, dtype=float), a]), ["linear in hours", *an]
+
+
 COVARIATES: dict[str, Covariate] = {c.key: c for c in (
     Covariate("hours_post_mortem", "hours post mortem", "hours_post_mortem", _hours, "runs"),
     Covariate("weight_kg", "the fish's weight", "weight_kg", _linear("weight [kg]"), "fish"),
@@ -106,6 +117,8 @@ COVARIATES: dict[str, Covariate] = {c.key: c for c in (
     Covariate("load_kg", "the mass on the belt", "load_kg", _linear("load [kg]"), "time"),
     Covariate("touching", "contact (between the fish of a pair; with a guide)", "touching",
               _linear("touching (1) or not (0)"), "fish"),
+    Covariate("hours_monotone", "hours post mortem (rising or falling with age only)", "hours_post_mortem",
+              _hours_monotone, "runs"),
     # not a property of a fish or a run: where it is read (shapes made in _level_design)
     Covariate("transfer", "the transfer itself, beyond the take-up law every transfer shares", "conveyor_id",
               _linear("transfer"), "location"),
@@ -139,9 +152,17 @@ QUANTITIES: tuple[Quantity, ...] = (
     # its speed, which the model predicts as well (guide wear's own test takes the stretch's level out)
     Quantity("guides", "slip_mps", "slip of fish riding a belt (its speed below the belt's)", "m/s", "belt",
              "conveyor_id", 0.01),
-    # a tenth of the belts' speed difference: what tracking noise makes of a pair's separation over 1.5 s
-    Quantity("pairs", "growth", "share of the belts' speed difference a side-by-side pair's separation gained", "",
-             "pairs", "conveyor_id", 0.1),
+    # how much of the belts' speed difference a side-by-side pair's separation gained, the touching pairs against the
+    # calibrated model's touching pairs of the same runs (not against the pairs with a gap of the measured runs alone:
+    # touching fish part less readily than fish apart in any physics, and the model's response is the reference,
+    # as it is for the transfers' lags). One-sided,
+    # held together more than the model: what touching fish on a line share that the model lacks holds them (slime,
+    # scales, blood, skin drying sticky); nothing on a line makes touching fish repel. The other direction is the
+    # model's own fish-fish contact: our fish part less readily than the independent simulator's on all of its
+    # no-effect datasets (docs/diagnosis.md). 5 points of rank: a twentieth of the run's pairs moved past each other
+    Quantity("pairs", "growth", "touching pairs held together more than the calibrated model's: the rank of the "
+             "separation a touching pair gained within its run, among the model's touching pairs of the run", "", "pairs",
+             "conveyor_id", 0.05, against_model=True, model_table="model_pairs", sign=-1),
 )
 
 
@@ -159,6 +180,8 @@ class Finding:
     runs: list[str]
     """The runs that show it most (the largest held-out gain of the term)."""
     table: str = ""
+    against_model: str = ""
+    """What the rows were read against (:attr:`Quantity.model_table`): the term is measured against modelled."""
     or_at: dict[str, float] = field(default_factory=dict)
     """A transfer's own level: the other transfers whose own level explains the lags about as well (their level),
     where the shared law cannot tell which one departs from it (:func:`_rival_levels`)."""
@@ -169,22 +192,25 @@ class Finding:
                 "covariate": self.covariate, "covariate_key": self.covariate_key, "shape": t.shape,
                 "slope": t.slope, "effect": t.effect, "unit": self.unit, "p_value": t.p_value,
                 "heldout_gain": t.heldout_gain, "heldout_gain_ci95": list(t.heldout_gain_ci95), "runs": self.runs,
-                "or_at": self.or_at}
+                "against_model": self.against_model, "or_at": self.or_at}
 
     @property
     def text(self) -> str:
         t = self.test
         unit = f" {self.unit}" if self.unit else ""
         where = "every " + self.location_kind if self.location_id == "all" else f"{self.location_kind} {self.location_id}"
+        shown = f"shown most by {', '.join(self.runs) or 'no single run'}"
+        if self.against_model:
+            return (f"{self.quantity}, at {where}: {t.slope:+.3g}{unit} measured against modelled, p = {t.p_value:.4f}, "
+                    f"held-out gain {t.heldout_gain:.1%}; {shown}")
         if self.covariate_key == "transfer":
             rivals = ", ".join(f"{at} {level:+.3g}{unit}" for at, level in self.or_at.items())
             rivals = f" (or {rivals}: the shared law cannot tell which departs from it)" if rivals else ""
             return (f"{self.quantity} at {where}: {t.slope:+.3g}{unit} beyond the take-up law every transfer shares"
-                    f"{rivals}, p = {t.p_value:.4f}, held-out gain {t.heldout_gain:.1%}; shown most by "
-                    f"{', '.join(self.runs) or 'no single run'}")
+                    f"{rivals}, p = {t.p_value:.4f}, held-out gain {t.heldout_gain:.1%}; {shown}")
         return (f"{self.quantity} at {where} follows {self.covariate} ({t.shape}): "
                 f"{t.effect:.3g}{unit} over the data's range (slope {t.slope:+.3g}), p = {t.p_value:.4f}, held-out "
-                f"gain {t.heldout_gain:.1%}; shown most by {', '.join(self.runs) or 'no single run'}")
+                f"gain {t.heldout_gain:.1%}; {shown}")
 
 
 @dataclass
@@ -197,7 +223,7 @@ class Scan:
     mismatch_findings: list[Finding] = field(default_factory=list)
     """Dependences that are the base model's own mismatch (:func:`is_base_mismatch`), reported as such."""
     tables: dict[str, pd.DataFrame] = field(default_factory=dict, repr=False)
-    """What it read (:func:`scan_tables`), for plots."""
+    """What it read (:func:`fishfmu.analysis.scan_tables.scan_tables`), for plots."""
 
     def results(self) -> list[dict]:
         """Every test judged, found or not (``diagnosis.json`` ``scan.results``): what fell short of the threshold,
@@ -205,56 +231,6 @@ class Scan:
         return [{"quantity": q.table, "covariate_key": key, "shape": t.shape, "p_value": t.p_value,
                  "heldout_gain": t.heldout_gain, "slope": t.slope, "effect": t.effect}
                 for q, _, key, t in self.tests if t.judged]
-
-
-# ------------------------------------------------------------------------------------------------- the tables
-
-def _fish_table(dataset: Dataset) -> pd.DataFrame:
-    frames = [r.fish.assign(run_id=r.id) for r in dataset.runs]
-    f = pd.concat(frames, ignore_index=True)
-    return f[["run_id", "fish_id", "weight_kg", "length_m", "drop_t_s"]].rename(columns={"drop_t_s": "t_in_run_s"})
-
-
-def _belt_speeds(dataset: Dataset) -> pd.DataFrame:
-    rows = [{"run_id": r.id, "conveyor_id": c, "belt_speed_mps": float(g["speed_mps"].median())}
-            for r in dataset.runs if len(r.belts) for c, g in r.belts.groupby("conveyor_id")]
-    return pd.DataFrame(rows, columns=["run_id", "conveyor_id", "belt_speed_mps"])
-
-
-def scan_tables(dataset: Dataset, rows: dict[str, pd.DataFrame], after: list[RunResiduals]) -> dict[str, pd.DataFrame]:
-    """The scan's tables: the judge's rows (measured data) with each fish's weight, length and arrival, and the lags
-    of fish alone across transfers against the calibrated model (``after``)."""
-    fish = _fish_table(dataset)
-    speeds = _belt_speeds(dataset)
-    out: dict[str, pd.DataFrame] = {}
-    drops = rows.get("drops")
-    if drops is not None and len(drops):
-        drops = drops.drop(columns=[c for c in ("weight_kg", "length_m", "t_in_run_s") if c in drops.columns])
-        out["drops"] = drops.merge(fish, on=["run_id", "fish_id"], how="left").assign(
-            conveyor_id=dataset.line.conveyors[0].id)
-    for name in ("edges", "guides"):
-        if rows.get(name) is not None and len(rows[name]):
-            out[name] = rows[name]
-    passages = rows.get("passages")
-    if passages is not None and len(passages):
-        out["passages"] = passages.merge(fish, on=["run_id", "fish_id"], how="left")
-    if rows.get("drive") is not None and len(rows["drive"]):
-        out["drive"] = rows["drive"]
-    if rows.get("pairs") is not None and len(rows["pairs"]):
-        out["pairs"] = rows["pairs"]
-    lags = [alone(b.rows).assign(run_id=b.run_id) for b in after if not b.error and len(b.rows)]
-    if lags:
-        t = pd.concat(lags, ignore_index=True)
-        t = t[t["belt"] > 0].drop(columns=["length_m"], errors="ignore")
-        t = t.merge(fish, on=["run_id", "fish_id"], how="left").merge(speeds, on=["run_id", "conveyor_id"], how="left")
-        order = [c.id for c in dataset.line.conveyors]
-        upstream = speeds.rename(columns={"conveyor_id": "upstream", "belt_speed_mps": "upstream_mps"})
-        t = t.assign(upstream=t["conveyor_id"].map(dict(zip(order[1:], order[:-1])))).merge(
-            upstream, on=["run_id", "upstream"], how="left").drop(columns="upstream")
-        t["speed_step_mps"] = t["belt_speed_mps"] - t.pop("upstream_mps")
-        t["speed_step_sq_m2ps2"] = t["speed_step_mps"] ** 2
-        out["transfers"] = t
-    return out
 
 
 # ------------------------------------------------------------------------------------------------- the scan
@@ -385,6 +361,18 @@ def _design(q: Quantity, cov: Covariate, t: pd.DataFrame, pooled: bool) -> tuple
     return d, shuffle
 
 
+def _against_model_design(q: Quantity, cov: Covariate, t: pd.DataFrame, model: pd.DataFrame | None
+                          ) -> tuple[Design, str] | None:
+    """The quantity's rows where the covariate holds against the model's rows where it holds
+    (:attr:`Quantity.model_table`), one term for every location: the model is the reference at each."""
+    if model is None or cov.column not in model.columns or not set(np.unique(t[cov.column])) <= {0.0, 1.0}:
+        return None
+    held = [rows[rows[cov.column] == 1.0] for rows in (t, model)]
+    if min(len(h) for h in held) < 8 or held[0]["run_id"].nunique() < 3:
+        return None
+    return against_model(*held, q.column, sign=q.sign, min_effect=q.min_effect), "within"
+
+
 def _test(name: str, q: Quantity, cov: Covariate, d: Design, shuffle: str, rng: np.random.Generator,
           deciding: bool) -> CovariateTest:
     t = covariate_test(name, q.text, cov.text, d, shuffle, rng, permutations=FIRST_PERMUTATIONS)
@@ -412,15 +400,20 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         if t is None or not len(t) or q.location_column not in t.columns:
             continue
         for cov in COVARIATES.values():
-            if (q.table, cov.key) in explained or cov.column not in t.columns or cov.column in q.nuisance:
+            # a named cause standing for a covariate stands for it in every family of shapes (its column)
+            if ({(q.table, cov.key), (q.table, cov.column)} & explained or cov.column not in t.columns
+                    or cov.column in q.nuisance):
                 continue
             if cov.varies == "location" and not levels_beside_named and any(table == q.table for table, _ in explained):
                 continue  # a named cause acting on this quantity moves its levels too: its own term stands for them
-            made = _design(q, cov, t, pooled=True)
+            made = (_against_model_design(q, cov, t, tables.get(q.model_table)) if q.model_table
+                    else _design(q, cov, t, pooled=True))
             if made is not None:
                 plans.append((q, cov, t, *made))
-    # the transfers' own levels last: every other test draws the shuffles it drew before that test was added
-    plans.sort(key=lambda plan: plan[1].varies == "location")
+    # tests added later draw their shuffles after the ones before them (the same draws as before they were added):
+    # the transfers' own levels, then the quantities read against the model's own rows, then age's monotone shapes
+    plans.sort(key=lambda plan: (plan[1].key == "hours_monotone", bool(plan[0].model_table),
+                                 plan[1].varies == "location"))
     threshold = alpha / max(len(plans), 1)
     tests, findings, mismatch = [], [], []
     for q, cov, t, d, shuffle in plans:
@@ -432,11 +425,18 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         place = _place(test.shape, t[q.location_column])
         shown = sorted(((g, r) for r, g in test.gain_by_run.items() if g > 0), reverse=True)[:3]
         f = Finding(q.text, q.unit, q.location_kind, place, cov.text, cov.key, test, [r for _, r in shown], q.table,
-                    _rival_levels(d, place) if cov.varies == "location" else {})
+                    q.model_table, _rival_levels(d, place) if cov.varies == "location" else {})
         (mismatch if is_base_mismatch(q, cov.key, place) else findings).append(f)
     # a transfer's own level where the quantity also follows a covariate there: that dependence's mean, said once
     # by the dependence, which says more
     followed = {(f.table, f.location_id) for f in findings if f.covariate_key != "transfer"}
     findings = [f for f in findings if f.covariate_key != "transfer" or (f.table, f.location_id) not in followed]
     findings.sort(key=lambda f: (f.test.p_value, -f.test.heldout_gain))
+    # one covariate found in two families of shapes at one place (age, monotone and come-and-go): said once, the best
+    said = set()
+    for f in list(findings):
+        once = (f.table, f.location_id, COVARIATES[f.covariate_key].column)
+        if once in said:
+            findings.remove(f)
+        said.add(once)
     return Scan(findings, tests, threshold, mismatch, tables)

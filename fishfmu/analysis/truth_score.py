@@ -43,11 +43,11 @@ class Family:
 
 FAMILIES: dict[str, Family] = {
     "mucus": Family(
-        "mucus_friction", frozenset({"drop", "transfer"}), frozenset({"hours_post_mortem"}),
+        "mucus_friction", frozenset({"drop", "transfer"}), frozenset({"hours_post_mortem", "hours_monotone"}),
         "fish-belt friction changes with age; friction shows only where a fish slips against a belt, i.e. where it "
         "is taken up to the belt's speed: landing on the infeed and the transfers (riding along, nothing slips)"),
     "rigor": Family(
-        "rigor_mortis", frozenset({"photoeye"}), frozenset({"hours_post_mortem"}),
+        "rigor_mortis", frozenset({"photoeye"}), frozenset({"hours_post_mortem", "hours_monotone"}),
         "joints stiffen and their range shrinks with age; a stiff fish bridges the belts' steps and ends instead of "
         "draping over them, which the photo-eyes (15 mm above each belt near its end) see as a changed blocked share "
         "of a passage; the fish's slip hardly changes"),

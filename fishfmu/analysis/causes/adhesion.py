@@ -17,7 +17,7 @@ import pandas as pd
 from plant.sim.params import PlantParams
 
 from fishfmu.analysis.candidate import Candidate, Terms
-from fishfmu.analysis.covariates import CovariateTest, Design, covariate_test
+from fishfmu.analysis.covariates import CovariateTest, against_model, covariate_test
 from fishfmu.analysis.extension_fit import fit_on_grid
 
 
@@ -31,8 +31,7 @@ def hide(p: PlantParams, drive: dict[str, float], s: float) -> None:
 
 def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTest:
     """Touching pairs of the measured runs against those of the same runs re-simulated, compared within each run by
-    rank (a pair held together and one that parted differ by rank, not by how far the parted one went); whether a
-    pair is measured or modelled is shuffled among the run's pairs."""
+    rank (:func:`~fishfmu.analysis.covariates.against_model`); held together, the measured ones rank lower."""
     pairs, model_pairs = rows["pairs"], rows.get("model_pairs")
     quantity = "rank within its run of the share of the belts' speed difference a touching pair's separation gained"
     covariate = "contact between the fish (measured against the model)"
@@ -40,12 +39,8 @@ def test(rows: dict[str, pd.DataFrame], rng: np.random.Generator) -> CovariateTe
         out = CovariateTest("adhesion", quantity, covariate, 0, 0)
         out.note = "no re-simulation of the runs to compare the pairs with"
         return out
-    both = pd.concat([pairs.assign(measured=1.0), model_pairs.assign(measured=0.0)], ignore_index=True)
-    both = both[(both["touching"] == 1.0) & both["run_id"].isin(set(pairs["run_id"]) & set(model_pairs["run_id"]))]
-    both = both.sort_values(["run_id", "measured"], kind="stable")
-    rank = both.groupby("run_id")["growth"].rank(pct=True).to_numpy(float)
-    d = Design(rank, both["run_id"].to_numpy(), both[["measured"]].to_numpy(float), ["measured (1) or modelled (0)"],
-               np.zeros((len(both), 0)), within=True, sign=-1)
+    touching = [p[p["touching"] == 1.0] for p in (pairs, model_pairs)]
+    d = against_model(*touching, "growth", sign=-1)
     return covariate_test("adhesion", quantity, covariate, d, "within", rng)
 
 
