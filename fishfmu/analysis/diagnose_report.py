@@ -203,7 +203,7 @@ def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
         if model is not None:  # the rows where the covariate holds, measured against modelled
             ax.boxplot([t.loc[t[flag] == 1.0, q.column].to_numpy(float) for t in (table, model)],
                        tick_labels=["measured", "model"])
-            ax.set(ylabel=f"{q.column} where {flag}")
+            ax.set(ylabel=f"{q.column} of the rows where {flag} = 1")
         else:
             for place, g in table.groupby(q.location_column):
                 ax.plot(g[flag], g[q.column], ".", alpha=0.4, label=str(place))

@@ -153,13 +153,12 @@ QUANTITIES: tuple[Quantity, ...] = (
     Quantity("guides", "slip_mps", "slip of fish riding a belt (its speed below the belt's)", "m/s", "belt",
              "conveyor_id", 0.01),
     # how much of the belts' speed difference a side-by-side pair's separation gained, the touching pairs against the
-    # calibrated model's touching pairs of the same runs (not against the pairs with a gap of the measured runs alone:
-    # touching fish part less readily than fish apart in any physics, and the model's response is the reference,
-    # as it is for the transfers' lags). One-sided,
-    # held together more than the model: what touching fish on a line share that the model lacks holds them (slime,
-    # scales, blood, skin drying sticky); nothing on a line makes touching fish repel. The other direction is the
-    # model's own fish-fish contact: our fish part less readily than the independent simulator's on all of its
-    # no-effect datasets (docs/diagnosis.md). 5 points of rank: a twentieth of the run's pairs moved past each other
+    # calibrated model's touching pairs of the same runs (not against the measured pairs with a gap: touching fish
+    # part less readily than fish apart in any physics; the model's response is the reference, as for the lags).
+    # One-sided, held together more than the model: what touching fish on a line share that the model lacks holds
+    # them (slime, scales, blood, skin drying sticky); nothing on a line makes touching fish repel. The other
+    # direction is the model's own fish-fish contact: our fish part less readily than the independent simulator's on
+    # all of its no-effect datasets (docs/diagnosis.md). 5 points of rank: a twentieth of a run's pairs reordered
     Quantity("pairs", "growth", "touching pairs held together more than the calibrated model's: the rank of the "
              "separation a touching pair gained within its run, among the model's touching pairs of the run", "", "pairs",
              "conveyor_id", 0.05, against_model=True, model_table="model_pairs", sign=-1),
@@ -200,7 +199,8 @@ class Finding:
         unit = f" {self.unit}" if self.unit else ""
         where = "every " + self.location_kind if self.location_id == "all" else f"{self.location_kind} {self.location_id}"
         shown = f"shown most by {', '.join(self.runs) or 'no single run'}"
-        if self.against_model:
+        if self.against_model:  # the pairs' location is the transfer they cross
+            where = "every transfer" if self.location_id == "all" else f"transfer {self.location_id}"
             return (f"{self.quantity}, at {where}: {t.slope:+.3g}{unit} measured against modelled, p = {t.p_value:.4f}, "
                     f"held-out gain {t.heldout_gain:.1%}; {shown}")
         if self.covariate_key == "transfer":
