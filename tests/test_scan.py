@@ -133,14 +133,17 @@ def test_touching_pairs_held_together_more_than_the_model_are_found_parting_more
     assert not named.findings
 
 
-def test_a_quantity_read_against_the_models_rows_leaves_the_other_tests_draws_as_they_were():
-    transfers = _transfers(np.random.default_rng(1), 3e-4)
-    alone = scan(transfers, np.random.default_rng(0), set(), ALPHA)
-    with_pairs = scan({**transfers, **_pairs(np.random.default_rng(5), -0.25)}, np.random.default_rng(0), set(), ALPHA)
-    before = [(q.table, key, t.p_value, t.heldout_gain) for q, _, key, t in alone.tests]
-    after = [(q.table, key, t.p_value, t.heldout_gain) for q, _, key, t in with_pairs.tests]
-    assert [a for a in after if a[0] != "pairs"] == before
-    assert len(after) > len(before)
+def test_the_tests_added_last_leave_the_draws_of_those_before_them_as_they_were(monkeypatch):
+    tables = {**_transfers(np.random.default_rng(1), 3e-4), **_drying(np.random.default_rng(2), 0.018)}
+    with_both = scan({**tables, **_pairs(np.random.default_rng(5), -0.25)}, np.random.default_rng(0), set(), ALPHA)
+    monkeypatch.setattr(scan_module, "COVARIATES",
+                        {k: c for k, c in scan_module.COVARIATES.items() if k != "hours_monotone"})
+    before = scan(tables, np.random.default_rng(0), set(), ALPHA)  # neither the pairs' test nor age's monotone shapes
+    # the intervals are bootstrapped from the shuffles' stream: they move with any draw taken before them
+    def drawn(found):
+        return [(q.table, key, t.p_value, t.heldout_gain, t.heldout_gain_ci95) for q, _, key, t in found.tests]
+    added = [a for a in drawn(with_both) if a[0] == "pairs" or a[1] == "hours_monotone"]
+    assert added and [a for a in drawn(with_both) if a not in added] == drawn(before)
 
 
 def _drying(rng: np.random.Generator, slip_s: float) -> dict[str, pd.DataFrame]:
