@@ -283,3 +283,21 @@ def test_the_independent_simulators_clean_data_shows_nothing_unexplained():
     j = judge(ds, np.random.default_rng(0), None)
     found = scan(scan_tables(ds, j.rows, []), np.random.default_rng((0, 41)), set(), ALPHA)
     assert j.causes == [] and found.findings == []
+
+
+def test_a_named_cause_is_beaten_only_by_a_dependence_no_candidate_stands_for_in_any_family_of_shapes():
+    from fishfmu.analysis.covariates import CovariateTest
+    from fishfmu.analysis.diagnose import _rivals
+    from fishfmu.analysis.scan import Finding, Scan
+    from fishfmu.analysis.signatures import Judgement
+
+    def named_directional(found_key: str, left_out: tuple[str, ...] = ()) -> dict[str, str]:
+        own = CovariateTest("directional_friction", "slip", "heading", 70, 5, explained=0.10, p_value=0.001)
+        dependence = CovariateTest("scan", "slip", "x", 70, 5, explained=0.30, p_value=0.0002, heldout_gain=0.2)
+        finding = Finding("slip of fish dropped alone", "s", "drop", "all", "x", found_key, dependence, [], "drops")
+        return _rivals(Judgement([own], ["directional_friction"], left_out=list(left_out)), Scan([finding], [], 0.001))
+    # the drops following the age, in monotone shapes or with bumps: mucus stands for it, directional stays named
+    assert named_directional("hours_monotone") == {} and named_directional("hours_post_mortem") == {}
+    # ... unless mucus is switched off; and the drops following when in the run a fish came: no candidate's
+    assert "directional_friction" in named_directional("hours_monotone", ("mucus_friction",))
+    assert "directional_friction" in named_directional("t_in_run_s")

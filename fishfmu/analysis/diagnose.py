@@ -40,7 +40,7 @@ from fishfmu.analysis.residuals import DRIVE_RESIDUAL_DTYPES, RunResiduals, conc
 from fishfmu.analysis.resim import (Resim, drive_check, fish_model_lines, measured_data_plant, pool_for,
                                     refuse_unreplayed, resimulate_many)
 from fishfmu.analysis.mismatch import base_mismatch, fit_quality, take_up_law, tracker_noise_m
-from fishfmu.analysis.scan import Scan, scan
+from fishfmu.analysis.scan import Scan, explained_by, scan
 from fishfmu.analysis.scan_tables import scan_tables
 from fishfmu.analysis.signatures import ALPHA, Judgement, judge
 
@@ -237,7 +237,8 @@ def _rivals(judgement: Judgement, found: Scan) -> dict[str, str]:
     for c in judgement.causes:
         own = CANDIDATES[c].explains[0][0] if CANDIDATES[c].explains else None  # the table its test reads
         for f in found.findings:
-            if f.table == own and (f.table, f.covariate_key) not in stood_for and f.test.explained > tests[c].explained:
+            beats = f.test.explained > tests[c].explained
+            if f.table == own and beats and not explained_by(stood_for, f.table, f.covariate_key):
                 out[c] = f"{f.text} explains its quantity better ({f.test.explained:.1%} against {tests[c].explained:.1%})"
                 break
     return out

@@ -387,6 +387,13 @@ def _place(shape: str, locations: pd.Series) -> str:
     return next((v for v in map(str, locations.unique()) if shape.endswith(f" at {v}")), "all")
 
 
+def explained_by(pairs: set[tuple[str, str]], table: str, covariate_key: str) -> bool:
+    """Whether the (quantity, covariate) pairs of named causes (:attr:`~fishfmu.analysis.candidate.Candidate.explains`)
+    stand for this covariate at this quantity: in every family of shapes it is offered in (by its column: age in
+    monotone shapes as well as with rigor's bumps)."""
+    return bool({(table, covariate_key), (table, COVARIATES[covariate_key].column)} & pairs)
+
+
 def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: set[tuple[str, str]],
          alpha: float, levels_beside_named: bool = False) -> Scan:
     """Every quantity, its locations pooled (each its own level), against every covariate its rows carry but the
@@ -400,9 +407,7 @@ def scan(tables: dict[str, pd.DataFrame], rng: np.random.Generator, explained: s
         if t is None or not len(t) or q.location_column not in t.columns:
             continue
         for cov in COVARIATES.values():
-            # a named cause standing for a covariate stands for it in every family of shapes (its column)
-            if ({(q.table, cov.key), (q.table, cov.column)} & explained or cov.column not in t.columns
-                    or cov.column in q.nuisance):
+            if explained_by(explained, q.table, cov.key) or cov.column not in t.columns or cov.column in q.nuisance:
                 continue
             if cov.varies == "location" and not levels_beside_named and any(table == q.table for table, _ in explained):
                 continue  # a named cause acting on this quantity moves its levels too: its own term stands for them
