@@ -196,9 +196,9 @@ def signature_figure(d: Diagnosis, out: Path) -> dict[str, str]:
     ax = axes[len(names)]
     f = d.unexplained[0] if d.unexplained else None
     table = d.scan.tables.get(f.table) if f is not None and d.scan is not None else None
-    model = d.scan.tables.get(f.against_model) if f is not None and f.against_model else None
+    model = d.scan.tables.get(f.model_table) if f is not None and f.model_table else None
     if f is not None and table is not None:
-        q = next(q for q in QUANTITIES if q.table == f.table and q.model_table == f.against_model)
+        q = next(q for q in QUANTITIES if q.table == f.table and q.model_table == f.model_table)
         flag = COVARIATES[f.covariate_key].column
         if model is not None:  # the rows where the covariate holds, measured against modelled
             ax.boxplot([t.loc[t[flag] == 1.0, q.column].to_numpy(float) for t in (table, model)],

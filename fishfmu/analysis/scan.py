@@ -179,8 +179,8 @@ class Finding:
     runs: list[str]
     """The runs that show it most (the largest held-out gain of the term)."""
     table: str = ""
-    against_model: str = ""
-    """What the rows were read against (:attr:`Quantity.model_table`): the term is measured against modelled."""
+    model_table: str = ""
+    """The model's rows it was read against (:attr:`Quantity.model_table`): the term is measured against modelled."""
     or_at: dict[str, float] = field(default_factory=dict)
     """A transfer's own level: the other transfers whose own level explains the lags about as well (their level),
     where the shared law cannot tell which one departs from it (:func:`_rival_levels`)."""
@@ -191,7 +191,7 @@ class Finding:
                 "covariate": self.covariate, "covariate_key": self.covariate_key, "shape": t.shape,
                 "slope": t.slope, "effect": t.effect, "unit": self.unit, "p_value": t.p_value,
                 "heldout_gain": t.heldout_gain, "heldout_gain_ci95": list(t.heldout_gain_ci95), "runs": self.runs,
-                "against_model": self.against_model, "or_at": self.or_at}
+                "model_table": self.model_table, "or_at": self.or_at}
 
     @property
     def text(self) -> str:
@@ -199,7 +199,7 @@ class Finding:
         unit = f" {self.unit}" if self.unit else ""
         where = "every " + self.location_kind if self.location_id == "all" else f"{self.location_kind} {self.location_id}"
         shown = f"shown most by {', '.join(self.runs) or 'no single run'}"
-        if self.against_model:  # the pairs' location is the transfer they cross
+        if self.model_table:  # the pairs' location is the transfer they cross
             where = "every transfer" if self.location_id == "all" else f"transfer {self.location_id}"
             return (f"{self.quantity}, at {where}: {t.slope:+.3g}{unit} measured against modelled, p = {t.p_value:.4f}, "
                     f"held-out gain {t.heldout_gain:.1%}; {shown}")
