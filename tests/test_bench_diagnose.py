@@ -284,10 +284,18 @@ def test_round_3_is_all_held_out_four_without_an_effect_and_two_singles_of_diffe
 
 
 def test_round_4_is_all_held_out_one_single_of_each_family_and_one_without_an_effect():
-    fourth = _recipe()[56:]
+    fourth = _recipe()[56:64]
     assert len(fourth) == 8 and {d["split"] for d in fourth} == {"heldout"}
     assert sorted(d["effect"] for d in fourth) == sorted([*FAMILIES, "none"])
     assert min(d["seed"] for d in fourth) > max(d["seed"] for d in _recipe()[:56])
+
+
+def test_round_5_is_round_4s_design_again_on_fish_never_met_before():
+    fifth = _recipe()[64:]
+    assert len(fifth) == 8 and {d["split"] for d in fifth} == {"heldout"}
+    assert sorted(d["effect"] for d in fifth) == sorted([*FAMILIES, "none"])
+    assert min(d["seed"] for d in fifth) > max(d["seed"] for d in _recipe()[:64])
+    assert not {d["name"] for d in fifth} & {d["name"] for d in _recipe()[:64]}
 
 
 def test_generate_makes_each_entry_with_linesims_own_command_line(tmp_path):
@@ -298,7 +306,7 @@ def test_generate_makes_each_entry_with_linesims_own_command_line(tmp_path):
     assert [d["name"] for d in gen.selected(recipe, only=["rigor+adhesion", "none_1"])] == ["none_1", "rigor+adhesion"]
     assert len(gen.selected(recipe, round_=1)) == 30 and len(gen.selected(recipe)) == len(recipe)
     assert len(gen.selected(recipe, round_=2)) == 20 and gen.selected(recipe, round_=3) == recipe[50:56]
-    assert gen.selected(recipe, round_=4) == recipe[56:]
+    assert gen.selected(recipe, round_=4) == recipe[56:64] and gen.selected(recipe, round_=5) == recipe[64:]
     entry = next(d for d in recipe if d["name"] == "rigor+adhesion")
     cmd = gen.command(entry, Path("/ls"), "py", tmp_path, runs=10, fish=18, jobs=2)
     assert cmd[:2] == ["py", "/ls/gen.py"]

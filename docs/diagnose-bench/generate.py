@@ -1,7 +1,7 @@
 """Make the diagnose benchmark's datasets from recipe.toml with the independent simulator.
 
     python docs/diagnose-bench/generate.py --linesim ../shared/linesim --python LINESIM_PYTHON \
-        --out BENCH [--split dev|heldout] [--only NAME ...] [--round 1|2|3|4] [--runs 10] [--jobs 2] [--dry-run]
+        --out BENCH [--split dev|heldout] [--only NAME ...] [--round 1|2|3|4|5] [--runs 10] [--jobs 2] [--dry-run]
 
 Each dataset goes to OUT/NAME with OUT/NAME.truth.json beside it (what `fishfmu bench diagnose --labelled OUT`
 reads). A dataset whose truth file exists is kept (a stopped generation goes on where it was). A compound's
@@ -14,15 +14,18 @@ import sys
 import tomllib
 from pathlib import Path
 
-ROUND1, ROUND2, ROUND3 = 30, 20, 6
+ROUND1, ROUND2, ROUND3, ROUND4 = 30, 20, 6, 8
 """The recipe's first 30 entries are round 1 (2026-11-26), the next 20 round 2 (issue 41), the next 6 round 3
-(2026-11-30, all held out), the rest round 4 (2026-11-30, all held out)."""
+(2026-11-30, all held out), the next 8 round 4 (2026-11-30, all held out), the rest round 5 (the same evening, all
+held out)."""
 
 
 def selected(recipe: list[dict], only=None, split=None, round_=None) -> list[dict]:
     """The recipe's entries chosen by name, split and round (each None: all)."""
     r3 = ROUND1 + ROUND2
-    rounds = {1: recipe[:ROUND1], 2: recipe[ROUND1:r3], 3: recipe[r3:r3 + ROUND3], 4: recipe[r3 + ROUND3:]}
+    r4 = r3 + ROUND3
+    rounds = {1: recipe[:ROUND1], 2: recipe[ROUND1:r3], 3: recipe[r3:r4], 4: recipe[r4:r4 + ROUND4],
+              5: recipe[r4 + ROUND4:]}
     pool = rounds[round_] if round_ else recipe
     return [d for d in pool if (not only or d["name"] in only) and (not split or d["split"] == split)]
 
@@ -44,7 +47,7 @@ def main():
     ap.add_argument("--recipe", type=Path, default=Path(__file__).with_name("recipe.toml"))
     ap.add_argument("--only", nargs="*", default=None, help="these datasets (names) only")
     ap.add_argument("--split", choices=["dev", "heldout"], default=None)
-    ap.add_argument("--round", dest="round_", type=int, choices=[1, 2, 3, 4], default=None,
+    ap.add_argument("--round", dest="round_", type=int, choices=[1, 2, 3, 4, 5], default=None,
                     help="1: the first 30 (2026-11-26); 2: issue 41's; 3: 2026-11-30's, all held out")
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--fish", type=int, default=18)
