@@ -372,6 +372,47 @@ def test_rescore_tables_the_kept_diagnoses_against_hand_counts(tmp_path, monkeyp
     assert doc["all"]["singles"]["confusion"]["guide_wear"] == {"unexplained": 1}
 
 
+def _named(*causes: str) -> dict:
+    return {"cause": "+".join(causes), "causes": list(causes), "answer": "named", "unexplained": []}
+
+
+def test_rescore_merges_several_results_by_dataset_keeping_open_set_runs_measured_before(tmp_path, monkeypatch,
+                                                                                       capsys):
+    """Rounds diagnosed at different times: a later diagnosis replaces an earlier one; an open-set run is kept until a
+    later one replaces it, and one made by hand (a row with it alone) joins the dataset's earlier diagnosis."""
+    at_photoeye = {"cause": "none", "causes": [], "answer": "unexplained",
+                   "unexplained": [_finding("photoeye", "pe1", "hours_monotone")]}
+    first = {"candidates": sorted(FIVE), "runs": [
+        {"dataset": "droop_1", "split": "dev", "truth": {"effect": "drive_droop"}, "diagnosis": _named("drive_droop"),
+         "open_set_run": {"left_out": ["drive_droop"], "diagnosis": {
+             "cause": "none", "causes": [], "answer": "unexplained",
+             "unexplained": [_finding("drive", "c2", "load_kg")]}}, "open_wall_s": 200.0},
+        {"dataset": "rigor_1", "split": "heldout", "truth": {"effect": "rigor"}, "diagnosis": _named("rigor_mortis"),
+         "extension": "confirmed", "cause": "rigor_mortis", "recovery": {"within": False}}]}
+    later = {"candidates": sorted(FIVE), "runs": [
+        {"dataset": "droop_1", "split": "dev", "truth": {"effect": "drive_droop"},
+         "diagnosis": _named("drive_droop", "adhesion")},
+        {"dataset": "rigor_1", "split": "heldout", "truth": {"effect": "rigor"},
+         "open_set_run": {"left_out": ["rigor_mortis"], "diagnosis": at_photoeye}}]}
+    (a := tmp_path / "a.json").write_text(json.dumps(first))
+    (b := tmp_path / "b.json").write_text(json.dumps(later))
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(a), "--rescore", str(b),
+                              "--json", str(tmp_path / "merged.json"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "merged.json").read_text())
+    assert [r["dataset"] for r in doc["runs"]] == ["droop_1", "rigor_1"]
+    every = doc["all"]
+    assert (every["singles"]["right"], every["singles"]["wrong"]) == (1, 1)  # droop_1 now names adhesion too
+    assert (every["open_set"]["n"], every["open_set"]["located"]) == (2, 2)  # droop's kept, rigor's made by hand
+    assert doc["splits"]["heldout"]["open_set"]["by_family"] == {"rigor": {"located": 1}}
+    assert "rigor_mortis: confirmed 1 of 1; within 0 of 1" in out
+    # the other order: the later droop_1 has no open run to keep, rigor_1's open run has no diagnosis to join
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(b),
+                              "--json", str(tmp_path / "alone.json"))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "rigor_1" in err and str(b) in err, err
+    assert not (tmp_path / "alone.json").exists()
+
+
 def test_rescore_refuses_results_from_before_issue_41_in_one_line(tmp_path, monkeypatch, capsys):
     old = BENCH / "results" / "linesim-30-2026-11-26.json"
     code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", "--rescore", str(old),

@@ -173,9 +173,8 @@ def labelled_document(rows: list[dict], folder: Path,
             "target_s_per_ten_runs": TARGET_S}
 
 
-def rescore(path: Path) -> dict[str, Any]:
-    """The results of ``--labelled`` (its ``--json``, whole or partial) scored again from the truths and diagnoses
-    each row kept, with the candidates the run had: new tables without diagnosing anything again."""
+def _kept_runs(path: Path) -> tuple[list[dict], list[str]]:
+    """The rows of one ``--labelled`` results file, and the candidates its run had, checked."""
     try:
         doc = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -188,15 +187,59 @@ def rescore(path: Path) -> dict[str, Any]:
     if not isinstance(doc["candidates"], list) or not all(isinstance(c, str) for c in doc["candidates"]):
         raise InputError(f"{path}: candidates is not a list of candidate names")
     for i, r in enumerate(runs):
-        if not isinstance(r, dict) or not all(isinstance(r.get(k), dict) for k in ("truth", "diagnosis")):
-            raise InputError(f"{path}: runs[{i}] has no truth and diagnosis (results from before issue 41 cannot "
+        if not isinstance(r, dict) or not isinstance(r.get("dataset"), str) or not isinstance(r.get("truth"), dict):
+            raise InputError(f"{path}: runs[{i}] has no dataset name and truth (results from before issue 41 cannot "
                              "be scored again)")
-    available = frozenset(doc["candidates"])
+        if not isinstance(r.get("diagnosis"), dict) and not isinstance(r.get("open_set_run"), dict):
+            raise InputError(f"{path}: runs[{i}] ({r['dataset']}) has neither a diagnosis nor an open-set run")
+    return runs, doc["candidates"]
+
+
+def rescore(paths: list[Path]) -> dict[str, Any]:
+    """The results of ``--labelled`` runs (their ``--json``, whole or partial) scored again from the truths and
+    diagnoses each row kept, each with the candidates its run had: new tables without diagnosing anything again.
+
+    Several files are merged in order, by dataset: a later row's diagnosis replaces an earlier one's, and its
+    open-set run (leave-one-family-out) replaces an earlier one only where it has one, so a round diagnosed again
+    without ``--open-set`` keeps the open-set runs measured before; a row with an open-set run alone (no
+    diagnosis) adds it to the dataset's diagnosis of an earlier file."""
+    merged: dict[str, dict] = {}
+    for path in paths:
+        runs, candidates = _kept_runs(path)
+        for r in runs:
+            r = r | {"candidates": r.get("candidates", candidates)}
+            before = merged.get(r["dataset"], {})
+            if "diagnosis" not in r:  # an open-set run alone: added to the dataset's diagnosis of an earlier file
+                r = (before or {k: r[k] for k in ("dataset", "split", "truth", "candidates")}) | {
+                    k: r[k] for k in ("open_set_run", "open_wall_s") if k in r}
+            elif "open_set_run" not in r and "open_set_run" in before:
+                r = r | {k: before[k] for k in ("open_set_run", "open_wall_s") if k in before}
+            merged[r["dataset"]] = r
     rows = []
-    for r in runs:
-        scored = score(r["truth"], r["diagnosis"], available, r.get("open_set_run"))
+    for name, r in merged.items():
+        if not isinstance(r.get("diagnosis"), dict):
+            raise InputError(f"{name}: an open-set run without the dataset's own diagnosis in any of "
+                             + ", ".join(map(str, paths)))
+        scored = score(r["truth"], r["diagnosis"], frozenset(r["candidates"]), r.get("open_set_run"))
         rows.append(r | {"score": scored, "correct": is_right(scored)})
-    return labelled_document(rows, Path(str(doc.get("folder", ""))), available)
+    every = sorted({c for r in rows for c in r["candidates"]})
+    return labelled_document(rows, Path(str(paths[-1])), frozenset(every))
+
+
+def extension_by_cause(rows: list[dict]) -> dict[str, dict[str, int]]:
+    """Issue 40's two measures per cause, over the single-effect datasets whose cause was named right: the
+    extension confirmed on held-out runs, and its strength within x1.5 of the truth (where the truth has one)."""
+    out: dict[str, dict[str, int]] = {}
+    for r in rows:
+        if r.get("score", {}).get("single") != "right":
+            continue
+        c = out.setdefault(r["score"]["named"][0], {"named": 0, "confirmed": 0, "recovered": 0, "within": 0})
+        c["named"] += 1
+        c["confirmed"] += r.get("extension") == "confirmed"
+        if rec := r.get("recovery"):
+            c["recovered"] += 1
+            c["within"] += bool(rec.get("within"))
+    return dict(sorted(out.items()))
 
 
 def _pct(rate: float | None) -> str:
@@ -243,6 +286,11 @@ def summary(doc: dict[str, Any]) -> list[str]:
         for name, part in sorted(splits.items()):
             lines += part_lines(name, part)
     lines += answer_lines(doc.get("runs", []))
+    if by_cause := extension_by_cause(doc.get("runs", [])):
+        lines.append("-- per cause, of the singles named right: the extension confirmed on held-out runs; the strength "
+                     f"within x{RECOVERED_WITHIN:g} of the truth")
+        lines += [f"{cause}: confirmed {c['confirmed']} of {c['named']}; within {c['within']} of {c['recovered']}"
+                  for cause, c in by_cause.items()]
     rows = [r for r in doc.get("runs", []) if r.get("fit") is not None and r.get("recovery")]
     if rows:
         lines.append("-- the named cause's extension against the base on held-out runs, its strength against the truth")

@@ -156,8 +156,10 @@ def bench_diagnose(
     split: str | None = typer.Option(None, "--split", help="With --recipe: diagnose only this split's datasets."),
     open_set: bool = typer.Option(False, "--open-set", help="With --labelled: diagnose each single-effect dataset "
                                   "again with its family's candidate switched off (--without): leave-one-family-out."),
-    rescore: Path | None = typer.Option(None, "--rescore", help="Instead: score again the diagnoses kept in the "
-                                        "results (JSON) of an earlier --labelled run; nothing is diagnosed."),
+    rescore: list[Path] = typer.Option([], "--rescore", help="Instead: score again the diagnoses kept in the "
+                                       "results (JSON) of an earlier --labelled run; nothing is diagnosed. Repeatable: "
+                                       "the files merged in order, a later row replacing an earlier one of its "
+                                       "dataset (its open-set run only where it has one)."),
 ) -> None:
     """How often diagnose names the hidden effect of a synthetic dataset, over many seeds (or of labelled data)."""
     # slow: imported when the benchmark runs (numpy, pandas, Exudyn; --help answers without them)
@@ -166,10 +168,10 @@ def bench_diagnose(
     from fishfmu.bench.diagnose import (bench, bench_labelled, labelled_document, open_set_supported, read_splits,
                                         rescore as rescored, summary)
     options.diagnose(seeds, first_seed, strength)
-    if rescore is not None:
+    if rescore:
         if labelled is not None or open_set:
             raise InputError("--rescore: scores earlier results; not with --labelled or --open-set")
-        _check_results(json_file, inputs=[rescore])
+        _check_results(json_file, inputs=list(rescore))
         doc = rescored(rescore)
         _bench_done(summary(doc), commands.write_json(json_file, doc))
         return
