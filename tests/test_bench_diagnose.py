@@ -420,3 +420,32 @@ def test_rescore_refuses_results_from_before_issue_41_in_one_line(tmp_path, monk
     assert code == 2 and len(err.strip().splitlines()) == 1, err
     assert str(old) in err and "before issue 41" in err
     assert not (tmp_path / "again.json").exists()
+
+
+def test_the_readmes_benchmark_figures_are_the_merge_today_sh_makes(tmp_path, monkeypatch, capsys):
+    """The README's diagnose figures are those of the kept results merged as `today.sh` merges them: a result file
+    added, or a figure edited by hand, and they would part."""
+    import re
+    names = re.findall(r"\b([a-z0-9+-]+?-20\d\d-\d\d-\d\d)\b", (BENCH / "today.sh").read_text())
+    assert len(names) >= 15 and len(set(names)) == len(names)
+    args = [a for n in names for a in ("--rescore", str(BENCH / "results" / f"{n}.json"))]
+    code, out, err = _fishfmu(monkeypatch, capsys, "bench", "diagnose", *args, "--json", str(tmp_path / "today.json"))
+    assert code == 0, err
+    doc = json.loads((tmp_path / "today.json").read_text())
+    readme = (ROOT / "README.md").read_text()
+    held, dev, every = doc["splits"]["heldout"], doc["splits"]["dev"], doc["all"]
+
+    def share(k: int, n: int) -> str:
+        return f"{k} of {n} ({round(100 * k / n)} %)"
+    s = held["singles"]
+    assert f"**{share(s['right'], s['n'])}**; dev {dev['singles']['right']} of {dev['singles']['n']}" in readme
+    assert f"**{every['no_effect']['false_alarms']} of {every['no_effect']['n']}**" in readme
+    c = every["compounds"]
+    assert f"**{c['all_named']} of {c['n']}**; **{c['one_right_none_wrong']} of {c['n']}**" in readme
+    o, od, oa = held["open_set"], dev["open_set"], every["open_set"]
+    assert (f"held out **{share(o['located'], o['n'])}**, dev {od['located']} of {od['n']}; all "
+            f"{share(oa['located'], oa['n'])}; a wrong cause {oa['wrong']} of {oa['n']}") in readme
+    by_cause = {m[0]: tuple(map(int, m[1:])) for m in
+                re.findall(r"^(\w+): confirmed (\d+) of (\d+); within (\d+) of (\d+)$", out, re.M)}
+    assert f"| {share(sum(v[2] for v in by_cause.values()), sum(v[3] for v in by_cause.values()))}:" in readme
+    assert f"mucus {by_cause['mucus_friction'][0]} of {by_cause['mucus_friction'][1]}" in readme
