@@ -40,11 +40,13 @@ the reserve); an integration step of 5 or 10 ms
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from plant.contract.devices import going_out_sideways, in_exit_regions
 from plant.errors import SimulationError
+from plant.sim import kernels
 from plant.sim.state import PlantState
 
 MAX_SPEED_MPS = 25.0
@@ -63,6 +65,13 @@ class _LineBounds:
     """The highest point of any belt top (as :func:`floor_below` works it out): no floor lies above it."""
     y_inside_m: tuple[float, float]
     """(right, left): no guide comes further in than these."""
+
+    @cached_property
+    def clear_bounds(self) -> tuple[float, float, float, float]:
+        """(y above, y below, z above, squared speed below): what every body keeps to be all clear (:func:`_all_clear`)."""
+        margin = 1e-9  # rounding: the full check decides anything this near a bound
+        return (self.y_inside_m[0] - 0.05 + margin, self.y_inside_m[1] + 0.05 - margin,
+                self.highest_top_m - 0.08 + margin, (MAX_SPEED_MPS - margin) ** 2)
 
 
 _bounds_cache: tuple = (None, None)  # (line, its _LineBounds): one line a run; holding it keeps its id unique
@@ -155,10 +164,15 @@ def _all_clear(pos: np.ndarray, vel: np.ndarray, lb: _LineBounds) -> bool:
     looks closer."""
     lo, hi = pos.min(axis=0), pos.max(axis=0)
     top_speed2 = float(np.max(np.einsum("ij,ij->i", vel, vel)))  # NaN or inf stays so
-    margin = 1e-9  # rounding: the full check decides anything this near a bound
-    return bool(np.isfinite(lo).all() and np.isfinite(hi).all() and top_speed2 < (MAX_SPEED_MPS - margin) ** 2
-                and lo[1] > lb.y_inside_m[0] - 0.05 + margin and hi[1] < lb.y_inside_m[1] + 0.05 - margin
-                and lo[2] > lb.highest_top_m - 0.08 + margin)
+    y_low, y_high, z_low, speed2_max = lb.clear_bounds
+    return bool(np.isfinite(lo).all() and np.isfinite(hi).all() and top_speed2 < speed2_max
+                and lo[1] > y_low and hi[1] < y_high and lo[2] > z_low)
+
+
+def all_clear_on_line(pos: np.ndarray, velocities: np.ndarray, body_on: np.ndarray, line) -> bool:
+    """:func:`_all_clear` over the bodies on the line (``body_on``), in one pass (plant.sim.kernels): the plant's
+    check after most steps.  ``velocities`` (n, 6): each body's velocity, then its angular velocity."""
+    return kernels.all_clear(pos, velocities, body_on, *_line_bounds(line).clear_bounds)
 
 
 RESERVE_MIN_J = 8.0

@@ -58,6 +58,13 @@ class JointLaws:
         w = self.transition * self.limit_rad
         return self.limit_rad - w, self.limit_rad + w, 4.0 * w, 2.0 * w
 
+    @cached_property
+    def table(self) -> np.ndarray:
+        """(8, J, 3): the limit, k_soft, k_limit, the zone's (start, end, 4 w, 2 w) and where the soft spring ends
+        (as :func:`relinearized` works it out), for the plant's C kernel (plant.sim.kernels)."""
+        return np.ascontiguousarray(np.stack((self.limit_rad, self.k_soft, self.k_limit, *self.zone,
+                                              self.limit_rad * (1.0 - self.transition))), dtype=float)
+
 
 def stack_laws(laws: list[JointLaws]) -> JointLaws:
     """One set of arrays for the joints of many fish (same transition width assumed)."""

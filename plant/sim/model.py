@@ -147,7 +147,7 @@ def fish_arrays(fish: list[FishModel], bodies_per_fish: int) -> FishArrays:
     nb, prepared = bodies_per_fish, [f.prepared for f in fish]
     member = np.array([f.index for f in fish], dtype=np.int64)
     laws = stack_laws([p.laws for p in prepared])
-    laws.zone  # worked out here (a cached property), not in the first step after the rebuild
+    laws.table  # worked out here (cached properties, with the zone), not in the first step after the rebuild
     arrays = FishArrays(
         member, np.repeat(member, nb),
         np.array([b.mass_kg for p in prepared for b in p.geometry.bodies], dtype=float),

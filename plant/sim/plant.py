@@ -42,13 +42,13 @@ from plant.fish.extensions import (adhesion_forces, body_friction_levels, direct
                                    highest_body_level, stiffening_limit_loss)
 from plant.fish.fish_body import FISH_MODELS
 from plant.fish.population import FishSpec
-from plant.sim.health import check_health
-from plant.sim.joints import relinearized
+from plant.sim.health import all_clear_on_line, check_health
+from plant.sim.kernels import relinearized, rotation_matrices
 from plant.sim.model import (MAT_FISH0, Member, PlantModel, drop_height, exu, park_positions, parked_member,
                              pose_coordinates, prepare_fish)
 from plant.sim.params import PlantParams
 from plant.sim.ports import PlantPorts
-from plant.sim.rotations import lying_orientation, matrix_to_rotvec, rotvec_to_matrix
+from plant.sim.rotations import lying_orientation, matrix_to_rotvec
 from plant.sim.belts import Belts
 from plant.sim.camera import Cameras, TopView, fish_seen_from_above
 from plant.sim.devices import DeviceActuators
@@ -270,15 +270,14 @@ class Plant:
         v = sd.GetODE2Coordinates_t()
         for equipment in self._equipment.values():
             equipment.before_solve(step, q, v)
-        sd.SetODE2Coordinates(q)
-        sd.SetODE2Coordinates_t(v)
+        sd.SetODE2Coordinates(q.tolist())  # Exudyn takes a list of floats faster than an array (the same doubles)
+        sd.SetODE2Coordinates_t(v.tolist())
 
     # ---- 3. joints ---------------------------------------------------------------------------
     def _relinearize_joints(self) -> None:
-        a, b = self._joint_bodies[:, 0], self._joint_bodies[:, 1]
         on = self._roster.on_line_slots(joints_per_fish := self.model.bodies_per_fish - 1)
-        changed, k_new, off_new = relinearized(self._laws, self._rot[a], self._rot[b], self._omega_local[a],
-                                               self._omega_local[b], on, self._comm_step_s, self._k_now, self._offset_now)
+        changed, k_new, off_new = relinearized(self._laws, self._rot, self._body_vel, self._joint_bodies, on,
+                                               self._comm_step_s, self._k_now, self._offset_now)
         moved = np.flatnonzero(changed)
         if not len(moved):  # no spring to rewrite
             return
@@ -350,10 +349,11 @@ class Plant:
         v = sd.GetODE2Coordinates_t()
         coords = q[self.model.body_ltg] + self.model.body_ref
         vel = v[self.model.body_ltg]
-        self._pos = coords[:, :3]
-        self._rot = rotvec_to_matrix(coords[:, 3:])
+        self._pos = np.ascontiguousarray(coords[:, :3])  # as the photo-eyes' kernel reads it
+        self._rot = rotation_matrices(coords)  # from the rotation vectors in columns 3-5
         self._vel = vel[:, :3]
         self._omega_local = vel[:, 3:]
+        self._body_vel = vel  # (n_bodies, 6) velocity and body-frame angular velocity, as the joints' kernel reads them
         for published in (self._pos, self._rot, self._vel, self._omega_local):  # new each step, published as they are
             published.setflags(write=False)
         self._velocities = v  # the belt and device bodies' too: what the equipment reads of the step
@@ -437,8 +437,8 @@ class Plant:
     def _check_health(self) -> None:
         s = self._state
         body_on = s.on_line_bodies()
-        if not body_on.any():
-            return
+        if not body_on.any() or all_clear_on_line(s.pos, self._body_vel, body_on, self._line):
+            return  # most steps: nothing near a bound, no copies
         if body_on.all():  # most steps: every body in the system on the line, no copies
             check_health(s.pos, s.vel, s.fish_of_body, s.fish_ids, self._line, s.t_s)
         else:

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from plant.contract.line import Line
+from plant.sim import kernels
 from plant.sim.equipment import Seen, Step
 
 if TYPE_CHECKING:  # the system's outline cross-sections are read, the system is not built here
@@ -141,10 +142,13 @@ class PhotoEyes:
         pass  # a beam acts on nothing
 
     def after_solve(self, step: Step, seen: Seen) -> dict[str, dict]:
-        if step.model is not self._model:  # once per system: it changes only when the plant rebuilds it
-            self._model, self._reach_m = step.model, outline_reach_m(step.model)
-        blocked = beams_blocked(step.model, seen.pos, seen.rot, seen.body_on, self.beams_xz, self.span_y_m,
-                                self._reach_m)
+        m = step.model
+        if m is not self._model:  # once per system: it changes only when the plant rebuilds it
+            reach = outline_reach_m(m) + 1e-9  # as beams_blocked pads it: a body without an outline reaches nowhere
+            self._model, self._reach_m = m, np.pad(reach, (0, max(0, len(seen.pos) - len(reach))))
+        blocked = kernels.beams_blocked(seen.pos, seen.rot, seen.body_on, self._reach_m,
+                                        (m.section_body, m.section_x, m.section_half_len, m.section_radius),
+                                        self.beams_xz, self.span_y_m)
         return {"photoeyes": dict(zip(self.ids, map(bool, self.delay(blocked))))}
 
     def takes(self, mid_m: np.ndarray, on: np.ndarray) -> None:
