@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from plant.sim import kernels
-from plant.sim.health import _all_clear, _line_bounds, all_clear_on_line
+from plant.errors import SimulationError
+from plant.sim.health import _all_clear, _line_bounds, all_clear_on_line, check_health
 from plant.sim.joints import JointLaws, relinearized
 from plant.sim.rotations import rotvec_to_matrix
 from plant.sim.sensors import beams_blocked, outline_reach_m
@@ -127,20 +128,21 @@ def test_the_beams_are_the_outline_test_to_the_bit():
     assert 0.05 < np.mean(seen) < 0.95  # the poses both block and clear the beams
 
 
-def test_the_health_checks_first_look_is_the_bounding_box_test():
+def test_the_health_checks_first_look_is_the_bounds_test_and_never_clears_what_the_full_check_stops():
     from plant.contract.line import Line
     line = Line.model_validate({"guide_width_m": 0.5, "conveyors": [
         {"id": "c1", "x_start_m": 0.0, "length_m": 2.0, "width_m": 0.5, "z_top_m": 0.0}]})
     rng = np.random.default_rng(RNG_SEED)
-    verdicts = []
-    for case in range(600):
+    verdicts, stopped = [], 0
+    for case in range(1200):
         n = 30
         pos = np.column_stack([rng.uniform(0, 2, n), rng.uniform(-0.2, 0.2, n), rng.uniform(0.0, 0.3, n)])
         vel = rng.normal(size=(n, 6))
         on = rng.random(n) < 0.9
         i = rng.integers(n)
-        # one body near or past a bound: the guide, below the belt, fast, not finite
-        kind = case % 6
+        # one body near or past a bound: the guide, below the belt, fast, not finite; or at an end of the checked
+        # range (the line's start - 0.1 m, its end, 0.1 m before it) beside a guide or below the belt
+        kind = case % 9
         if kind == 1:
             pos[i, 1] = 0.3 + rng.normal(0, 1e-9) * (case % 2)
         elif kind == 2:
@@ -151,11 +153,23 @@ def test_the_health_checks_first_look_is_the_bounding_box_test():
             pos[i, rng.integers(3)] = rng.choice([np.nan, np.inf, -np.inf])
         elif kind == 5:
             vel[i, rng.integers(3)] = np.nan
+        elif kind in (6, 7, 8):
+            pos[i, 0] = rng.choice([-0.1, 2.0, 1.9]) + rng.choice([-1.0, 1.0]) * 10.0 ** rng.uniform(-12, -2)
+            pos[i, 1 + (kind == 7)] = {6: 0.4, 7: -0.3, 8: -0.4}[kind]
+            if kind == 7 and case % 2:  # another body of its fish (three bodies a fish) over the end drum
+                pos[i - i % 3 + (i % 3 + 1) % 3, 0] = 1.95
         expected = _all_clear(pos[on], vel[on, :3], _line_bounds(line)) if on.any() else True  # none: nothing to fail
         got = all_clear_on_line(pos, vel, on, line)
         assert got == expected, case
         verdicts.append(got)
-    assert 0.3 < np.mean(verdicts) < 0.95
+        if got and on.any():  # clear: the full check finds nothing
+            check_health(pos[on], vel[on, :3], np.arange(n)[on] // 3, [f"f{k}" for k in range(n)], line, 0.0)
+        elif on.any():
+            try:
+                check_health(pos[on], vel[on, :3], np.arange(n)[on] // 3, [f"f{k}" for k in range(n)], line, 0.0)
+            except SimulationError:
+                stopped += 1
+    assert 0.3 < np.mean(verdicts) < 0.95 and stopped > 100
 
 
 def test_a_plant_run_steps_the_same_with_the_references(monkeypatch):

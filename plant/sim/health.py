@@ -65,13 +65,19 @@ class _LineBounds:
     """The highest point of any belt top (as :func:`floor_below` works it out): no floor lies above it."""
     y_inside_m: tuple[float, float]
     """(right, left): no guide comes further in than these."""
+    x_range_m: tuple[float, float]
+    """The line's start and end."""
 
     @cached_property
-    def clear_bounds(self) -> tuple[float, float, float, float]:
-        """(y above, y below, z above, squared speed below): what every body keeps to be all clear (:func:`_all_clear`)."""
+    def clear_bounds(self) -> tuple[float, ...]:
+        """What every body keeps to be all clear (:func:`_all_clear`): (from x, to x for the guides, to x for the
+        belts, y above, y below, z above, squared speed below).  The x range is where :func:`check_health` looks at
+        the guides (x from the line's start - 0.1 m to its end) and the belts (to 0.1 m before the end), widened by
+        the margin."""
         margin = 1e-9  # rounding: the full check decides anything this near a bound
-        return (self.y_inside_m[0] - 0.05 + margin, self.y_inside_m[1] + 0.05 - margin,
-                self.highest_top_m - 0.08 + margin, (MAX_SPEED_MPS - margin) ** 2)
+        x_start, x_end = self.x_range_m
+        return (x_start - 0.1 - margin, x_end + margin, x_end - 0.1 + margin, self.y_inside_m[0] - 0.05 + margin,
+                self.y_inside_m[1] + 0.05 - margin, self.highest_top_m - 0.08 + margin, (MAX_SPEED_MPS - margin) ** 2)
 
 
 _bounds_cache: tuple = (None, None)  # (line, its _LineBounds): one line a run; holding it keeps its id unique
@@ -91,7 +97,7 @@ def _line_bounds(line) -> _LineBounds:
         inside = (-0.5 * line.guide_width_m, 0.5 * line.guide_width_m)
     else:
         inside = (max(y for _, y in line.guides.right), min(y for _, y in line.guides.left))
-    bounds = _LineBounds(starts, ends, z_top, slope, highest, inside)
+    bounds = _LineBounds(starts, ends, z_top, slope, highest, inside, (line.x_start_m, line.x_end_m))
     _bounds_cache = (line, bounds)
     return bounds
 
@@ -158,21 +164,24 @@ def check_health(pos: np.ndarray, vel: np.ndarray, fish_of: np.ndarray, fish_ids
 
 
 def _all_clear(pos: np.ndarray, vel: np.ndarray, lb: _LineBounds) -> bool:
-    """True when no body can fail :func:`check_health`, from the bounding box of the positions and the top speed
-    (a few numpy passes, every step): all finite (min and max carry a NaN or an infinity), slower than the
-    limit, inside the narrowest guides and less than 8 cm below the highest belt top; otherwise the full check
-    looks closer."""
+    """True when no body can fail :func:`check_health`, from a few bounds: all finite (min and max carry a NaN or an
+    infinity), slower than the limit, inside the narrowest guides where the guides are checked and less than 8 cm
+    below the highest belt top where the belts are (not over the end drum: a fish leaving the line hangs and drops
+    there); otherwise the full check looks closer."""
     lo, hi = pos.min(axis=0), pos.max(axis=0)
     top_speed2 = float(np.max(np.einsum("ij,ij->i", vel, vel)))  # NaN or inf stays so
-    y_low, y_high, z_low, speed2_max = lb.clear_bounds
-    return bool(np.isfinite(lo).all() and np.isfinite(hi).all() and top_speed2 < speed2_max
-                and lo[1] > y_low and hi[1] < y_high and lo[2] > z_low)
+    x_from, x_guides_to, x_belts_to, y_low, y_high, z_low, speed2_max = lb.clear_bounds
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and top_speed2 < speed2_max):
+        return False
+    x, y = pos[:, 0], pos[:, 1]
+    guided = (x >= x_from) & (x <= x_guides_to)
+    return not (guided & ((y <= y_low) | (y >= y_high) | ((x < x_belts_to) & (pos[:, 2] <= z_low)))).any()
 
 
 def all_clear_on_line(pos: np.ndarray, velocities: np.ndarray, body_on: np.ndarray, line) -> bool:
     """:func:`_all_clear` over the bodies on the line (``body_on``), in one pass (plant.sim.kernels): the plant's
     check after most steps.  ``velocities`` (n, 6): each body's velocity, then its angular velocity."""
-    return kernels.all_clear(pos, velocities, body_on, *_line_bounds(line).clear_bounds)
+    return kernels.all_clear(pos, velocities, body_on, _line_bounds(line).clear_bounds)
 
 
 RESERVE_MIN_J = 8.0

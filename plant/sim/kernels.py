@@ -58,9 +58,7 @@ def beams_blocked(pos: np.ndarray, rot: np.ndarray, body_on: np.ndarray, reach_m
     return blocked
 
 
-def all_clear(pos: np.ndarray, velocities: np.ndarray, body_on: np.ndarray, y_low_m: float, y_high_m: float,
-              z_low_m: float, speed2_max: float) -> bool:
-    """True when every body on the line (``body_on``) is finite, inside ``y_low_m < y < y_high_m``, above
-    ``z_low_m`` and its squared speed (``velocities[:, :3]``, (n, 6)) below ``speed2_max``
-    (:func:`plant.sim.health.all_clear_on_line`)."""
-    return kernels_c.all_clear(pos, velocities, 0, body_on, y_low_m, y_high_m, z_low_m, speed2_max)
+def all_clear(pos: np.ndarray, velocities: np.ndarray, body_on: np.ndarray, bounds: tuple[float, ...]) -> bool:
+    """:func:`plant.sim.health._all_clear` over the bodies on the line (``body_on``), given its ``bounds``
+    (``_LineBounds.clear_bounds``) and the bodies' (n, 6) velocities (the velocity, then the angular velocity)."""
+    return kernels_c.all_clear(pos, velocities, 0, body_on, *bounds)

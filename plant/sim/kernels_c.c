@@ -335,14 +335,16 @@ fail:
 }
 
 
-/* all_clear(pos (n,3), velocities (n,m), column of the velocity in them, body_on (n,) bool, y_low, y_high, z_low,
- * speed2_max) -> bool: plant.sim.health._all_clear over the bodies on the line: every one finite, slower than the
- * limit (its squared speed summed as numpy's einsum does), inside y_low < y < y_high and above z_low. */
+/* all_clear(pos (n,3), velocities (n,m), column of the velocity in them, body_on (n,) bool, x_from, x_guides_to,
+ * x_belts_to, y_low, y_high, z_low, speed2_max) -> bool: plant.sim.health._all_clear over the bodies on the line:
+ * every one finite and slower than the limit (its squared speed summed as numpy's einsum does); from x_from to
+ * x_guides_to inside y_low < y < y_high, and before x_belts_to above z_low. */
 static PyObject *all_clear(PyObject *self, PyObject *args) {
     PyObject *o_pos, *o_vel, *o_on;
     Py_ssize_t column;
-    double y_low, y_high, z_low, speed2_max;
-    if (!PyArg_ParseTuple(args, "OOnOdddd", &o_pos, &o_vel, &column, &o_on, &y_low, &y_high, &z_low, &speed2_max))
+    double x_from, x_guides_to, x_belts_to, y_low, y_high, z_low, speed2_max;
+    if (!PyArg_ParseTuple(args, "OOnOddddddd", &o_pos, &o_vel, &column, &o_on, &x_from, &x_guides_to, &x_belts_to,
+                          &y_low, &y_high, &z_low, &speed2_max))
         return NULL;
     Arg a[3] = {{0}};
     Py_ssize_t s_pos[2] = {-1, 3};
@@ -363,8 +365,9 @@ static PyObject *all_clear(PyObject *self, PyObject *args) {
         if (!on[i]) continue;
         const double *p = pos + 3 * i, *v = vel + m * i + column;
         clear = isfinite(p[0]) && isfinite(p[1]) && isfinite(p[2])
-                && sum3(v[0] * v[0], v[1] * v[1], v[2] * v[2]) < speed2_max
-                && p[1] > y_low && p[1] < y_high && p[2] > z_low;
+                && sum3(v[0] * v[0], v[1] * v[1], v[2] * v[2]) < speed2_max;
+        if (clear && p[0] >= x_from && p[0] <= x_guides_to)
+            clear = p[1] > y_low && p[1] < y_high && (p[0] >= x_belts_to || p[2] > z_low);
     }
     release(a, 3);
     return PyBool_FromLong(clear);
