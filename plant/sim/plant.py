@@ -438,8 +438,8 @@ class Plant:
         s = self._state
         body_on = s.on_line_bodies()
         if not body_on.any() or all_clear_on_line(s.pos, self._body_vel, body_on, self._line):
-            return  # most steps: nothing near a bound, no copies
-        if body_on.all():  # most steps: every body in the system on the line, no copies
+            return  # most steps: no body near a bound
+        if body_on.all():  # the full check, without copies when every body in the system is on the line
             check_health(s.pos, s.vel, s.fish_of_body, s.fish_ids, self._line, s.t_s)
         else:
             check_health(s.pos[body_on], s.vel[body_on], s.fish_of_body[body_on], s.fish_ids, self._line, s.t_s)
