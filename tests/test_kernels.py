@@ -208,3 +208,23 @@ def test_a_plant_run_steps_the_same_with_the_references(monkeypatch):
     assert blocked_steps > 5  # the fish pass the eyes
     for (p1, r1, v1, e1), (p2, r2, v2, e2) in zip(with_kernels, with_references):
         assert same_bits(p1, p2) and same_bits(r1, r2) and same_bits(v1, v2) and e1 == e2
+
+
+def test_a_kernel_given_the_wrong_arrays_refuses_them_instead_of_reading_past_them():
+    from plant.sim import kernels_c
+    rot = np.ascontiguousarray(np.repeat(np.eye(3)[None], 4, axis=0))
+    rel, cos = np.empty((2, 3, 3)), np.empty(2)
+    with pytest.raises(IndexError, match="joint 1 joins body 3 and 4 of 4"):
+        kernels_c.joint_cosines(rot, np.array([[0, 1], [3, 4]]), rel, cos)
+    with pytest.raises(ValueError, match="rel: dimension 0 is 2, expected 3"):
+        kernels_c.joint_cosines(rot, np.array([[0, 1], [1, 2], [2, 3]]), rel, np.empty(3))
+    with pytest.raises(TypeError, match="joint_bodies: expected 2 dimensions of 'q'"):
+        kernels_c.joint_cosines(rot, np.array([[0.0, 1.0]]), rel[:1], cos[:1])
+    with pytest.raises(TypeError, match="C-contiguous"):
+        kernels_c.rotation_matrices(np.zeros((5, 6))[:, ::2], 0, np.empty((5, 3, 3)))
+    with pytest.raises(ValueError, match="column"):
+        kernels.rotation_matrices(np.zeros((5, 4)))  # no three columns from column 3
+    with pytest.raises(TypeError, match="writable"):
+        out = np.empty((5, 3, 3))
+        out.setflags(write=False)
+        kernels_c.rotation_matrices(np.zeros((5, 6)), 3, out)
