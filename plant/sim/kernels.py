@@ -1,16 +1,18 @@
-"""The plant's per-step arithmetic in C: every body's rotation matrix, the joints' springs, the photo-eye beams, the health check's first look.
+"""The plant's per-step arithmetic in C: every body's rotation matrix, the joints' springs, the photo-eye beams and
+the health check's first look.
 
 Each of these is a few dozen numpy calls on arrays of a few dozen rows, run every communication step, where a
 call's fixed cost is the cost (docs/performance.md): together they were about half of the plant's own Python per
-step.  In C (``plant/sim/kernels_c.c``, built at install) each is one pass over its rows.
+step.  In C (``plant/sim/kernels_c.c``, compiled by pip at install: after editing it, install again) each is one
+pass over its rows.
 
 Each kernel repeats the floating-point operations of its numpy reference, element by element and in the same
-order, and gives the same numbers to the bit (``tests/testkernels_c.py`` holds each to its reference on random
+order, and gives the same numbers to the bit (``tests/test_kernels.py`` holds each to its reference on random
 and edge-case inputs): the references stay where they were (:func:`plant.sim.rotations.rotvec_to_matrix`,
-:func:`plant.sim.joints.relinearized`, :func:`plant.sim.sensors.beams_blocked`) and say what is computed; a
-run's results are the same with either.  Two things are left to numpy to keep that so: the arccos of a joint's
-angle (numpy's own vectorised arccos differs from the C library's in the last bit) and the rare joint bent
-near half a turn (its rotation vector comes from the matrix's symmetric part).
+:func:`plant.sim.joints.relinearized`, :func:`plant.sim.sensors.beams_blocked`, ``plant.sim.health._all_clear``) and
+say what is computed; a run's results are the same with either.  Two things are left to numpy to keep that so:
+the arccos of a joint's angle (numpy's own vectorised arccos differs from the C library's in the last bit) and the
+rare joint bent near half a turn (its rotation vector comes from the matrix's symmetric part).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ typedef struct {
 } Arg;
 
 /* The buffer of `obj`, C-contiguous, of item `format` ('d', 'q' or '?'), `ndim` dimensions with the
- * given sizes (-1: any); its first dimension is returned in *n when n is given. */
+ * given sizes (-1: any). */
 static int get_array(PyObject *obj, Arg *arg, const char *name, char format, int ndim, const Py_ssize_t *shape,
                      int writable) {
     int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
