@@ -58,6 +58,13 @@ static void release(Arg *args, int n) {
 #define B(a) ((unsigned char *)(a).view.buf)
 #define LEN(a) ((a).view.shape[0])
 
+/* True when joint j's bodies are among the nb bodies; an IndexError naming them otherwise. */
+static int joint_in_range(Py_ssize_t j, int64_t ia, int64_t ib, Py_ssize_t nb) {
+    if (ia >= 0 && ia < nb && ib >= 0 && ib < nb) return 1;
+    PyErr_Format(PyExc_IndexError, "joint %zd joins body %lld and %lld of %zd", j, (long long)ia, (long long)ib, nb);
+    return 0;
+}
+
 /* numpy's einsum over three products: two lanes, (p0 + p2) + p1 */
 static inline double sum3(double p0, double p1, double p2) { return (p0 + p2) + p1; }
 
@@ -139,11 +146,7 @@ static PyObject *joint_cosines(PyObject *self, PyObject *args) {
     double *rel = D(a[2]), *cs = D(a[3]);
     for (Py_ssize_t j = 0; j < nj; j++) {
         int64_t ia = jb[2 * j], ib = jb[2 * j + 1];
-        if (ia < 0 || ia >= nb || ib < 0 || ib >= nb) {
-            PyErr_Format(PyExc_IndexError, "joint %zd joins body %lld and %lld of %zd", j, (long long)ia,
-                         (long long)ib, nb);
-            goto fail;
-        }
+        if (!joint_in_range(j, ia, ib, nb)) goto fail;
         const double *ra = rot + 9 * ia, *rb = rot + 9 * ib;
         double *r = rel + 9 * j;
         for (int i = 0; i < 3; i++)
@@ -226,11 +229,7 @@ static PyObject *joint_springs(PyObject *self, PyObject *args) {
     for (Py_ssize_t j = 0; j < nj; j++) {
         const double *r = rel + 9 * j;
         int64_t ia = jb[2 * j], ib = jb[2 * j + 1];
-        if (ia < 0 || ia >= nb || ib < 0 || ib >= nb) {
-            PyErr_Format(PyExc_IndexError, "joint %zd joins body %lld and %lld of %zd", j, (long long)ia,
-                         (long long)ib, nb);
-            goto fail;
-        }
+        if (!joint_in_range(j, ia, ib, nb)) goto fail;
         /* the rotation vector (matrix_to_rotvec's second half) */
         double sn = sin(th[j]);
         double scale = sn < 1e-6 ? 0.5 + th[j] * th[j] / 12.0 : th[j] / (2.0 * sn);
